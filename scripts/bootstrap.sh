@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Idempotent setup: .venv with every dependency, magtune_core installed editable, ros2_ws built.
+# Re-runs are cheap: each step is skipped while its inputs are unchanged.
+set -euo pipefail
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+venv="$root/.venv"
+py=${PYTHON:-python3}
+
+if [ ! -x "$venv/bin/python" ]; then
+  if ! "$py" -m venv "$venv" 2>/dev/null; then
+    echo "bootstrap: '$py -m venv' failed; installing python3-venv (needs root/sudo)" >&2
+    if [ "$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq python3-venv >/dev/null
+    else sudo apt-get update -qq && sudo apt-get install -y -qq python3-venv >/dev/null; fi
+    rm -rf "$venv"; "$py" -m venv "$venv"
+  fi
+fi
+
+stamp="$venv/.magtune-deps"
+want=$(cat "$root/scripts/requirements.txt" "$root/pyproject.toml" | sha1sum | cut -d' ' -f1)
+if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+  echo "bootstrap: installing Python dependencies into .venv (about a minute on a new machine)" >&2
+  "$venv/bin/python" -m pip install -q --disable-pip-version-check -r "$root/scripts/requirements.txt"
+  "$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps -e "$root"
+  echo "$want" > "$stamp"
+fi
+
+# Build the ROS 2 workspace when its sources changed.
+if [ -d "$root/ros2_ws/src" ] && [ -n "$(ls -A "$root/ros2_ws/src" 2>/dev/null)" ]; then
+  wstamp="$root/ros2_ws/install/.magtune-src"
+  wwant=$(cd "$root/ros2_ws/src" && find . -type f -not -path '*/__pycache__/*' -print0 | sort -z | xargs -0 sha1sum | sha1sum | cut -d' ' -f1)
+  if [ "$(cat "$wstamp" 2>/dev/null)" != "$wwant" ]; then
+    echo "bootstrap: colcon build of ros2_ws" >&2
+    (cd "$root/ros2_ws" && PATH="$venv/bin:$PATH" "$venv/bin/colcon" build --symlink-install \
+        --event-handlers console_cohesion- summary- >/dev/null) \
+      || { echo "bootstrap: colcon build failed; see ros2_ws/log/latest_build" >&2; exit 1; }
+    echo "$wwant" > "$wstamp"
+  fi
+fi

@@ -1,0 +1,8 @@
+#!/usr/bin/env bash
+# The test command of the README: bootstrap (idempotent), then the whole pytest suite.
+set -euo pipefail
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+bash "$root/scripts/bootstrap.sh"
+cd "$root"
+. scripts/env.sh
+exec python -m pytest -q -ra "$@"
