@@ -73,10 +73,11 @@ def test_j2_nodal_regression_rate(incl):
     r, v = propagate(cfg, t)
     slope = np.polyfit(t, np.unwrap(raan(r, v)), 1)[0]
     expected = nodal_regression_rate(cfg)
-    # The analytic secular rate uses mean elements; the osculating initial circular state differs
-    # from the mean orbit by O(J2) (~1e-3 relative) and the short-period RAAN terms (2u) leave a
-    # residual slope over 5 orbits of ~1e-3 of the secular drift: 1 % is a safe bound.
-    assert slope == pytest.approx(expected, rel=1e-2)
+    # Measured: +0.78 % (87 deg), +0.73 % (51.6 deg). The first-order secular formula uses mean
+    # elements; the osculating circular initial state has a mean semi-major axis and mean motion
+    # that differ at O(J2) ~ 1e-3 (x 3.5 in the rate), and the short-period (2u) RAAN terms leave a
+    # small residual slope over 5 orbits. 1.5 % bounds these; a wrong J2 factor or sign is >= 100 %.
+    assert slope == pytest.approx(expected, rel=1.5e-2)
 
 
 def test_five_orbit_integration_error_vs_tight_run():
@@ -85,7 +86,7 @@ def test_five_orbit_integration_error_vs_tight_run():
     r, v = propagate(cfg, t)  # default rtol 1e-11, atol 1e-5 m
     r_ref, v_ref = propagate(cfg, t, rtol=1e-13, atol=1e-8)
     err = np.linalg.norm(r - r_ref)
-    # Measured ~1e-4 m after 5 orbits (28 000 s); attitude-relevant scale is km, so 1 cm is ample.
+    # Measured 0.8 mm (9e-7 m/s) after 5 orbits (28 000 s) vs rtol 1e-13; attitude needs ~km: 1 cm is ample.
     assert err < 1e-2, err
     assert np.linalg.norm(v - v_ref) < 1e-5
     # The dense Orbit ephemeris interpolates the same solution
@@ -101,7 +102,7 @@ def test_rk4_step_one_orbit():
     for _ in range(n):
         r, v = rk4_step(r, v, dt)
     r_ref, _ = propagate(cfg, np.array([dt * n]))
-    assert np.linalg.norm(r - r_ref[0]) < 1.0  # RK4 at 10 s: ~1e-2 m after one orbit (1 m bound)
+    assert np.linalg.norm(r - r_ref[0]) < 1.0  # RK4 at 10 s: measured 1.7 cm after one orbit (1 m bound)
 
 
 def test_energy_and_polar_momentum_conserved():
