@@ -1,7 +1,7 @@
 """Harris-Priester atmospheric density and the aerodynamic drag force/torque on a box.
 
-Density: modified Harris-Priester model as given by Montenbruck & Gill (2000), section 3.5.2,
-Table 3.8 (mean solar activity, 100-1000 km): exponential interpolation of the antapex and
+Density: modified Harris-Priester model as given by Montenbruck & Gill (2000), section 3.5
+(Harris-Priester coefficient table; mean solar activity, 100-1000 km): exponential interpolation of the antapex and
 apex densities between tabulated heights and the diurnal bulge
 
     rho = rho_min + (rho_max - rho_min) cos^n(psi/2),
@@ -10,7 +10,7 @@ psi the angle between the satellite position and the bulge apex, which lags the 
 in right ascension (at the Sun's declination); n = 2 for low and n = 6 for near-polar orbits
 (default here: 6, for the 87 deg orbit). Height is WGS-84 geodetic.
 
-Drag (flat-plate, free-molecular, M&G eq. 3.97 per face): each face with outward normal n and
+Drag (flat-plate, free-molecular, M&G sec. 3.5 applied per face): each face with outward normal n and
 area A, facing the relative wind (cos theta = n.v_hat > 0), takes
 F = -1/2 rho Cd A cos(theta) |v_r|^2 v_hat, applied at its centroid; v_r = v - w_E x r is the
 velocity relative to the co-rotating atmosphere. Face shadowing is irrelevant for a convex box.
@@ -21,7 +21,7 @@ import numpy as np
 
 from .earth import OMEGA_EARTH, geodetic_height
 
-#: heights [km] and min/max densities [g/km^3] of M&G Table 3.8 (Harris-Priester, mean solar activity)
+#: heights [km] and min/max densities [g/km^3] of M&G sec. 3.5 (Harris-Priester, mean solar activity)
 HP_HEIGHT_KM = np.array([
     100.0, 120.0, 130.0, 140.0, 150.0, 160.0, 170.0, 180.0, 190.0, 200.0,
     210.0, 220.0, 230.0, 240.0, 250.0, 260.0, 270.0, 280.0, 290.0, 300.0,

@@ -7,7 +7,7 @@ Conventions (documented simplifications, adequate for attitude-disturbance model
   difference between the frame of the epoch and EME2000 when positions are compared with
   external ephemerides (0.36 deg for 2026).
 * **ECEF** is obtained from ECI by a single rotation about Z by the Greenwich mean sidereal
-  angle (Montenbruck & Gill 2000, eq. 5.71 low-precision form). Polar motion is neglected and
+  angle (IAU 1982 GMST expression, linear part; Montenbruck & Gill 2000, ch. 5). Polar motion is neglected and
   UT1 = UTC (|UT1-UTC| < 0.9 s, i.e. < 0.004 deg of Earth rotation).
 * Time arguments: ``jd`` is a Julian date in UTC (also used as TT for the Sun, an error of 69 s,
   negligible for the low-precision solar position).
@@ -23,13 +23,13 @@ import numpy as np
 
 GM_EARTH = 3.986004415e14  #: JGM-3 gravitational parameter [m^3/s^2]
 R_EARTH = 6378.1363e3  #: JGM-3 reference radius [m]
-#: JGM-3 fully normalized zonal coefficients (M&G Table 3.3 / Tapley et al. 1996)
+#: JGM-3 fully normalized zonal coefficients (Tapley et al. 1996, as tabulated in Montenbruck & Gill 2000, ch. 3)
 C20_NORM, C30_NORM, C40_NORM = -4.841653717e-4, 0.9571612071e-6, 0.5399658667e-6
 #: un-normalized zonal harmonics J_n = -sqrt(2n+1) * C_n0(normalized)
 J2 = -np.sqrt(5.0) * C20_NORM  # 1.0826e-3
 J3 = -np.sqrt(7.0) * C30_NORM  # -2.5324e-6
 J4 = -3.0 * C40_NORM  # -1.6199e-6
-OMEGA_EARTH = 7.2921158553e-5  #: Earth rotation rate [rad/s] (M&G eq. 5.71 / IERS)
+OMEGA_EARTH = 7.2921158553e-5  #: Earth rotation rate [rad/s] (IERS)
 F_WGS84 = 1.0 / 298.257223563  #: WGS-84 flattening
 R_WGS84 = 6378.137e3  #: WGS-84 equatorial radius [m]
 
@@ -55,7 +55,7 @@ def decimal_year(jd) -> np.ndarray:
 def gmst(jd) -> np.ndarray:
     """Greenwich mean sidereal angle [rad] at UT1 Julian date(s) ``jd``.
 
-    Montenbruck & Gill (2000) eq. (5.71) without the T^2, T^3 terms (< 0.1 arcsec per century
+    IAU 1982 expression (Aoki et al. 1982; Montenbruck & Gill 2000, ch. 5) without the T^2, T^3 terms (< 0.1 arcsec per century
     squared): GMST = 280.4606 deg + 360.9856473 deg * (JD - 2451545.0).
     """
     d = np.asarray(jd, dtype=float) - JD_J2000
@@ -63,7 +63,7 @@ def gmst(jd) -> np.ndarray:
 
 
 def rot_z(angle) -> np.ndarray:
-    """Frame rotation R_z(angle) (M&G eq. 2.32 convention: coordinates in the rotated frame)."""
+    """Frame rotation R_z(angle) (passive convention: coordinates in the rotated frame)."""
     a = np.asarray(angle, dtype=float)
     c, s = np.cos(a), np.sin(a)
     R = np.zeros(a.shape + (3, 3))

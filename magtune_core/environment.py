@@ -12,7 +12,7 @@ simulator everything that depends on where the satellite is and when:
 
 Every function is array-in/array-out: leading axes of t, r, v, R broadcast (one step, or a whole
 trajectory for post-processing). Models: gravity gradient T = 3 GM/|r|^3 c x (I c), c the unit
-nadir vector in body axes (Wertz 1978, eq. 17-35; with the actual |r|, not W0);
+nadir vector in body axes (Wertz 1978, ch. 17; with the actual |r|, not W0);
 residual dipole T = m_res x b (1 A m^2 per body axis, the paper's unmeasured disturbance);
 drag and SRP from :mod:`atmosphere`, :mod:`srp` on the box of :mod:`geometry`; Sun from :mod:`sun`.
 """

@@ -14,7 +14,7 @@ exactly, so the torque is cp_offset x F_total (checked in tests).
 Surface coefficients: drag coefficient Cd = 2.2 (free-molecular flat plate, the usual
 value; Montenbruck & Gill 2000, 3.5.2). Optical: specular reflectivity 0.2, diffuse 0.1,
 absorptivity 0.7 (mix of solar cells and MLI), flat-plate SRP model of Wertz (1978) /
-M&G eq. (3.74) generalized with a diffuse term.
+M&G sec. 3.4 generalized with a diffuse term.
 """
 from __future__ import annotations
 

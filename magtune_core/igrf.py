@@ -6,8 +6,8 @@ read from the copy bundled with the PyPI package ``pyIGRF14`` (``src/igrf14coeff
 network access). Between model epochs the coefficients are interpolated linearly; after 2025.0
 they are extrapolated with the secular variation, as the IGRF definition prescribes.
 
-Evaluation: the Cartesian recursion of Montenbruck & Gill (2000), section 3.2.4-3.2.5,
-eqs. (3.29)-(3.33), written for the gravity potential, applied to the magnetic scalar potential
+Evaluation: the Cartesian recursion of Montenbruck & Gill (2000), section 3.2
+(recursions for V_nm, W_nm and the acceleration formulas), written for the gravity potential, applied to the magnetic scalar potential
 V = a sum_n (a/r)^(n+1) sum_m (g cos m lon + h sin m lon) P_n^m(sin lat) with
 a = 6371.2 km and B = -grad V. Schmidt functions relate to the unnormalized Legendre functions
 of M&G (no Condon-Shortley phase) by P_n^m = sqrt((2 - delta_m0) (n-m)!/(n+m)!) P_nm, so
@@ -92,7 +92,7 @@ class IGRF:
                 C[n, m], S[n, m] = f * g[n, m], f * h[n, m]
         self._C = C.tolist()
         self._S = S.tolist()
-        # (n-m+2)!/(n-m)! factors of M&G eq. (3.33)
+        # (n-m+2)!/(n-m)! factors of M&G's acceleration formulas
         self._fac = [[(n - m + 2) * (n - m + 1) for m in range(n + 1)] for n in range(degree + 1)]
 
     def ecef(self, r_ecef) -> np.ndarray:
@@ -104,7 +104,7 @@ class IGRF:
         return np.stack(b, axis=-1) * NT
 
     def _field(self, x, y, z):
-        """M&G eqs. (3.29)-(3.33) with R = a; x, y, z floats or arrays [m]; returns B [nT]."""
+        """M&G section 3.2 recursion with R = a; x, y, z floats or arrays [m]; returns B [nT]."""
         N = self.degree + 1  # V/W needed to degree N
         a = IGRF_RADIUS
         r2 = x * x + y * y + z * z

@@ -72,8 +72,8 @@ def initial_state(cfg: OrbitConfig) -> tuple[np.ndarray, np.ndarray]:
 def gravity_acceleration(r, zonal_degree: int = 2) -> np.ndarray:
     """Point-mass + zonal (J2, J3, J4) acceleration [m/s^2] at ECI positions ``r`` (..., 3) [m].
 
-    Closed forms of the gradient of U = GM/r [1 - sum_n J_n (R/r)^n P_n(z/r)] (e.g. Vallado,
-    Fundamentals of Astrodynamics, 4th ed., eqs. 8-30..8-32; checked in the tests against a
+    Closed forms of the gradient of U = GM/r [1 - sum_n J_n (R/r)^n P_n(z/r)] (standard zonal-harmonic
+    expressions, e.g. in Vallado, Fundamentals of Astrodynamics; checked in the tests against a
     numerical gradient of U). The Earth-fixed vs inertial distinction vanishes for zonal terms.
     """
     r = np.asarray(r, dtype=float)
@@ -231,7 +231,7 @@ def raan(r, v) -> np.ndarray:
 
 
 def nodal_regression_rate(cfg: OrbitConfig) -> float:
-    """Secular J2 RAAN rate [rad/s] of a circular orbit: -3/2 n J2 (R/a)^2 cos i (M&G eq. 3.76 with e = 0)."""
+    """Secular J2 RAAN rate [rad/s] of a circular orbit: -3/2 n J2 (R/a)^2 cos i (first-order secular theory, Brouwer 1959 / Kozai 1959, e = 0)."""
     a = cfg.semi_major_axis
     n = np.sqrt(GM_EARTH / a**3)
     return -1.5 * n * J2 * (R_EARTH / a) ** 2 * np.cos(np.deg2rad(cfg.inclination_deg))

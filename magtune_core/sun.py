@@ -11,16 +11,16 @@ from .earth import JD_J2000, R_EARTH
 
 AU = 149597870700.0  #: astronomical unit [m]
 OBLIQUITY_J2000 = np.deg2rad(23.43929111)  #: obliquity of the ecliptic at J2000 [rad]
-SOLAR_PRESSURE_1AU = 4.56e-6  #: solar radiation pressure at 1 AU, P = Phi/c = 1367/c [N/m^2] (M&G eq. 3.71)
+SOLAR_PRESSURE_1AU = 4.56e-6  #: solar radiation pressure at 1 AU, P = Phi/c = 1367/c [N/m^2] (M&G sec. 3.4)
 
 
 def sun_position(jd, of_date: bool = True) -> np.ndarray:
     """Geocentric Sun position [m] in ECI (equator/equinox of date if ``of_date``, else EME2000).
 
-    M&G eqs. (3.43)-(3.46): M = 357.5256 + 35999.049 T [deg],
+    M&G sec. 3.3.2: M = 357.5256 + 35999.049 T [deg],
     lambda = 282.9400 + M + 6892" sin M + 72" sin 2M, r = (149.619 - 2.499 cos M - 0.021 cos 2M) 1e6 km,
     rotated from the ecliptic by -epsilon about X. ``of_date`` adds the general precession in
-    longitude 1.3972 deg T (M&G, text after eq. 3.46), matching the ECI-of-date of :mod:`earth`
+    longitude 1.3972 deg T (M&G sec. 3.3.2), matching the ECI-of-date of :mod:`earth`
     (the obliquity change, 47" per century, is neglected).
     """
     T = (np.asarray(jd, dtype=float) - JD_J2000) / 36525.0
@@ -34,7 +34,7 @@ def sun_position(jd, of_date: bool = True) -> np.ndarray:
 
 
 def shadow_cylindrical(r_sat, r_sun) -> np.ndarray:
-    """Illumination factor nu in {0, 1} of the cylindrical Earth-shadow model (M&G eq. 3.79-3.80 region).
+    """Illumination factor nu in {0, 1} of the cylindrical Earth-shadow model (M&G sec. 3.4.2).
 
     nu = 0 when the satellite is behind the Earth (r.s_hat < 0) and within R_EARTH of the
     Earth-Sun line; otherwise 1. Penumbra is ignored (a ~8 s transition at 450 km).

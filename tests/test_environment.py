@@ -34,7 +34,7 @@ def test_gravity_gradient_vs_analytic():
     T = gravity_gradient_torque(r, R_bi, np.diag(I_DIAG))
     c = R_bi.T @ (-r / np.linalg.norm(r))
     Ixx, Iyy, Izz = I_DIAG
-    # Euler's form (Wertz 1978, eq. 17-35): T = 3 GM/r^3 [(Izz-Iyy) cy cz, (Ixx-Izz) cz cx, (Iyy-Ixx) cx cy]
+    # component form (Wertz 1978, ch. 17): T = 3 GM/r^3 [(Izz-Iyy) cy cz, (Ixx-Izz) cz cx, (Iyy-Ixx) cx cy]
     expected = k * np.array([(Izz - Iyy) * c[1] * c[2], (Ixx - Izz) * c[2] * c[0], (Iyy - Ixx) * c[0] * c[1]])
     assert np.allclose(T, expected, rtol=1e-12, atol=1e-20)
     # nominal attitude (principal axes = orbital axes): no torque
