@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from .earth import OMEGA_EARTH, geodetic_height
+from .vec import cross
 
 #: heights [km] and min/max densities [g/km^3] of M&G sec. 3.5 (Harris-Priester, mean solar activity)
 HP_HEIGHT_KM = np.array([
@@ -80,7 +81,7 @@ def relative_wind_eci(r_eci, v_eci) -> np.ndarray:
     """Velocity relative to the co-rotating atmosphere, v - w_E x r [m/s] (ECI axes)."""
     r = np.asarray(r_eci, dtype=float)
     w = np.array([0.0, 0.0, OMEGA_EARTH])
-    return np.asarray(v_eci, dtype=float) - np.cross(w, r)
+    return np.asarray(v_eci, dtype=float) - cross(w, r)
 
 
 def drag_force_torque(rho, v_rel_body, geometry):
@@ -96,5 +97,5 @@ def drag_force_torque(rho, v_rel_body, geometry):
     cos_t = np.clip(v_hat @ normals.T, 0.0, None)  # (..., 6)
     mag = -0.5 * np.asarray(rho, dtype=float)[..., None] * geometry.cd * areas * cos_t * (speed**2)[..., None]
     F_faces = mag[..., None] * v_hat[..., None, :]  # (..., 6, 3)
-    torque = np.sum(np.cross(centroids, F_faces), axis=-2)
+    torque = np.sum(cross(centroids, F_faces), axis=-2)
     return np.sum(F_faces, axis=-2), torque

@@ -3,6 +3,8 @@
 One object, :class:`Environment`, built from a frozen :class:`EnvironmentConfig`, gives the
 simulator everything that depends on where the satellite is and when:
 
+* ``env.sample(t)`` -> :class:`EnvironmentSample` (r, v, ECI->orbital rotation, orbital-frame
+  rate, IGRF field in ECI and orbital axes): everything that does not depend on the attitude;
 * ``env.orbit.state(t)`` -> (r_eci, v_eci): J2 (JGM-3) orbit, dense DOP853 ephemeris;
 * ``env.magnetic_field_eci(t, r_eci)`` -> b [T]: IGRF-14, degree 10 by default;
 * ``env.torques(t, r_eci, v_eci, R_bi, b_eci=None)`` -> dict of named body-axis torques [N m]:
@@ -27,11 +29,25 @@ from .atmosphere import drag_force_torque, harris_priester, relative_wind_eci
 from .earth import GM_EARTH
 from .geometry import BoxGeometry
 from .igrf import IGRF
-from .orbit import Orbit, OrbitConfig, eci_to_orbital
+from .orbit import Orbit, OrbitConfig, eci_to_orbital, orbital_rate
 from .srp import srp_force_torque
 from .sun import shadow_cylindrical, sun_position
+from .vec import cross
 
 TORQUE_NAMES = ("gravity_gradient", "residual_dipole", "drag", "srp")
+
+
+@dataclass(frozen=True)
+class EnvironmentSample:
+    """Everything attitude-independent at time t (arrays with leading axes of t)."""
+
+    t: np.ndarray
+    r_eci: np.ndarray  #: position [m]
+    v_eci: np.ndarray  #: velocity [m/s]
+    R_eci_to_orbital: np.ndarray  #: (..., 3, 3), x_orb = R @ x_eci
+    orbital_rate: np.ndarray  #: inertial rate of the orbital frame in orbital axes [rad/s] (~[0, 0, -W0])
+    b_eci: np.ndarray  #: IGRF field [T]
+    b_orbital: np.ndarray  #: IGRF field in orbital axes [T]
 
 
 @dataclass(frozen=True)
@@ -88,12 +104,12 @@ def gravity_gradient_torque(r_eci, R_bi, inertia) -> np.ndarray:
     rn = np.linalg.norm(r, axis=-1)
     c = _to_body(R_bi, -r / rn[..., None])
     Ic = np.einsum("ij,...j->...i", np.asarray(inertia, dtype=float), c)
-    return (3.0 * GM_EARTH / rn**3)[..., None] * np.cross(c, Ic)
+    return (3.0 * GM_EARTH / rn**3)[..., None] * cross(c, Ic)
 
 
 def residual_dipole_torque(m_res, b_body) -> np.ndarray:
     """T = m_res x b [N m]; m_res [A m^2], b [T] in body axes."""
-    return np.cross(np.asarray(m_res, dtype=float), np.asarray(b_body, dtype=float))
+    return cross(np.asarray(m_res, dtype=float), np.asarray(b_body, dtype=float))
 
 
 class Environment:
@@ -112,6 +128,15 @@ class Environment:
     def magnetic_field_eci(self, t, r_eci) -> np.ndarray:
         """IGRF field [T] in ECI at time(s) t [s after epoch] and ECI position(s) [m]."""
         return self.igrf.eci(r_eci, self.jd(t))
+
+    def sample(self, t) -> EnvironmentSample:
+        """Orbit state, orbital frame and rate, and IGRF field at time(s) t [s after epoch]."""
+        t = np.asarray(t, dtype=float)
+        r, v = self.orbit.state(t)
+        R_oi = eci_to_orbital(r, v)
+        b = self.magnetic_field_eci(t, r)
+        return EnvironmentSample(t, r, v, R_oi, orbital_rate(r, v, zonal_degree=self.config.orbit.zonal_degree), b,
+                                 np.einsum("...ij,...j->...i", R_oi, b))
 
     def magnetic_field_body(self, t, r_eci, R_bi) -> np.ndarray:
         """IGRF field [T] in body axes (what an ideal magnetometer measures)."""

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from .sun import AU, SOLAR_PRESSURE_1AU
+from .vec import cross
 
 
 def srp_force_torque(sun_dir_body, sun_distance, shadow, geometry):
@@ -31,5 +32,5 @@ def srp_force_torque(sun_dir_body, sun_distance, shadow, geometry):
     w = -P[..., None] * areas * cos_t  # (..., 6)
     F_faces = w[..., None] * ((1.0 - es) * s[..., None, :]
                               + (2.0 * (es * cos_t + ed / 3.0))[..., None] * normals)
-    torque = np.sum(np.cross(centroids, F_faces), axis=-2)
+    torque = np.sum(cross(centroids, F_faces), axis=-2)
     return np.sum(F_faces, axis=-2), torque

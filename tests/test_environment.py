@@ -196,3 +196,24 @@ def test_torque_free_rigid_body_with_wheel_conserves_energy_and_momentum():
     # tolerance: integrator rtol 1e-11 over ~300 nutation periods -> drift ~1e-9 relative
     assert np.ptp(E) / E[0] < 1e-8
     assert np.max(np.linalg.norm(H - H[0], axis=-1)) / np.linalg.norm(H[0]) < 1e-8
+
+
+def test_environment_sample_is_consistent(env):
+    t = np.array([10.0, 2000.0])
+    s = env.sample(t)
+    r, v = env.orbit.state(t)
+    assert np.allclose(s.r_eci, r) and np.allclose(s.R_eci_to_orbital, eci_to_orbital(r, v))
+    assert np.allclose(s.b_orbital, np.einsum("nij,nj->ni", s.R_eci_to_orbital, s.b_eci))
+    assert np.allclose(s.orbital_rate[:, 2], -2 * np.pi / 5615.0, rtol=5e-3)
+    # dipole-like field at the ascending node: mostly along-track, |b| ~ 20-30 uT at 450 km
+    s0 = env.sample(0.0)
+    assert abs(s0.b_orbital[1]) > abs(s0.b_orbital[0]) and 15e-6 < np.linalg.norm(s0.b_orbital) < 35e-6
+
+
+def test_vec_cross_matches_numpy():
+    from magtune_core.vec import cross
+
+    rng = np.random.default_rng(7)
+    a, b = rng.normal(size=(4, 6, 3)), rng.normal(size=(6, 3))
+    assert np.allclose(cross(a, b), np.cross(a, b), atol=1e-15)
+    assert np.allclose(cross(a[0, 0], b[1]), np.cross(a[0, 0], b[1]), atol=1e-15)
