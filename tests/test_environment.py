@@ -217,3 +217,14 @@ def test_vec_cross_matches_numpy():
     a, b = rng.normal(size=(4, 6, 3)), rng.normal(size=(6, 3))
     assert np.allclose(cross(a, b), np.cross(a, b), atol=1e-15)
     assert np.allclose(cross(a[0, 0], b[1]), np.cross(a[0, 0], b[1]), atol=1e-15)
+
+
+def test_geodetic_height_roundtrip():
+    from magtune_core.earth import F_WGS84, geodetic_height
+
+    e2 = F_WGS84 * (2 - F_WGS84)
+    for lat_deg, h in [(0.0, 450e3), (37.0, 450e3), (-63.0, 430e3), (86.9, 470e3), (90.0, 450e3)]:
+        lat = np.radians(lat_deg)
+        N = R_WGS84 / np.sqrt(1 - e2 * np.sin(lat) ** 2)
+        r = np.array([(N + h) * np.cos(lat), 0.0, (N * (1 - e2) + h) * np.sin(lat)])
+        assert geodetic_height(r) == pytest.approx(h, abs=1e-3)  # 1 mm: Bowring + refinement
