@@ -121,6 +121,25 @@ class Environment:
         self.jd0 = self.orbit.jd0
         self.igrf = IGRF(self.jd0, self.config.igrf_degree)
         self._inertia = self.config.inertia_matrix
+        self._cache: dict = {}  # scalar t -> (r, v, R_oi, sun): RK4 stages ask for the same t twice
+
+    def _at(self, t: float):
+        """Attitude-independent quantities at scalar t, memoized for the last few times:
+        (r, v, R_eci_to_orbital, b_orbital, rho, v_rel_eci, sat->Sun vector, Sun distance, shadow)."""
+        hit = self._cache.get(t)
+        if hit is None:
+            cfg = self.config
+            r, v = self.orbit.state(t)
+            R_oi = eci_to_orbital(r, v)
+            sun = self.sun_eci(t)
+            d = sun - r
+            hit = (r, v, R_oi, R_oi @ self.magnetic_field_eci(t, r),
+                   harris_priester(r, sun, cfg.hp_exponent) if cfg.drag else 0.0, relative_wind_eci(r, v),
+                   d, float(np.linalg.norm(d)), shadow_cylindrical(r, sun))
+            if len(self._cache) >= 8:
+                self._cache.pop(next(iter(self._cache)))
+            self._cache[t] = hit
+        return hit
 
     def jd(self, t) -> np.ndarray:
         return self.orbit.jd(t)
@@ -168,20 +187,59 @@ class Environment:
         else:
             out["residual_dipole"] = zero
         sun = self.sun_eci(t) if (cfg.drag or cfg.srp) else None
-        if cfg.drag:
-            rho = harris_priester(r, sun, cfg.hp_exponent)
-            out["drag"] = drag_force_torque(rho, _to_body(R_bi, relative_wind_eci(r, v)), cfg.geometry)[1]
-        else:
-            out["drag"] = zero
-        if cfg.srp:
-            d = sun - r
-            dist = np.linalg.norm(d, axis=-1)
-            nu = shadow_cylindrical(r, sun)
-            out["srp"] = srp_force_torque(_to_body(R_bi, d), dist, nu, cfg.geometry)[1]
-        else:
-            out["srp"] = zero
+        out["drag"] = self._drag(r, v, R_bi, sun) if cfg.drag else zero
+        out["srp"] = self._srp(r, R_bi, sun) if cfg.srp else zero
         out["total"] = out["gravity_gradient"] + out["residual_dipole"] + out["drag"] + out["srp"]
         return out
+
+
+    def _drag(self, r, v, R_bi, sun):
+        rho = harris_priester(r, sun, self.config.hp_exponent)
+        return drag_force_torque(rho, _to_body(R_bi, relative_wind_eci(r, v)), self.config.geometry)[1]
+
+    def _srp(self, r, R_bi, sun):
+        d = sun - r
+        return srp_force_torque(_to_body(R_bi, d), np.linalg.norm(d, axis=-1), shadow_cylindrical(r, sun),
+                                self.config.geometry)[1]
+
+    def field_orbital(self, t) -> np.ndarray:
+        """IGRF field [T] in orbital axes along the orbit at time(s) t: a ``field(t)`` callable for
+        ``dynamics.AttitudeDynamics`` (which takes b in orbital axes)."""
+        if np.ndim(t) == 0:
+            return self._at(float(t))[3].copy()
+        r, v = self.orbit.state(t)
+        return np.einsum("...ij,...j->...i", eci_to_orbital(r, v), self.magnetic_field_eci(t, r))
+
+    def disturbance_fn(self, include=("residual_dipole", "drag", "srp")):
+        """Plug-in torque ``(t, q, w, b_body) -> T_body`` [N m] for ``dynamics.AttitudeDynamics``.
+
+        ``q`` is the body-w.r.t.-orbital quaternion (scalar first); ``b_body`` the field the
+        dynamics already computed (used for the residual dipole, so IGRF is not evaluated twice).
+        Gravity gradient is excluded by default because that rigid-body model contains its own
+        (circular-orbit, 3 W0^2) term; include "gravity_gradient" (and switch theirs off) to use
+        the actual 3 GM/|r|^3. Names not in ``include`` or switched off in the config are skipped.
+        """
+        unknown = set(include) - set(TORQUE_NAMES)
+        if unknown:
+            raise ValueError(f"unknown torque name(s) {sorted(unknown)}; expected some of {TORQUE_NAMES}")
+        cfg = self.config
+        on = {k for k in include if getattr(cfg, k)}
+        m_res = np.asarray(cfg.residual_moment, dtype=float)
+
+        def torque(t, q, w, b_body):
+            total = residual_dipole_torque(m_res, b_body) if "residual_dipole" in on else np.zeros(3)
+            if on - {"residual_dipole"}:
+                r, _, R_oi, _, rho, v_rel, d, dist, nu = self._at(float(t))
+                R_bi = R_oi.T @ quat_to_dcm(q)
+                if "gravity_gradient" in on:
+                    total = total + gravity_gradient_torque(r, R_bi, self._inertia)
+                if "drag" in on:
+                    total = total + drag_force_torque(rho, R_bi.T @ v_rel, cfg.geometry)[1]
+                if "srp" in on:
+                    total = total + srp_force_torque(R_bi.T @ d, dist, nu, cfg.geometry)[1]
+            return total
+
+        return torque
 
 
 @lru_cache(maxsize=4)

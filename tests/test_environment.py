@@ -228,3 +228,34 @@ def test_geodetic_height_roundtrip():
         N = R_WGS84 / np.sqrt(1 - e2 * np.sin(lat) ** 2)
         r = np.array([(N + h) * np.cos(lat), 0.0, (N * (1 - e2) + h) * np.sin(lat)])
         assert geodetic_height(r) == pytest.approx(h, abs=1e-3)  # 1 mm: Bowring + refinement
+
+
+def test_disturbance_adapter_matches_torques(env):
+    t, q = 777.0, _quat([0.2, 1.0, -0.4], 0.3)
+    r, v = env.orbit.state(t)
+    R_bi = body_to_eci(q, r, v)
+    T = env.torques(t, r, v, R_bi)
+    b_body = R_bi.T @ env.magnetic_field_eci(t, r)
+    f_all = env.disturbance_fn(include=TORQUE_NAMES)
+    assert np.allclose(f_all(t, q, None, b_body), T["total"], rtol=1e-12, atol=1e-22)
+    f_default = env.disturbance_fn()  # no gravity gradient: the rigid-body model has its own
+    assert np.allclose(f_default(t, q, None, b_body), T["total"] - T["gravity_gradient"], rtol=1e-12, atol=1e-22)
+    assert np.allclose(env.field_orbital(t), eci_to_orbital(r, v) @ env.magnetic_field_eci(t, r), atol=1e-18)
+    with pytest.raises(ValueError):
+        env.disturbance_fn(include=("aero",))
+
+
+def test_plugs_into_attitude_dynamics(env):
+    """Runs once magtune_core/dynamics.py (ROS helper's branch) is merged: the environment's
+    field and disturbance plug-ins drive AttitudeDynamics.rhs, adding exactly I^-1 T_dist."""
+    dyn = pytest.importorskip("magtune_core.dynamics")
+    p = SpacecraftParams()
+    base = dyn.AttitudeDynamics(p.inertia, p.wheel_momentum, p.orbit_rate, env.field_orbital)
+    full = dyn.AttitudeDynamics(p.inertia, p.wheel_momentum, p.orbit_rate, env.field_orbital,
+                                [env.disturbance_fn()])
+    y = np.r_[_quat([1, 1, 0], 0.05), 1e-3, 2e-3, -p.orbit_rate]
+    t = 321.0
+    q = y[:4]
+    b_body = quat_to_dcm(q).T @ env.field_orbital(t)
+    T = env.disturbance_fn()(t, q, None, b_body)
+    assert np.allclose(full.rhs(t, y) - base.rhs(t, y), np.r_[np.zeros(4), T / I_DIAG], rtol=1e-9, atol=1e-18)
