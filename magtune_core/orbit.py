@@ -189,6 +189,12 @@ class Orbit:
         return y[:3].T.reshape(t.shape + (3,)), y[3:].T.reshape(t.shape + (3,))
 
 
+    def frame(self, t) -> tuple[np.ndarray, np.ndarray]:
+        """(R_eci_to_orbital (..., 3, 3), orbital-frame inertial rate in orbital axes (..., 3)) at t [s]."""
+        r, v = self.state(t)
+        return eci_to_orbital(r, v), orbital_rate(r, v, zonal_degree=self.cfg.zonal_degree)
+
+
 def eci_to_orbital(r, v) -> np.ndarray:
     """Rotation matrices ECI -> orbital axes, shape (..., 3, 3): x_orb = R @ x_eci (rows X, Y, Z)."""
     r = np.asarray(r, dtype=float)

@@ -114,3 +114,12 @@ def test_energy_and_polar_momentum_conserved():
     hz = np.cross(r, v)[:, 2]
     assert np.ptp(E) / abs(E[0]) < 1e-10  # integrator rtol 1e-11
     assert np.ptp(hz) / abs(np.linalg.norm(np.cross(r[0], v[0]))) < 1e-10
+
+
+def test_orbit_frame_vectorized():
+    orbit = Orbit(OrbitConfig(), duration=2000.0)
+    t = np.array([[0.0, 500.0], [1000.0, 1500.0]])
+    R, w = orbit.frame(t)
+    assert R.shape == (2, 2, 3, 3) and w.shape == (2, 2, 3)
+    r, v = orbit.state(1000.0)
+    assert np.allclose(R[1, 0], eci_to_orbital(r, v)) and np.allclose(w[1, 0], orbital_rate(r, v))
