@@ -1,0 +1,203 @@
+"""Fit a periodic design-model field b(t) (orbital axes) to IGRF along the real orbit.
+
+``magtune fit-field --altitude 450 --inclination 87 [--harmonics 2] --out config/field_model.yaml``
+(also ``python -m magtune_core.fitfield ...``).
+
+Method: propagate the J2 orbit of :mod:`orbit` for ``days`` days (default 3: ~46 orbits, the
+Earth turns under the orbit 3 times, so the fit averages over longitude), sample the IGRF-14
+field (degree 10) in orbital axes every ``step`` seconds, and fit by linear least squares
+
+    b(u) = mean + sum_{k=1..H} [cos_k cos(k u) + sin_k sin(k u)]
+
+against the argument of latitude u (angle from the ascending node). With t counted from an
+ascending-node crossing, u = W t, W the mean nodal rate measured from the samples, so the result
+is a :class:`magtune_core.field.FourierField` with ``omega = W`` - the same form as the paper's
+eq. (26) (whose t = 0 is thus read as the ascending node). The longitude-dependent part of the
+field (tilted dipole, higher degrees) is what the periodic model cannot represent: it is the fit
+residual, reported as RMS per axis.
+
+Output file (ROS 2 parameter layout, loadable by :func:`load_field_model` and by any node)::
+
+    /**:
+      ros__parameters:
+        field_fourier_omega: 0.00111...          # rad/s
+        field_fourier_harmonics: 2
+        field_fourier_mean: [bx, by, bz]         # T
+        field_fourier_cos: [c1x, c1y, c1z, c2x, ...]   # T, row-major (harmonic k, axis)
+        field_fourier_sin: [s1x, s1y, s1z, s2x, ...]   # T
+        field_fit_rms: [rx, ry, rz]              # T, residual RMS per axis
+        field_fit_*: provenance (altitude, inclination, IGRF degree, epoch, days, step)
+
+ROS 2 parameters cannot hold nested lists, hence the flattened (H*3) coefficient arrays.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+
+from .field import FourierField
+from .igrf import IGRF
+from .orbit import DEFAULT_EPOCH, Orbit, OrbitConfig, argument_of_latitude, eci_to_orbital
+from .params import ConfigError, get_float, get_vector, read_ros_params
+
+
+@dataclass(frozen=True)
+class FitReport:
+    """Quality of a periodic fit: residual RMS and max per orbital axis [T], over the samples."""
+
+    rms: np.ndarray
+    max_abs: np.ndarray
+    field_rms: np.ndarray  #: RMS of the IGRF samples themselves per axis [T]
+    n_samples: int
+    days: float
+    omega: float
+    harmonics: int
+
+    @property
+    def rms_total(self) -> float:
+        return float(np.sqrt(np.sum(self.rms**2)))
+
+    def markdown(self) -> str:
+        ax = "XYZ"
+        rows = ["| axis | IGRF RMS [uT] | fit residual RMS [uT] | max residual [uT] |", "|---|---|---|---|"]
+        for i in range(3):
+            rows.append(f"| {ax[i]} | {self.field_rms[i] * 1e6:.2f} | {self.rms[i] * 1e6:.2f} | {self.max_abs[i] * 1e6:.2f} |")
+        return "\n".join(rows)
+
+
+def sample_igrf_along_orbit(orbit_cfg: OrbitConfig, days: float = 3.0, step: float = 20.0, degree: int = 10):
+    """(t [s], u [rad], b_orbital [T] (N, 3)) of IGRF along the propagated orbit."""
+    t = np.arange(0.0, days * 86400.0 + 0.5 * step, step)
+    orbit = Orbit(orbit_cfg, duration=float(t[-1]) + step)
+    r, v = orbit.state(t)
+    igrf = IGRF(orbit.jd0, degree)
+    b_eci = igrf.eci(r, orbit.jd(t))
+    b_orb = np.einsum("nij,nj->ni", eci_to_orbital(r, v), b_eci)
+    return t, argument_of_latitude(r, v), b_orb
+
+
+def fit_fourier(u, b, harmonics: int):
+    """Least-squares (mean (3,), cos (H, 3), sin (H, 3), residual (N, 3)) of b(u)."""
+    u = np.asarray(u, dtype=float)
+    k = np.arange(1, harmonics + 1)
+    A = np.hstack([np.ones((u.size, 1)), np.cos(np.outer(u, k)), np.sin(np.outer(u, k))])
+    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+    return coef[0], coef[1:harmonics + 1], coef[harmonics + 1:], b - A @ coef
+
+
+def fit_field(altitude: float = 450e3, inclination_deg: float = 87.0, harmonics: int = 2, days: float = 3.0,
+              step: float = 20.0, degree: int = 10, epoch=DEFAULT_EPOCH, raan_deg: float = 0.0):
+    """Fit IGRF along the orbit; returns (FourierField with omega = mean nodal rate, FitReport)."""
+    if harmonics < 1:
+        raise ValueError("harmonics must be >= 1")
+    cfg = OrbitConfig(altitude=altitude, inclination_deg=inclination_deg, raan_deg=raan_deg, epoch=epoch,
+                      rtol=1e-10, atol=1e-3)
+    t, u, b = sample_igrf_along_orbit(cfg, days, step, degree)
+    omega = float(np.polyfit(t, np.unwrap(u), 1)[0])
+    mean, cos, sin, res = fit_fourier(u, b, harmonics)
+    report = FitReport(rms=np.sqrt(np.mean(res**2, axis=0)), max_abs=np.max(np.abs(res), axis=0),
+                       field_rms=np.sqrt(np.mean(b**2, axis=0)), n_samples=t.size, days=days, omega=omega,
+                       harmonics=harmonics)
+    name = f"igrf_fit_{altitude / 1e3:g}km_{inclination_deg:g}deg_h{harmonics}"
+    return FourierField(omega, mean=mean, cos=cos, sin=sin, name=name), report
+
+
+def _fmt(values) -> str:
+    return "[" + ", ".join(f"{float(x):.6e}" for x in np.ravel(values)) + "]"
+
+
+def write_field_model(path, field: FourierField, report: FitReport, meta: dict) -> None:
+    """Write the fitted field as a ROS 2 parameter file (layout in the module docstring)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lines = [
+        "# Periodic geomagnetic field model in orbital axes (X nadir, Y along-track, Z = -orbit normal),",
+        "# b(t) = mean + sum_k cos_k cos(k omega t) + sin_k sin(k omega t), t from an ascending-node crossing.",
+        "# Least-squares fit of IGRF-14 along the J2 orbit: `magtune fit-field` (magtune_core/fitfield.py).",
+        f"# Residual RMS per axis [uT]: {', '.join(f'{x * 1e6:.2f}' for x in report.rms)}",
+        "/**:",
+        "  ros__parameters:",
+        f"    field_fourier_omega: {field.omega:.12e}   # mean nodal rate [rad/s] (period {field.period:.1f} s)",
+        f"    field_fourier_harmonics: {field.cos.shape[0]}",
+        f"    field_fourier_mean: {_fmt(field.mean)}   # [T]",
+        f"    field_fourier_cos: {_fmt(field.cos)}   # [T], row-major (harmonic, axis)",
+        f"    field_fourier_sin: {_fmt(field.sin)}   # [T], row-major (harmonic, axis)",
+        f"    field_fit_rms: {_fmt(report.rms)}   # [T]",
+    ]
+    for key, val in meta.items():
+        lines.append(f"    field_fit_{key}: {val!r}" if isinstance(val, str) else f"    field_fit_{key}: {val}")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def load_field_model(path) -> FourierField:
+    """Read a file written by :func:`write_field_model` back into a FourierField."""
+    p = read_ros_params(path)
+    omega = get_float(p, "field_fourier_omega", path, positive=True)
+    if "field_fourier_harmonics" not in p or not isinstance(p["field_fourier_harmonics"], int) \
+            or p["field_fourier_harmonics"] < 1:
+        raise ConfigError(path, "field_fourier_harmonics", "expected a positive integer")
+    H = p["field_fourier_harmonics"]
+    mean = get_vector(p, "field_fourier_mean", path, 3)
+    cos = get_vector(p, "field_fourier_cos", path, 3 * H).reshape(H, 3)
+    sin = get_vector(p, "field_fourier_sin", path, 3 * H).reshape(H, 3)
+    return FourierField(omega, mean=mean, cos=cos, sin=sin, name=f"file:{Path(path).name}")
+
+
+def _parse_epoch(text: str) -> datetime:
+    try:
+        return datetime.fromisoformat(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an ISO date/time like 2026-03-20T00:00:00, got {text!r}") from None
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Register ``fit-field`` on an argparse subparsers object (``magtune`` CLI)."""
+    p = subparsers.add_parser("fit-field", help="fit a periodic b(t) in orbital axes to IGRF along the orbit",
+                              description=__doc__.split("\n\n")[0])
+    p.add_argument("--altitude", type=float, default=450.0, help="circular-orbit altitude [km] (default 450)")
+    p.add_argument("--inclination", type=float, default=87.0, help="inclination [deg] (default 87)")
+    p.add_argument("--harmonics", type=int, default=2, help="harmonics of the orbital rate (default 2)")
+    p.add_argument("--days", type=float, default=3.0, help="days of orbit to average over (default 3)")
+    p.add_argument("--step", type=float, default=20.0, help="sampling step [s] (default 20)")
+    p.add_argument("--degree", type=int, default=10, help="IGRF degree/order (default 10, as in the paper)")
+    p.add_argument("--raan", type=float, default=0.0, help="RAAN at epoch [deg] (default 0)")
+    p.add_argument("--epoch", type=_parse_epoch, default=DEFAULT_EPOCH, help="UTC epoch, ISO format (default 2026-03-20)")
+    p.add_argument("--out", default="config/field_model.yaml", help="output ROS 2 parameter file")
+    p.set_defaults(func=run_fit_field)
+    return p
+
+
+def run_fit_field(args) -> int:
+    """Handler of ``magtune fit-field``: fit, print the report, write the file. Returns an exit code."""
+    if args.harmonics < 1 or args.days <= 0 or args.step <= 0 or not 1 <= args.degree <= 13:
+        print("fit-field: need --harmonics >= 1, --days > 0, --step > 0, 1 <= --degree <= 13", file=sys.stderr)
+        return 2
+    field, report = fit_field(args.altitude * 1e3, args.inclination, args.harmonics, args.days, args.step,
+                              args.degree, args.epoch, args.raan)
+    meta = dict(altitude=args.altitude * 1e3, inclination=args.inclination, igrf_degree=args.degree,
+                days=args.days, step=args.step, raan=args.raan, epoch=args.epoch.isoformat())
+    write_field_model(args.out, field, report, meta)
+    print(f"fit-field: {report.n_samples} IGRF-14 samples over {args.days:g} d, nodal period {field.period:.1f} s")
+    print(report.markdown())
+    print(f"wrote {args.out}")
+    return 0
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m magtune_core.fitfield")
+    sub = parser.add_subparsers(dest="command")
+    add_parser(sub)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] != "fit-field":
+        argv = ["fit-field"] + argv
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
