@@ -18,7 +18,7 @@ from .model import AttitudeLTP
 from .params import ConfigError, load_spacecraft
 
 DEFAULT_CONFIG = "config/spacecraft.yaml"
-COMMAND_MODULES: tuple[str, ...] = ()
+COMMAND_MODULES: tuple[str, ...] = ("fitfield",)
 PAPER_TABLE1 = {60: (239.19, 12072.45, 0.00283), 120: (283.96, 11039.75, 0.00345), 240: (399.32, 9348.98, 0.00598)}
 ANALYSIS_STEPS = 128  # Magnus intervals for reported figures (~1e-5 relative, see bench/)
 
@@ -35,7 +35,7 @@ def cmd_tune(args) -> int:
 
     model = _model(args)
     settings = TunerSettings(samples=args.samples, r_max=args.r_max, mu=args.mu, workers=args.workers,
-                             max_iter=args.max_iter)
+                             max_iter=args.max_iter, patience=args.patience)
     bar = tqdm(desc=f"tune sigma={args.sigma:g}", unit="it", disable=args.quiet, file=sys.stderr)
 
     def progress(it, J, r, mu, nb):
@@ -120,6 +120,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--r-max", type=float, default=0.995, help="stop when the rejection ratio reaches this")
     t.add_argument("--mu", type=float, default=1e-3, help="initial step size")
     t.add_argument("--max-iter", type=int, default=300)
+    t.add_argument("--patience", type=int, default=1,
+                   help="stop at the P-th consecutive iteration with r >= r_max (1 = the paper's rule)")
     t.add_argument("--workers", type=int, default=1, help="processes evaluating candidates")
     t.add_argument("--ts", type=float, default=1.0, help="controller sampling period written to the file [s]")
     t.add_argument("--field-model", choices=("eq26", "eq26_literal", "constant"))
