@@ -19,8 +19,9 @@ stamp="$venv/.magtune-deps"
 want=$(cat "$root/scripts/requirements.txt" "$root/pyproject.toml" | sha1sum | cut -d' ' -f1)
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   echo "bootstrap: installing Python dependencies into .venv (about a minute on a new machine)" >&2
-  "$venv/bin/python" -m pip install -q --disable-pip-version-check -r "$root/scripts/requirements.txt"
-  "$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps -e "$root"
+  quiet() { grep -v "is ignored: it is neither a file nor a directory" >&2 || true; }
+  "$venv/bin/python" -m pip install -q --disable-pip-version-check -r "$root/scripts/requirements.txt" 2> >(quiet)
+  "$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps -e "$root" 2> >(quiet)
   echo "$want" > "$stamp"
 fi
 
