@@ -215,6 +215,15 @@ def run(node_cls, args=None) -> int:
     A ParamError (or an rcl parameter-file error) prints one line and returns 2.
     """
     prog = node_cls.NODE_NAME
+    argv = list(sys.argv if args is None else args)
+    for i, a in enumerate(argv[:-1]):  # check parameter files first: one clear line instead of rcl's
+        if a == "--params-file":
+            from magtune_core.params import ConfigError, read_ros_params
+            try:
+                read_ros_params(argv[i + 1])
+            except ConfigError as exc:
+                print(f"{prog}: {exc}", file=sys.stderr)
+                return 2
     try:
         rclpy.init(args=args)
     except Exception as exc:  # malformed --params-file etc.
