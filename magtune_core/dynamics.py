@@ -123,6 +123,16 @@ class AttitudeDynamics:
         self._I = tuple(tuple(float(v) for v in r) for r in self.inertia)
         self._J = tuple(tuple(float(v) for v in r) for r in self.inertia_inv)
         self._h = tuple(float(v) for v in self.wheel_momentum)
+        self._field_cache: dict = {}
+
+    def field_at(self, t: float):
+        """b_orb(t) as three floats, memoized for the few instants an RK4 step revisits."""
+        v = self._field_cache.get(t)
+        if v is None:
+            if len(self._field_cache) > 8:
+                self._field_cache.clear()
+            v = self._field_cache[t] = tuple(float(x) for x in np.asarray(self.field(t), dtype=float).reshape(3))
+        return v
 
     @classmethod
     def from_params(cls, p: SpacecraftParams, field: FieldFn | None = None,
@@ -164,7 +174,7 @@ class AttitudeDynamics:
         r20, r21, r22 = 2 * (a1 * a3 - a0 * a2), 2 * (a2 * a3 + a0 * a1), a0 * a0 - a1 * a1 - a2 * a2 + a3 * a3
         tx = ty = tz = 0.0
         if m is not None or self.disturbances:
-            fo0, fo1, fo2 = self.field(t)
+            fo0, fo1, fo2 = self.field_at(t)
             b = np.array([r00 * fo0 + r10 * fo1 + r20 * fo2,
                           r01 * fo0 + r11 * fo1 + r21 * fo2,
                           r02 * fo0 + r12 * fo1 + r22 * fo2])

@@ -159,8 +159,6 @@ class Simulator(Node):
         b = self.dyn.body_field(k * self.ts, y[:4])
         self.Y[k], self.B[k] = y, b
         self.X[k] = linear_state(y[:4], y[4:], self.dyn.orbit_rate)
-        self.msg_clock.clock = stamp
-        self.pub_clock.publish(self.msg_clock)
         m = self.msg_truth
         m.header.stamp = stamp
         o = m.pose.pose.orientation
@@ -174,6 +172,10 @@ class Simulator(Node):
         self.t_publish = time.perf_counter()
         self.pub_truth.publish(m)
         self.pub_field.publish(f)
+        # /clock right after the step's data: the nodes' clock callbacks then run off the
+        # lockstep critical path (their inputs are accepted up to 2 Ts from their clock)
+        self.msg_clock.clock = stamp
+        self.pub_clock.publish(self.msg_clock)
 
     def on_command(self, msg: Vector3Stamped):
         v = msg.vector
@@ -206,9 +208,9 @@ class Simulator(Node):
         m = self.m_cmd
         self.M[k] = m
         self.diag.count("steps")
-        if self.pub_torques:
-            self.publish_torques(k, m)
         if k >= self.n:
+            if self.pub_torques:
+                self.publish_torques(k, m)
             self.finish_run()
             return
         self.y = self.dyn.step(k * self.ts, self.y, self.ts, m, self.substeps)
@@ -218,6 +220,8 @@ class Simulator(Node):
             if lag > 0:
                 time.sleep(lag)
         self.publish_state()
+        if self.pub_torques:  # torques of the step just applied, off the lockstep critical path
+            self.publish_torques(k, m)
 
     def publish_torques(self, k, m):
         y, b = self.Y[k], self.B[k]
