@@ -5,6 +5,7 @@ Every test isolates itself with a ROS_DOMAIN_ID reserved through magtune_core.si
 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, and stops every process it started in ``finally``.
 """
 import math
+import signal
 import os
 import subprocess
 import sys
@@ -225,3 +226,48 @@ def test_controller_rejects_bad_inputs(live_controller, gains60):
     set_clock(25.0)
     assert spin(lambda: int(diags.get("stale_data", 0)) == 1, 5.0), diags
     assert proc.poll() is None
+
+
+# ------------------------------------------------------------------ pacing and Ctrl-C
+def test_real_time_factor_paces(gains60, tmp_path):
+    run = sil.run_sil(gains60, steps=40, ts=1.0, real_time_factor=100.0, log_dir=tmp_path, timeout=60)
+    # 40 s of sim time at 100x must take >= 0.4 s of wall time (sleep-based pacing: never early)
+    assert run.wall_time >= 0.39 and run.counters["missed_steps"] == 0
+
+
+def _magtune_node_pids(domain_id):
+    """PIDs of magtune_ros executables running on ROS_DOMAIN_ID = domain_id (from /proc)."""
+    pids = []
+    for d in os.listdir("/proc"):
+        if not d.isdigit():
+            continue
+        try:
+            cmd = open(f"/proc/{d}/cmdline", "rb").read()
+            env = open(f"/proc/{d}/environ", "rb").read().split(b"\0")
+        except OSError:
+            continue
+        if b"lib/magtune_ros/" in cmd and f"ROS_DOMAIN_ID={domain_id}".encode() in env:
+            pids.append(int(d))
+    return pids
+
+
+def test_ctrl_c_leaves_no_orphans(gains60, tmp_path):
+    with sil.DomainLock() as lock:
+        did = lock.domain_id
+    proc = subprocess.Popen([sys.executable, "-m", "magtune_core.sil", "--gains", str(gains60), "--orbits", "5",
+                             "--domain-id", str(did), "--log-dir", str(tmp_path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        end = time.monotonic() + 30
+        while time.monotonic() < end and len(_magtune_node_pids(did)) < 3:
+            time.sleep(0.2)
+        assert len(_magtune_node_pids(did)) == 3, "nodes did not start"
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGINT)  # what Ctrl-C in a terminal sends
+        out, err = proc.communicate(timeout=30)
+        assert proc.returncode == 130 and "interrupted" in err
+        assert _magtune_node_pids(did) == []
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()

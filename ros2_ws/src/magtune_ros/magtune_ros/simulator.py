@@ -80,6 +80,9 @@ class Simulator(Node):
         self.pub_torques = c.declare(self, "publish_torques", True, "publish sim/*_torque topics")
         self.wait_peers = c.declare(self, "wait_for_peers", True,
                                     "start when the sensors and controller are matched")
+        self.min_subs = c.declare(self, "min_truth_subscribers", 1,
+                                  "subscribers of sim/truth required before starting (2 with a recorder)",
+                                  positive=True)
 
         self.dyn = AttitudeDynamics.from_params(p, residual_dipole=m_res)
         self.y = initial_state(p, dw0, q0)
@@ -87,6 +90,8 @@ class Simulator(Node):
         self.t_ns = [c.sec_to_ns(k * self.ts) for k in range(self.n + 1)]
         self.m_cmd = np.zeros(3)
         self.awaiting = False
+        self.progress_every = max(1, self.n // 10)
+        self.t_progress = time.perf_counter()
         self.started = False
         self.finished = False
         # recorded run (same layout as SimResult)
@@ -127,7 +132,7 @@ class Simulator(Node):
     # ---------------------------------------------------------------- stepping
     def peers_ready(self) -> bool:
         return (not self.wait_peers) or (
-            self.pub_truth.get_subscription_count() > 0 and self.pub_field.get_subscription_count() > 0
+            self.pub_truth.get_subscription_count() >= self.min_subs and self.pub_field.get_subscription_count() > 0
             and self.sub_cmd.get_publisher_count() > 0)
 
     def on_timer(self):
@@ -137,7 +142,7 @@ class Simulator(Node):
         if not self.started:
             if self.peers_ready():
                 self.started = True
-                self.wall0 = time.perf_counter()
+                self.wall0 = self.t_progress = time.perf_counter()
                 self.publish_state()
             elif now - self.wall0 > self.startup_timeout:
                 self.get_logger().error("no subscriber/controller matched within startup_timeout; giving up")
@@ -208,6 +213,11 @@ class Simulator(Node):
         m = self.m_cmd
         self.M[k] = m
         self.diag.count("steps")
+        if k and k % self.progress_every == 0:
+            now = time.perf_counter()
+            self.get_logger().info(f"step {k}/{self.n}: {1e3 * (now - self.t_progress) / self.progress_every:.3f} "
+                                   "ms/step over the last interval")
+            self.t_progress = now
         if k >= self.n:
             if self.pub_torques:
                 self.publish_torques(k, m)
