@@ -89,6 +89,7 @@ class Simulator(Node):
         self.k = 0
         self.t_ns = [c.sec_to_ns(k * self.ts) for k in range(self.n + 1)]
         self.m_cmd = np.zeros(3)
+        self.last_cmd_ns = -1
         self.awaiting = False
         self.progress_every = max(1, self.n // 10)
         self.t_progress = time.perf_counter()
@@ -191,7 +192,10 @@ class Simulator(Node):
         if not self.started or self.finished:
             return
         cur = self.t_ns[self.k]
-        if ns < cur:
+        if ns < self.last_cmd_ns:
+            self.diag.count("rejected_commands", f"command stamp {ns * 1e-9:.3f} s older than the last applied")
+            return
+        if ns < cur and self.lockstep:
             self.diag.count("late_commands", f"command for t={ns * 1e-9:.3f} s arrived at step t={cur * 1e-9:.3f} s")
             return
         if ns > cur:
@@ -203,6 +207,7 @@ class Simulator(Node):
         if np.any(ms != m):
             self.diag.count("saturated_commands")
         self.m_cmd = ms
+        self.last_cmd_ns = ns
         if self.lockstep and self.awaiting:
             self.advance()
 
