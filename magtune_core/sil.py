@@ -319,7 +319,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: a free one)")
     p.add_argument("--timeout", type=float, default=None, help="abort after this many wall seconds")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
-    p.set_defaults(func=cmd_sil)
+    p.set_defaults(func=cmd_sil, handler=cmd_sil)
     return p
 
 

@@ -149,8 +149,12 @@ class Simulator(Node):
                 self.get_logger().error("no subscriber/controller matched within startup_timeout; giving up")
                 self.finish_run(code=3)
             return
-        if not self.lockstep:
-            self.advance()  # free-running: latest command
+        if not self.lockstep:  # free-running: latest command, after a first answer to step 0
+            if self.k == 0:
+                if self.last_cmd_ns < 0 and now - self.t_publish < self.startup_timeout:
+                    return
+                self.wall0 = now
+            self.advance()
             return
         limit = self.startup_timeout if self.k == 0 else self.timeout
         if self.awaiting and now - self.t_publish > limit:
