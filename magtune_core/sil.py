@@ -39,7 +39,9 @@ NODES = ("controller", "attitude_sensors", "simulator")
 RECORDER_EXE = "recorder"
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SPACECRAFT = ROOT / "config" / "spacecraft.yaml"
-DOMAIN_RANGE = range(120, 230)  # below 232 (Fast DDS port formula with up to ~10 participants)
+#: ROS_DOMAIN_IDs handed out to runs: 215-232 map Fast DDS ports above Linux's ephemeral range
+#: (32768-60999), the other range the ROS 2 docs call safe besides 0-101, which other tools use.
+DOMAIN_RANGE = range(215, 233)
 
 
 class SilError(RuntimeError):
