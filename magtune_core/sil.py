@@ -223,6 +223,15 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
     gains = Path(gains)
     if not gains.is_file():
         raise SilError(f"gains file not found: {gains}")
+    from .params import ConfigError
+    from .rosparams import check_ros_params
+
+    for f in (gains, spacecraft):
+        if f:
+            try:
+                check_ros_params(f)
+            except ConfigError as exc:
+                raise SilError(str(exc)) from None
     prefix = package_prefix()
     exes = {n: resolve_executable(n) for n in NODES}
     rec_exe = None

@@ -316,3 +316,15 @@ def test_free_running_mode(gains60, tmp_path):
     off = simulate(load_gains(gains60).K, SpacecraftParams(), steps=100)
     # a one-step command delay perturbs x by ~ Ts * |dx/dt| ~ 1e-3 at most over 100 s here
     assert np.max(np.abs(run.result.x - off.x)) < 5e-3
+
+
+def test_ros_incompatible_provenance_is_named(tmp_path, gains60):
+    """PyYAML accepts [1, 2.5] and nested lists; rcl does not: the node names the parameter."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(gains60.read_text() + "    history:\n      costs: [1, 2.5]\n")
+    with sil.DomainLock() as lock:
+        r = _run_controller(["--params-file", str(bad)], tmp_path, lock.domain_id)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "'history.costs'" in lines[0]
+    with pytest.raises(sil.SilError, match="history.costs"):
+        sil.run_sil(bad, steps=5)

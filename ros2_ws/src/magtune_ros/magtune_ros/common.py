@@ -218,9 +218,10 @@ def run(node_cls, args=None) -> int:
     argv = list(sys.argv if args is None else args)
     for i, a in enumerate(argv[:-1]):  # check parameter files first: one clear line instead of rcl's
         if a == "--params-file":
-            from magtune_core.params import ConfigError, read_ros_params
+            from magtune_core.params import ConfigError
+            from magtune_core.rosparams import check_ros_params
             try:
-                read_ros_params(argv[i + 1])
+                check_ros_params(argv[i + 1])
             except ConfigError as exc:
                 print(f"{prog}: {exc}", file=sys.stderr)
                 return 2
