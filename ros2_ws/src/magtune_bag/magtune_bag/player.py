@@ -12,10 +12,12 @@ Usage (``ros2 run magtune_bag player`` or ``install/magtune_bag/lib/magtune_bag/
   messages of that time, so nodes with ``use_sim_time`` follow the recording; if the bag has
   its own ``/clock`` and it is selected, that one is replayed instead;
 * ``--rate R``: R times the recorded speed (log time vs. wall time); ``--rate 0``: as fast as
-  DDS reliable delivery allows: after every ``--ack-every`` messages the player waits until
-  every matched subscription has acknowledged (``wait_for_all_acked``), so nothing is
-  overwritten in the player's own queue; subscribers must keep a history deep enough for a
-  burst (KEEP_LAST depth >= ack-every, or KEEP_ALL) to lose nothing;
+  DDS accepts. Publishers are then reliable KEEP_ALL, so the player never drops a sample
+  that a subscriber has not acknowledged; a subscriber loses nothing if its own history is
+  deep enough for the burst (KEEP_ALL, or KEEP_LAST depth >= messages per topic), otherwise
+  use a finite rate. (``--ack-every N`` additionally blocks on ``wait_for_all_acked`` every N
+  messages; with Fast DDS an ack waits for the writer's next heartbeat, about 3 s, so this is
+  a coarse throttle, off by default.) Before exiting the player waits for all acks;
 * ``--start S`` skips the first S seconds of the bag; ``--loop`` repeats until SIGINT;
 * a truncated/corrupt bag (no summary) is scanned: what is readable is replayed and the
   final JSON line on stdout reports what was not (``unreadable``).
@@ -31,7 +33,7 @@ import rclpy
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
@@ -51,7 +53,8 @@ def parse_args(argv):
     p.add_argument("--loop", action="store_true")
     p.add_argument("--no-clock", action="store_true", help="do not publish /clock")
     p.add_argument("--depth", type=int, default=1000, help="publisher queue depth")
-    p.add_argument("--ack-every", type=int, default=10, help="rate 0: wait for acks every N")
+    p.add_argument("--ack-every", type=int, default=0,
+                   help="rate 0: also wait for acks every N messages (0: never)")
     p.add_argument("--wait-subscribers", type=float, default=0.0,
                    help="wait up to S seconds until every topic has a subscriber")
     return p.parse_args(argv)
@@ -74,6 +77,8 @@ class Player(Node):
         self.pubs = {}
         for name, info in topics.items():
             qos = offer_from_recorded(info.offered_qos_profiles, args.depth)
+            if args.rate == 0:
+                qos.history = HistoryPolicy.KEEP_ALL
             self.pubs[name] = self.create_publisher(message_class(info.type), name, qos)
         self.clock_pub = None
         if not args.no_clock and CLOCK not in self.pubs:
@@ -131,7 +136,7 @@ class Player(Node):
             self.pubs[m.topic].publish(m.data)
             counts[m.topic] = counts.get(m.topic, 0) + 1
             since_ack += 1
-            if a.rate == 0 and since_ack >= a.ack_every:
+            if a.rate == 0 and a.ack_every and since_ack >= a.ack_every:
                 self.wait_acked()
                 since_ack = 0
 
