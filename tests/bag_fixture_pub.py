@@ -70,6 +70,7 @@ def main(argv=None):
             return 2
         time.sleep(0.02)
     time.sleep(0.2)  # let the matching settle on both sides
+    print("publishing", flush=True)
     t_wall = time.monotonic()
     for i in range(a.n):
         e = expected(i)

@@ -1,0 +1,77 @@
+"""Process helpers for the ROS bag tests: isolated DDS domain, start/stop, executables."""
+from __future__ import annotations
+
+import itertools
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+TESTS = ROOT / "tests"
+_EXE_DIR = ROOT / "ros2_ws" / "install" / "magtune_bag" / "lib" / "magtune_bag"
+_domains = itertools.count((os.getpid() % 40) * 4 + 60)  # 60..219, a few per test process
+
+
+def executable(name: str) -> list[str]:
+    """Command of a magtune_bag node: the colcon-installed executable (as ``ros2 run`` uses)."""
+    exe = _EXE_DIR / name
+    if not exe.exists():
+        raise FileNotFoundError(f"{exe} missing: run scripts/bootstrap.sh (colcon build)")
+    return [str(exe)]
+
+
+def ros_env() -> dict:
+    """Environment with a fresh ROS_DOMAIN_ID, discovery limited to this host."""
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = str(next(_domains))
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+class Procs:
+    """Starts processes in one environment; ``stop_all`` (call in ``finally``) ends them all."""
+
+    def __init__(self, env: dict, logdir: Path):
+        self.env, self.logdir, self.procs = env, Path(logdir), []
+        self.logdir.mkdir(parents=True, exist_ok=True)
+
+    def start(self, name: str, cmd: list[str]) -> subprocess.Popen:
+        out = open(self.logdir / f"{name}.out", "w+")
+        p = subprocess.Popen(cmd, env=self.env, stdout=out, stderr=subprocess.STDOUT,
+                             cwd=ROOT, start_new_session=True)
+        p.log_path = self.logdir / f"{name}.out"  # type: ignore[attr-defined]
+        self.procs.append(p)
+        return p
+
+    def python(self, name: str, script: str, *args) -> subprocess.Popen:
+        return self.start(name, [sys.executable, str(TESTS / script), *map(str, args)])
+
+    @staticmethod
+    def output(p) -> str:
+        return Path(p.log_path).read_text()
+
+    def wait_for_line(self, p, text: str, timeout: float = 20.0) -> None:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if text in self.output(p):
+                return
+            if p.poll() is not None:
+                raise RuntimeError(f"process exited ({p.returncode}):\n{self.output(p)}")
+            time.sleep(0.05)
+        raise TimeoutError(f"'{text}' not seen in {timeout} s:\n{self.output(p)}")
+
+    def stop_all(self) -> None:
+        for p in self.procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        end = time.monotonic() + 5
+        for p in self.procs:
+            try:
+                p.wait(timeout=max(0.1, end - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
