@@ -30,7 +30,7 @@ if [ -d "$root/ros2_ws/src" ] && [ -n "$(ls -A "$root/ros2_ws/src" 2>/dev/null)"
   wwant=$(cd "$root/ros2_ws/src" && find . -type f -not -path '*/__pycache__/*' -print0 | sort -z | xargs -0 sha1sum | sha1sum | cut -d' ' -f1)
   if [ "$(cat "$wstamp" 2>/dev/null)" != "$wwant" ]; then
     echo "bootstrap: colcon build of ros2_ws" >&2
-    (cd "$root/ros2_ws" && PATH="$venv/bin:$PATH" "$venv/bin/colcon" build --symlink-install \
+    (cd "$root/ros2_ws" && PATH="$venv/bin:$PATH" "$venv/bin/colcon" build \
         --event-handlers console_cohesion- summary- >/dev/null) \
       || { echo "bootstrap: colcon build failed; see ros2_ws/log/latest_build" >&2; exit 1; }
     echo "$wwant" > "$wstamp"

@@ -1,0 +1,255 @@
+"""Nonlinear attitude dynamics of a momentum-biased, magnetically actuated satellite (pure numpy).
+
+Conventions (SPEC.md "The model", paper section 3):
+
+* orbital axes: X to the Earth's centre (yaw), Y along the velocity (roll), Z orbit normal
+  (pitch); the orbital frame turns about its -Z axis at the orbit rate W0, so its inertial
+  angular velocity in orbital axes is ``[0, 0, -W0]``;
+* ``q = [q0, q1, q2, q3]`` scalar first, attitude of the body w.r.t. orbital axes; ``R(q)``
+  takes body vectors to orbital axes (``v_orb = q (x) v_body (x) q*``);
+* ``w``: inertial angular velocity of the body, in body axes;
+* Euler equation with a constant-speed pitch wheel of momentum ``h = [0, 0, -J Wwheel]``:
+  ``I w' = -w x (I w + h) + T``;
+* kinematics (paper eq. 11): ``q' = 0.5 q (x) [0; w - R(q)^T [0, 0, -W0]]``;
+* gravity gradient on a circular orbit: ``T_gg = 3 W0^2 c x (I c)``, ``c = R(q)^T e_X`` the nadir
+  unit vector in body axes;
+* magnetic torque (paper eq. 12): ``T_mag = m x b = S(b) m`` with ``b = R(q)^T b_orb(t)`` the field
+  in body axes; residual dipole (paper eq. 32): ``T_d = m_res x b = S(b) [1, 1, 1]^T``.
+
+Linear state (paper eq. 14, SPEC.md): ``x = [dq; dw]`` with ``dq = q_vec`` (sign chosen so that
+``q0 >= 0``) and ``dw = w - [0, 0, -W0]``: the deviation of the *inertial* body rate from its
+nominal value, both in body axes, the nominal vector taken with constant body components.
+This is the choice for which the Jacobian of this model equals ``model.state_matrix`` (A of
+eq. 15): the kinematic rows of A, ``dq' = 0.5 dw + [-W0 dq2, W0 dq1, 0]``, come from
+``R(q)^T [0,0,-W0] = [0,0,-W0] - 2 dq x [0,0,-W0] + O(dq^2)``.  (Had ``dw`` been the rate
+relative to the orbital frame, ``w - R(q)^T [0,0,-W0]``, those W0 terms would move into the
+dynamic rows; tests/test_dynamics.py checks both statements.)
+
+The field and the disturbance torques are pluggable: ``field`` is any callable
+``t -> b_orb(t)`` (tesla, orbital axes), e.g. ``SpacecraftParams.field()`` (paper eq. 26) or an
+IGRF model along the orbit; ``disturbances`` is a list of callables
+``(t, q, w, b_body) -> torque in body axes`` [N m] (gravity gradient is part of the rigid-body
+model, not a plug-in: it defines the linearization).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field as dc_field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .params import SpacecraftParams
+
+FieldFn = Callable[[float], np.ndarray]
+TorqueFn = Callable[[float, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+
+#: State layout of the nonlinear model: y = [q0, q1, q2, q3, wx, wy, wz].
+NY = 7
+
+
+def quat_mul(p, q) -> np.ndarray:
+    """Hamilton product p (x) q of scalar-first quaternions."""
+    p0, p1, p2, p3 = p
+    q0, q1, q2, q3 = q
+    return np.array([
+        p0 * q0 - p1 * q1 - p2 * q2 - p3 * q3,
+        p0 * q1 + p1 * q0 + p2 * q3 - p3 * q2,
+        p0 * q2 - p1 * q3 + p2 * q0 + p3 * q1,
+        p0 * q3 + p1 * q2 - p2 * q1 + p3 * q0,
+    ])
+
+
+def rotation_matrix(q) -> np.ndarray:
+    """R(q): body vectors to orbital axes, for a scalar-first (not necessarily unit) quaternion."""
+    q0, q1, q2, q3 = np.asarray(q, dtype=float) / np.sqrt(np.dot(q, q))
+    return np.array([
+        [q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3, 2 * (q1 * q2 - q0 * q3), 2 * (q1 * q3 + q0 * q2)],
+        [2 * (q1 * q2 + q0 * q3), q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3, 2 * (q2 * q3 - q0 * q1)],
+        [2 * (q1 * q3 - q0 * q2), 2 * (q2 * q3 + q0 * q1), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3],
+    ])
+
+
+def cross(a, b) -> np.ndarray:
+    """a x b for 3-vectors (scalar arithmetic: ~10x faster than np.cross on small arrays)."""
+    a0, a1, a2 = a
+    b0, b1, b2 = b
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+
+
+def saturate(m, m_max) -> np.ndarray:
+    """Per-axis dipole saturation |m_i| <= m_max_i [A m^2] (``m_max`` scalar or 3-vector; inf = none)."""
+    return np.clip(np.asarray(m, dtype=float), -np.asarray(m_max, dtype=float), np.asarray(m_max, dtype=float))
+
+
+def linear_state(q, w, orbit_rate: float) -> np.ndarray:
+    """x = [dq; dw] of paper eq. (14): q_vec (hemisphere q0 >= 0) and w - [0, 0, -W0]."""
+    q = np.asarray(q, dtype=float)
+    s = -1.0 if q[0] < 0.0 else 1.0
+    return np.array([s * q[1], s * q[2], s * q[3], w[0], w[1], w[2] + orbit_rate])
+
+
+def residual_dipole_torque(m_res) -> TorqueFn:
+    """Disturbance T_d = m_res x b = S(b) m_res (paper eq. 32; m_res = [1, 1, 1] A m^2 there)."""
+    m_res = np.asarray(m_res, dtype=float).reshape(3)
+
+    def torque(t, q, w, b):
+        return cross(m_res, b)
+
+    return torque
+
+
+@dataclass
+class AttitudeDynamics:
+    """Rigid body + constant-momentum pitch wheel + gravity gradient on a circular orbit.
+
+    ``rhs(t, y, m)`` is the time derivative of ``y = [q; w]`` under the commanded dipole ``m``
+    (already saturated by the caller) plus the plug-in disturbances.
+    """
+
+    inertia: np.ndarray
+    wheel_momentum: np.ndarray
+    orbit_rate: float
+    field: FieldFn
+    disturbances: Sequence[TorqueFn] = dc_field(default_factory=list)
+    gravity_gradient: bool = True
+
+    def __post_init__(self):
+        I = np.asarray(self.inertia, dtype=float)
+        self.inertia = np.diag(I) if I.ndim == 1 else I
+        self.inertia_inv = np.linalg.inv(self.inertia)
+        self.wheel_momentum = np.asarray(self.wheel_momentum, dtype=float).reshape(3)
+        self.disturbances = list(self.disturbances)
+        # plain-float copies for the scalar right-hand side
+        self._I = tuple(tuple(float(v) for v in r) for r in self.inertia)
+        self._J = tuple(tuple(float(v) for v in r) for r in self.inertia_inv)
+        self._h = tuple(float(v) for v in self.wheel_momentum)
+
+    @classmethod
+    def from_params(cls, p: SpacecraftParams, field: FieldFn | None = None,
+                    residual_dipole=(1.0, 1.0, 1.0), disturbances: Sequence[TorqueFn] = ()) -> "AttitudeDynamics":
+        """Paper section 5 set-up: eq. (26) field (unless ``field`` given) and the residual dipole."""
+        dist = list(disturbances)
+        if residual_dipole is not None and np.any(np.asarray(residual_dipole, dtype=float)):
+            dist.insert(0, residual_dipole_torque(residual_dipole))
+        return cls(p.inertia, p.wheel_momentum, p.orbit_rate, field or p.field(), dist)
+
+    # --- pieces -------------------------------------------------------------------------
+    def body_field(self, t: float, q) -> np.ndarray:
+        """b = R(q)^T b_orb(t), tesla, body axes."""
+        return rotation_matrix(q).T @ np.asarray(self.field(t), dtype=float).reshape(3)
+
+    def gravity_gradient_torque(self, q) -> np.ndarray:
+        """T_gg = 3 W0^2 c x (I c), c = R(q)^T [1, 0, 0] (nadir in body axes)."""
+        c = rotation_matrix(q)[0, :]  # first row of R = first column of R^T
+        return 3.0 * self.orbit_rate**2 * cross(c, self.inertia @ c)
+
+    def disturbance_torque(self, t: float, q, w, b) -> np.ndarray:
+        """Sum of the plug-in disturbance torques and (if enabled) gravity gradient [N m]."""
+        T = self.gravity_gradient_torque(q) if self.gravity_gradient else np.zeros(3)
+        for f in self.disturbances:
+            T = T + np.asarray(f(t, q, w, b), dtype=float)
+        return T
+
+    def rhs(self, t: float, y, m=None, torque=None) -> np.ndarray:
+        """dy/dt for y = [q (4); w (3)] under dipole ``m`` [A m^2] and/or extra body ``torque`` [N m].
+
+        Written in scalar arithmetic (the SIL simulator calls it 4 x substeps times per step).
+        """
+        q0, q1, q2, q3, wx, wy, wz = (float(v) for v in y)
+        n2 = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
+        a0, a1, a2, a3 = (q0, q1, q2, q3) if n2 == 1.0 else (v / n2**0.5 for v in (q0, q1, q2, q3))
+        # rows of R(q) = columns of R^T: R^T e_X (nadir), R^T e_Z (orbit normal), and R^T v
+        r00, r01, r02 = a0 * a0 + a1 * a1 - a2 * a2 - a3 * a3, 2 * (a1 * a2 - a0 * a3), 2 * (a1 * a3 + a0 * a2)
+        r10, r11, r12 = 2 * (a1 * a2 + a0 * a3), a0 * a0 - a1 * a1 + a2 * a2 - a3 * a3, 2 * (a2 * a3 - a0 * a1)
+        r20, r21, r22 = 2 * (a1 * a3 - a0 * a2), 2 * (a2 * a3 + a0 * a1), a0 * a0 - a1 * a1 - a2 * a2 + a3 * a3
+        tx = ty = tz = 0.0
+        if m is not None or self.disturbances:
+            fo0, fo1, fo2 = self.field(t)
+            b = np.array([r00 * fo0 + r10 * fo1 + r20 * fo2,
+                          r01 * fo0 + r11 * fo1 + r21 * fo2,
+                          r02 * fo0 + r12 * fo1 + r22 * fo2])
+            if m is not None:
+                m0, m1, m2 = m
+                b0, b1, b2 = b
+                tx, ty, tz = m1 * b2 - m2 * b1, m2 * b0 - m0 * b2, m0 * b1 - m1 * b0
+            if self.disturbances:
+                qa, wa = np.array([q0, q1, q2, q3]), np.array([wx, wy, wz])
+                for f in self.disturbances:
+                    d0, d1, d2 = f(t, qa, wa, b)
+                    tx, ty, tz = tx + d0, ty + d1, tz + d2
+        I = self._I
+        if self.gravity_gradient:
+            k = 3.0 * self.orbit_rate**2
+            c0, c1, c2 = r00, r01, r02
+            i0 = I[0][0] * c0 + I[0][1] * c1 + I[0][2] * c2
+            i1 = I[1][0] * c0 + I[1][1] * c1 + I[1][2] * c2
+            i2 = I[2][0] * c0 + I[2][1] * c1 + I[2][2] * c2
+            tx, ty, tz = tx + k * (c1 * i2 - c2 * i1), ty + k * (c2 * i0 - c0 * i2), tz + k * (c0 * i1 - c1 * i0)
+        if torque is not None:
+            tx, ty, tz = tx + torque[0], ty + torque[1], tz + torque[2]
+        h0, h1, h2 = self._h
+        L0 = I[0][0] * wx + I[0][1] * wy + I[0][2] * wz + h0
+        L1 = I[1][0] * wx + I[1][1] * wy + I[1][2] * wz + h1
+        L2 = I[2][0] * wx + I[2][1] * wy + I[2][2] * wz + h2
+        e0, e1, e2 = tx - (wy * L2 - wz * L1), ty - (wz * L0 - wx * L2), tz - (wx * L1 - wy * L0)
+        J = self._J
+        # w_rel = w - R^T [0, 0, -W0] = w + W0 * (third row of R)
+        W0 = self.orbit_rate
+        vx, vy, vz = wx + W0 * r20, wy + W0 * r21, wz + W0 * r22
+        return np.array([
+            0.5 * (-q1 * vx - q2 * vy - q3 * vz),
+            0.5 * (q0 * vx + q2 * vz - q3 * vy),
+            0.5 * (q0 * vy - q1 * vz + q3 * vx),
+            0.5 * (q0 * vz + q1 * vy - q2 * vx),
+            J[0][0] * e0 + J[0][1] * e1 + J[0][2] * e2,
+            J[1][0] * e0 + J[1][1] * e1 + J[1][2] * e2,
+            J[2][0] * e0 + J[2][1] * e1 + J[2][2] * e2,
+        ])
+
+    def step(self, t: float, y, dt: float, m=None, substeps: int = 1) -> np.ndarray:
+        """Advance y over [t, t + dt] with ``substeps`` classical RK4 steps, dipole m held (ZOH).
+
+        Deterministic (fixed steps, fixed operation order); the quaternion is renormalized at
+        the end of the interval.
+        """
+        y = np.asarray(y, dtype=float)
+        h = dt / substeps
+        for i in range(substeps):
+            ti = t + i * h
+            k1 = self.rhs(ti, y, m)
+            k2 = self.rhs(ti + 0.5 * h, y + 0.5 * h * k1, m)
+            k3 = self.rhs(ti + 0.5 * h, y + 0.5 * h * k2, m)
+            k4 = self.rhs(ti + h, y + h * k3, m)
+            y = y + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        q = y[:4] / np.sqrt(y[:4] @ y[:4])
+        return np.concatenate([q, y[4:]])
+
+    # --- linearization ------------------------------------------------------------------
+    def linear_rhs(self, x, u=None) -> np.ndarray:
+        """dx/dt of the nonlinear model written in the linear state x = [dq; dw] (no field torques).
+
+        ``u`` is a body torque [N m]; ``q0 = +sqrt(1 - |dq|^2)``. Used for the Jacobian check
+        against A and B_T of paper eqs. (15)-(16).
+        """
+        x = np.asarray(x, dtype=float)
+        dq = x[:3]
+        q = np.concatenate([[np.sqrt(1.0 - dq @ dq)], dq])
+        w = x[3:] + np.array([0.0, 0.0, -self.orbit_rate])
+        saved, self.disturbances = self.disturbances, []
+        try:
+            ydot = self.rhs(0.0, np.concatenate([q, w]), None, None if u is None else np.asarray(u, dtype=float))
+        finally:
+            self.disturbances = saved
+        return np.concatenate([ydot[1:4], ydot[4:]])
+
+
+def numerical_jacobian(f, x0, h: float = 1e-6):
+    """Central-difference Jacobian of f at x0 (truncation O(h^2), round-off O(eps |f| / h))."""
+    x0 = np.asarray(x0, dtype=float)
+    f0 = np.asarray(f(x0))
+    J = np.zeros((f0.size, x0.size))
+    for j in range(x0.size):
+        e = np.zeros_like(x0)
+        e[j] = h
+        J[:, j] = (np.asarray(f(x0 + e)) - np.asarray(f(x0 - e))) / (2 * h)
+    return J

@@ -1,0 +1,349 @@
+"""Software-in-the-loop runner: the three magtune_ros nodes as separate processes over DDS.
+
+``magtune sil --gains config/gains/sigma_60.yaml --orbits 5 --ts 1 [--bag bags/NAME]``
+(until cli.py registers it: ``python -m magtune_core.sil ...``).
+
+Subprocesses only: this module never imports rclpy. Executables are resolved as ``ros2 run``
+does (``<prefix>/lib/magtune_ros/<exe>`` for the first prefix of AMENT_PREFIX_PATH holding the
+package's ament index marker). Each run gets a ROS_DOMAIN_ID of its own (held by a lock file,
+so concurrent runs never share a domain) and ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST. Every
+node runs in its own process group, stopped in a ``finally`` block (SIGINT, then SIGTERM,
+then SIGKILL), so neither Ctrl-C nor a failing node leaves orphans.
+
+The simulator runs in lockstep with the controller (see magtune_ros/simulator.py) and writes
+its trajectory to an .npz (``SimResult``), from which the summary (paper section 5
+figures: final and peak |dq_R|, RMS over orbits 2-5, peak |m|) is computed.
+"""
+from __future__ import annotations
+
+import argparse
+import fcntl
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+PACKAGE = "magtune_ros"
+NODES = ("controller", "attitude_sensors", "simulator")
+#: Recorder executable of the bags helper (started with ``--ros-args -p path:=<bag>`` when --bag is given).
+RECORDER_EXE = "recorder"
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_SPACECRAFT = ROOT / "config" / "spacecraft.yaml"
+DOMAIN_RANGE = range(120, 230)  # below 232 (Fast DDS port formula with up to ~10 participants)
+
+
+class SilError(RuntimeError):
+    """The SIL run could not be started or a node failed."""
+
+
+# ------------------------------------------------------------------ resolution
+def ament_prefixes() -> list[Path]:
+    prefixes = [Path(p) for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    fallback = ROOT / "ros2_ws" / "install" / PACKAGE
+    if fallback not in prefixes:
+        prefixes.append(fallback)  # the project's own workspace, built by scripts/bootstrap.sh
+    return prefixes
+
+
+def package_prefix(package: str = PACKAGE) -> Path:
+    """The install prefix of ``package`` from the ament resource index (as ament_index_python)."""
+    for prefix in ament_prefixes():
+        if (prefix / "share" / "ament_index" / "resource_index" / "packages" / package).is_file():
+            return prefix
+    raise SilError(f"package '{package}' not found in AMENT_PREFIX_PATH; run 'bash scripts/bootstrap.sh' "
+                   f"and '. scripts/env.sh'")
+
+
+def resolve_executable(exe: str, package: str = PACKAGE) -> Path:
+    """<prefix>/lib/<package>/<exe>, exactly where ``ros2 run <package> <exe>`` looks."""
+    path = package_prefix(package) / "lib" / package / exe
+    if not (path.is_file() and os.access(path, os.X_OK)):
+        raise SilError(f"executable '{exe}' of package '{package}' not found at {path}")
+    return path
+
+
+def child_env(domain_id: int, prefix: Path) -> dict:
+    """Environment of the node processes: isolated domain, localhost discovery, package paths."""
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = str(domain_id)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.pop("ROS_STATIC_PEERS", None)
+    amp = [str(prefix)] + [p for p in env.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p and p != str(prefix)]
+    env["AMENT_PREFIX_PATH"] = os.pathsep.join(amp)
+    site = prefix / "lib" / f"python{sys.version_info.major}.{sys.version_info.minor}" / "site-packages"
+    pp = [str(site), str(ROOT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]
+    env["PYTHONPATH"] = os.pathsep.join(pp)
+    env.setdefault("RCUTILS_LOGGING_BUFFERED_STREAM", "1")
+    return env
+
+
+class DomainLock:
+    """Reserve a ROS_DOMAIN_ID for this run with an exclusive lock file in the temp directory."""
+
+    def __init__(self, domain_id: int | None = None):
+        self.fh = None
+        ids = [domain_id] if domain_id is not None else list(DOMAIN_RANGE)
+        start = os.getpid() % len(ids)
+        for did in ids[start:] + ids[:start]:
+            fh = open(Path(tempfile.gettempdir()) / f"magtune_ros_domain_{did}.lock", "w")
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                fh.close()
+                continue
+            self.fh, self.domain_id = fh, did
+            return
+        raise SilError(f"no free ROS_DOMAIN_ID in {ids[0]}..{ids[-1]}")
+
+    def release(self):
+        if self.fh:
+            self.fh.close()
+            self.fh = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.release()
+
+
+# ------------------------------------------------------------------ processes
+@dataclass
+class NodeProcess:
+    name: str
+    popen: subprocess.Popen
+    log: Path
+
+    def tail(self, n: int = 5) -> str:
+        try:
+            lines = self.log.read_text(errors="replace").strip().splitlines()
+        except OSError:
+            return ""
+        return "\n".join(lines[-n:])
+
+
+def start_node(name: str, exe: Path, ros_args: list[str], env: dict, log_dir: Path) -> NodeProcess:
+    log = log_dir / f"{name}.log"
+    with open(log, "wb") as fh:
+        p = subprocess.Popen([str(exe), "--ros-args", *ros_args], env=env, stdout=fh, stderr=subprocess.STDOUT,
+                             stdin=subprocess.DEVNULL, start_new_session=True)
+    return NodeProcess(name, p, log)
+
+
+def stop_nodes(procs: list[NodeProcess], grace: float = 5.0) -> None:
+    """SIGINT each process group, then SIGTERM, then SIGKILL; reap everything."""
+    for sig, wait in ((signal.SIGINT, grace), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
+        alive = [p for p in procs if p.popen.poll() is None]
+        if not alive:
+            break
+        for p in alive:
+            try:
+                os.killpg(p.popen.pid, sig)
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + wait
+        for p in alive:
+            try:
+                p.popen.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                pass
+    for p in procs:  # group leftovers (e.g. grandchildren) after the leader exited
+        try:
+            os.killpg(p.popen.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+
+
+# ------------------------------------------------------------------ run
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+@dataclass
+class SilRun:
+    """Outcome of a SIL run: the simulator's trajectory, its figures of merit and counters."""
+
+    result: object  # magtune_core.simulate.SimResult
+    figures: dict
+    counters: dict
+    wall_time: float        # simulator's stepping time (after discovery)
+    total_wall_time: float  # including process start-up and shutdown
+    domain_id: int
+    log_dir: Path
+    diagnostics: dict = field(default_factory=dict)
+
+    @property
+    def real_time_factor(self) -> float:
+        return float(self.result.t[-1]) / max(self.wall_time, 1e-9)
+
+    def summary(self) -> str:
+        from .simulate import format_figures
+
+        return (f"{format_figures(self.figures)}\n"
+                f"missed steps {self.counters.get('missed_steps', 0)}  steps {self.counters.get('steps', 0)}  "
+                f"wall {self.wall_time:.2f} s (total {self.total_wall_time:.2f} s)  "
+                f"real-time factor {self.real_time_factor:.0f}x")
+
+
+def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float | None = None,
+            spacecraft=DEFAULT_SPACECRAFT, substeps: int = 2, bag=None, real_time_factor: float = 0.0,
+            lockstep: bool = True, lockstep_timeout: float = 2.0, startup_timeout: float = 30.0,
+            timeout: float | None = None, domain_id: int | None = None, log_dir=None, results=None,
+            simulator_params: dict | None = None, sensor_params: dict | None = None,
+            controller_params: dict | None = None, on_start=None) -> SilRun:
+    """Start controller, attitude_sensors and simulator (+ recorder with ``bag``), wait, clean up.
+
+    ``timeout`` (wall s, default generous) bounds the whole run; parameters dicts are extra
+    ROS parameters per node. Raises SilError naming the failing node and its last log lines.
+    """
+    from .simulate import SimResult, figures_of_merit
+
+    gains = Path(gains)
+    if not gains.is_file():
+        raise SilError(f"gains file not found: {gains}")
+    prefix = package_prefix()
+    exes = {n: resolve_executable(n) for n in NODES}
+    rec_exe = None
+    if bag:
+        try:
+            rec_exe = resolve_executable(RECORDER_EXE)
+        except SilError:
+            raise SilError(f"--bag needs the '{RECORDER_EXE}' executable of {PACKAGE} (bags helper); "
+                           "it is not installed") from None
+    log_dir = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix="magtune_sil_"))
+    log_dir.mkdir(parents=True, exist_ok=True)
+    results = Path(results) if results else log_dir / "results.npz"
+    if results.exists():
+        results.unlink()
+
+    common = {"use_sim_time": True}
+    sim = dict(common, substeps=int(substeps), results_path=str(results.resolve()), lockstep=bool(lockstep),
+               lockstep_timeout=float(lockstep_timeout), startup_timeout=float(startup_timeout),
+               real_time_factor=float(real_time_factor))
+    if steps:
+        sim["steps"] = int(steps)
+    else:
+        sim["orbits"] = float(orbits)
+    if ts is not None:
+        common_ts = {"ts": float(ts)}
+    else:
+        from .gains import load_gains
+        from .params import ConfigError
+
+        try:
+            common_ts = {"ts": float(load_gains(gains).ts)}
+        except ConfigError as exc:
+            raise SilError(str(exc)) from None
+    params = {
+        "simulator": {**sim, **common_ts, **(simulator_params or {})},
+        "attitude_sensors": {**common, **common_ts, **(sensor_params or {})},
+        "controller": {**common, **common_ts, **(controller_params or {})},
+    }
+    pfile = log_dir / "sil_params.yaml"
+    pfile.write_text(yaml.safe_dump({k: {"ros__parameters": v} for k, v in params.items()}))
+    sc = ["--params-file", str(Path(spacecraft).resolve())] if spacecraft else []
+
+    procs: list[NodeProcess] = []
+    lock = DomainLock(domain_id)
+    t0 = time.perf_counter()
+    old_term = signal.getsignal(signal.SIGTERM)
+    if old_term in (signal.SIG_DFL, None):  # turn SIGTERM into KeyboardInterrupt -> finally
+        signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        env = child_env(lock.domain_id, prefix)
+        if rec_exe:
+            procs.append(start_node("recorder", rec_exe, ["-p", "use_sim_time:=true", "-p",
+                                                          f"path:={Path(bag).resolve()}"], env, log_dir))
+        procs.append(start_node("controller", exes["controller"],
+                                sc + ["--params-file", str(gains.resolve()), "--params-file", str(pfile)], env, log_dir))
+        procs.append(start_node("attitude_sensors", exes["attitude_sensors"], sc + ["--params-file", str(pfile)],
+                                env, log_dir))
+        procs.append(start_node("simulator", exes["simulator"], sc + ["--params-file", str(pfile)], env, log_dir))
+        if on_start:
+            on_start(lock.domain_id, procs)
+        sim_p = procs[-1]
+        n_steps = steps or orbits * 5614.8 / (ts or 1.0)
+        deadline = time.monotonic() + (timeout if timeout else startup_timeout + 60.0 + 0.05 * n_steps)
+        while True:
+            rc = sim_p.popen.poll()
+            if rc is not None:
+                break
+            for p in procs[:-1]:
+                if p.popen.poll() is not None:
+                    raise SilError(f"node '{p.name}' exited with status {p.popen.returncode}:\n{p.tail()}")
+            if time.monotonic() > deadline:
+                raise SilError(f"SIL run timed out after {time.monotonic() - t0:.0f} s; simulator log:\n{sim_p.tail()}")
+            time.sleep(0.05)
+        if rc != 0 or not results.is_file():
+            raise SilError(f"simulator exited with status {rc}:\n{sim_p.tail()}")
+    finally:
+        stop_nodes(procs)
+        lock.release()
+        if old_term in (signal.SIG_DFL, None):
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    total = time.perf_counter() - t0
+    res = SimResult.from_npz(results)
+    counters = json.loads(str(res.info.get("counters", "{}")))
+    return SilRun(res, figures_of_merit(res), counters, float(res.info.get("wall_time", total)), total,
+                  lock.domain_id, log_dir)
+
+
+# ------------------------------------------------------------------ CLI
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    """Register ``sil`` on an argparse subparsers object (``magtune sil ...``)."""
+    p = subparsers.add_parser("sil", help="software-in-the-loop run of the ROS 2 nodes (lockstep, sim time)",
+                              description=__doc__.split("\n\n")[0])
+    p.add_argument("--gains", required=True, help="controller gains parameter file (config/gains/sigma_*.yaml)")
+    p.add_argument("--orbits", type=float, default=5.0, help="run length in orbits (default 5)")
+    p.add_argument("--steps", type=int, default=None, help="run length in controller steps (overrides --orbits)")
+    p.add_argument("--ts", type=float, default=None, help="controller sample period [s] (default: gains file ts)")
+    p.add_argument("--substeps", type=int, default=2, help="RK4 sub-steps per sample period (default 2)")
+    p.add_argument("--spacecraft", default=str(DEFAULT_SPACECRAFT), help="spacecraft parameter file")
+    p.add_argument("--rtf", type=float, default=0.0, help="pace at this real-time factor (default 0: max speed)")
+    p.add_argument("--bag", default=None, help="record the run to this MCAP bag (needs the recorder node)")
+    p.add_argument("--results", default=None, help="keep the trajectory .npz here")
+    p.add_argument("--log-dir", default=None, help="node logs and generated parameters (default: temp dir)")
+    p.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: a free one)")
+    p.add_argument("--timeout", type=float, default=None, help="abort after this many wall seconds")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=cmd_sil)
+    return p
+
+
+def cmd_sil(args) -> int:
+    try:
+        run = run_sil(args.gains, orbits=args.orbits, steps=args.steps, ts=args.ts, substeps=args.substeps,
+                      spacecraft=args.spacecraft, real_time_factor=args.rtf, bag=args.bag, results=args.results,
+                      log_dir=args.log_dir, domain_id=args.domain_id, timeout=args.timeout)
+    except SilError as exc:
+        print(f"magtune sil: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("magtune sil: interrupted; all nodes stopped", file=sys.stderr)
+        return 130
+    if args.json:
+        print(json.dumps(dict(run.figures, **{"missed_steps": run.counters.get("missed_steps", 0),
+                                              "wall_time": run.wall_time, "real_time_factor": run.real_time_factor,
+                                              "counters": run.counters, "log_dir": str(run.log_dir)})))
+    else:
+        print(run.summary())
+    return 0
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m magtune_core.sil")
+    sub = parser.add_subparsers(dest="command", required=True)
+    add_parser(sub)
+    args = parser.parse_args(["sil", *(sys.argv[1:] if argv is None else argv)])
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,143 @@
+"""Projection-based magnetorquer controller node (paper eq. 17), digital sample-and-hold.
+
+    m = sat( S(b)^T K x / |b|^2 ),   x = [dq; dw]  (magtune_core.simulate.ProjectionController)
+
+Parameters: the gains file ``config/gains/sigma_*.yaml`` (``gain``: 18 doubles, row-major 3x6 K;
+``sigma``; ``ts``; provenance entries are declared read-only) and ``config/spacecraft.yaml``
+(orbit period -> nominal rate). Pass them with ``--ros-args --params-file FILE``.
+
+Subscribes (LOCKSTEP_QOS):
+  sensors/magnetic_field   sensor_msgs/MagneticField  [T], body axes
+  sensors/attitude         sensor_msgs/Imu            orientation (body w.r.t. orbital), rate [rad/s]
+  /clock                   rosgraph_msgs/Clock        (use_sim_time; stamps are checked against it)
+Publishes:
+  controller/dipole_command  geometry_msgs/Vector3Stamped [A m^2], stamped with the input stamp;
+                             one per input pair; recomputed every ``ts`` of sim time, held between.
+  /diagnostics  counters: samples, commands, weak_field, saturated, rejected_nonfinite,
+                rejected_quaternion, rejected_stamp, stale_inputs, stale_data
+Inputs are paired by identical stamps. Bad inputs are rejected with a logged reason and
+counted; |b| < min_field gives a zero dipole (counted as weak_field); if no valid input for
+more than 2 ts of sim time, the held dipole is zeroed (stale_data).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from geometry_msgs.msg import Vector3Stamped
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.task import Future
+from sensor_msgs.msg import Imu, MagneticField
+
+from magtune_core.dynamics import linear_state
+from magtune_core.simulate import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD, ProjectionController
+
+from . import common as c
+
+OWN = ("gain", "sigma", "ts", "dipole_limit", "min_field", "use_sim_time")
+
+
+class Controller(Node):
+    NODE_NAME = "controller"
+
+    def __init__(self):
+        super().__init__(self.NODE_NAME)
+        self.done = Future()
+        K = c.declare(self, "gain", None, "3x6 gain K (u = T_id = K x), 18 doubles row-major; "
+                      "rows = torque axes, columns = [dq; dw]", "float[]", size=18)
+        self.sigma = c.declare(self, "sigma", 0.0, "control weight sigma of the design (informative)",
+                               nonnegative=True)
+        self.ts = c.declare(self, "ts", 1.0, "controller sample period Ts [s] (sim time)", positive=True)
+        m_max = c.declare(self, "dipole_limit", [DEFAULT_DIPOLE_LIMIT] * 3, "per-axis dipole saturation [A m^2]",
+                          "float[]", size=3, positive=True)
+        b_min = c.declare(self, "min_field", DEFAULT_MIN_FIELD,
+                          "below this |b| [T] the dipole is zero (projection ill-conditioned)", positive=True)
+        p = c.declare_spacecraft(self)
+        c.declare_overrides(self)
+        self.w0 = p.orbit_rate
+        self.law = ProjectionController(K.reshape(3, 6), m_max, b_min)
+        self.ts_ns = c.sec_to_ns(self.ts)
+        self.gate = c.StampGate(self, 2 * self.ts_ns)
+        self.sync = c.PairSync()
+        self.next_sample_ns = None
+        self.last_input_ns = None
+        self.m = np.zeros(3)
+        self.diag = c.Diagnostics(self, ["samples", "commands", "weak_field", "saturated", "rejected_nonfinite",
+                                         "rejected_quaternion", "rejected_stamp", "stale_inputs", "stale_data"])
+        self.pub = self.create_publisher(Vector3Stamped, c.TOPIC_DIPOLE, c.LOCKSTEP_QOS)
+        self.create_subscription(MagneticField, c.TOPIC_MAG, self.on_mag, c.LOCKSTEP_QOS)
+        self.create_subscription(Imu, c.TOPIC_ATTITUDE, self.on_attitude, c.LOCKSTEP_QOS)
+        self.msg = Vector3Stamped()
+        self.msg.header.frame_id = c.FRAME_BODY
+        self.create_timer(0.1, self.check_stale, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.get_logger().info(f"K loaded (sigma={self.sigma:g}, ts={self.ts:g} s, |K|={np.linalg.norm(K):.4g})")
+
+    def on_mag(self, msg: MagneticField):
+        b = msg.magnetic_field
+        if not c.finite(b.x, b.y, b.z):
+            return self.diag.count("rejected_nonfinite", "non-finite magnetic field")
+        self._input(0, msg)
+
+    def on_attitude(self, msg: Imu):
+        o, w = msg.orientation, msg.angular_velocity
+        if not c.finite(o.w, o.x, o.y, o.z, w.x, w.y, w.z):
+            return self.diag.count("rejected_nonfinite", "non-finite attitude/rate")
+        if abs(math.sqrt(o.w * o.w + o.x * o.x + o.y * o.y + o.z * o.z) - 1.0) > 1e-3:
+            return self.diag.count("rejected_quaternion", "attitude quaternion norm differs from 1 by > 1e-3")
+        self._input(1, msg)
+
+    def _input(self, slot, msg):
+        ns = c.stamp_to_ns(msg.header.stamp)
+        bad = self.gate.check(slot, ns)
+        if bad:
+            return self.diag.count(*bad)
+        pair = self.sync.add(slot, ns, msg)
+        if pair:
+            self.command(ns, *pair)
+
+    def command(self, ns, mag: MagneticField, att: Imu):
+        self.last_input_ns = ns
+        if self.next_sample_ns is None or ns >= self.next_sample_ns:
+            o, w, b = att.orientation, att.angular_velocity, mag.magnetic_field
+            x = linear_state((o.w, o.x, o.y, o.z), (w.x, w.y, w.z), self.w0)
+            out = self.law(x, np.array([b.x, b.y, b.z]))
+            self.m = out.m
+            if out.weak_field:
+                self.diag.count("weak_field", f"|b| below min_field at t={ns * 1e-9:.3f} s: zero dipole")
+            if out.saturated:
+                self.diag.count("saturated")
+            self.diag.count("samples")
+            # next sample one period later on the grid of the first sample (ZOH at Ts)
+            self.next_sample_ns = ns + self.ts_ns if self.next_sample_ns is None else \
+                self.next_sample_ns + self.ts_ns * max(1, (ns - self.next_sample_ns) // self.ts_ns + 1)
+        self.publish(ns)
+
+    def publish(self, ns):
+        msg = self.msg
+        msg.header.stamp = c.ns_to_stamp(ns)
+        msg.vector.x, msg.vector.y, msg.vector.z = float(self.m[0]), float(self.m[1]), float(self.m[2])
+        self.diag.count("commands")
+        self.pub.publish(msg)
+
+    def check_stale(self):
+        if self.last_input_ns is None or not np.any(self.m):
+            return
+        now = self.get_clock().now().nanoseconds
+        if now - self.last_input_ns > 2 * self.ts_ns:
+            self.m = np.zeros(3)
+            self.diag.count("stale_data", f"no valid input since t={self.last_input_ns * 1e-9:.3f} s "
+                                          f"(now {now * 1e-9:.3f} s): dipole zeroed")
+            self.publish(now)
+
+    def finish(self):
+        if self.context.ok():
+            self.diag.publish()
+
+
+def main(args=None):
+    raise SystemExit(c.run(Controller, args))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,261 @@
+"""Attitude simulator node: nonlinear dynamics + environment, source of simulated time.
+
+Physics: ``magtune_core.dynamics.AttitudeDynamics`` (rigid body, pitch wheel, gravity gradient,
+residual dipole, eq. 26 field), integrated with the same RK4 step as the offline
+``magtune_core.simulate.simulate``; the commanded dipole is held over each step (ZOH).
+
+Publishes (all stamped with simulated time t_k = k * ts):
+  /clock                       rosgraph_msgs/Clock        (this node is the time source)
+  sim/truth                    nav_msgs/Odometry          frame 'orbital', child 'body':
+                               pose.orientation = q (body w.r.t. orbital axes; ROS x,y,z,w order),
+                               twist.angular = inertial body rate w [rad/s] in body axes,
+                               pose.position / twist.linear = 0 (circular-orbit attitude model)
+  sim/magnetic_field           sensor_msgs/MagneticField  true field b = R(q)^T b_orb(t) [T], body axes
+  sim/magnetic_torque          geometry_msgs/WrenchStamped  m x b at t_k [N m], body axes
+  sim/disturbance_torque       geometry_msgs/WrenchStamped  gravity gradient + residual dipole at t_k
+  /diagnostics                 diagnostic_msgs/DiagnosticArray (steps, missed_steps, rejected, ...)
+Subscribes:
+  controller/dipole_command    geometry_msgs/Vector3Stamped [A m^2], body axes; saturated per axis.
+
+Lockstep (default): the state at t_k is published, then the simulator waits for the command
+stamped t_k before integrating to t_k+1; after ``lockstep_timeout`` wall seconds it holds the
+last command and counts a missed step. ``real_time_factor`` > 0 paces against the wall clock
+(0 = as fast as possible). With ``lockstep: false`` the simulator free-runs at
+``real_time_factor`` and applies the latest command. At the end it writes ``results_path``
+(.npz, the arrays of ``magtune_core.simulate.SimResult`` plus counters) and exits.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+
+import numpy as np
+from geometry_msgs.msg import Vector3Stamped, WrenchStamped
+from nav_msgs.msg import Odometry
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.task import Future
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import MagneticField
+
+from magtune_core.dynamics import AttitudeDynamics, cross, linear_state, saturate
+from magtune_core.simulate import DEFAULT_DIPOLE_LIMIT, DW0, SimResult, initial_state
+
+from . import common as c
+
+
+class Simulator(Node):
+    NODE_NAME = "simulator"
+
+    def __init__(self):
+        super().__init__(self.NODE_NAME)
+        self.done = Future()
+        p = c.declare_spacecraft(self)
+        self.p = p
+        self.ts = c.declare(self, "ts", 1.0, "step = controller sample period Ts [s] (sim time)", positive=True)
+        self.substeps = c.declare(self, "substeps", 2, "RK4 sub-steps per step", positive=True)
+        orbits = c.declare(self, "orbits", 1.0, "run length [orbits] (used when steps = 0)", positive=True)
+        steps = c.declare(self, "steps", 0, "run length [steps]; 0 = use orbits", nonnegative=True)
+        self.n = int(steps) if steps > 0 else int(round(orbits * p.orbit_period / self.ts))
+        dw0 = c.declare(self, "initial_rate_error", list(DW0), "dw(0) [rad/s], body axes", "float[]", size=3)
+        q0 = c.declare(self, "initial_quaternion", [1.0, 0.0, 0.0, 0.0],
+                       "q(0) scalar-first, body w.r.t. orbital axes", "float[]", size=4)
+        if np.linalg.norm(q0) < 1e-9:
+            raise c.ParamError("initial_quaternion", "expected a nonzero quaternion")
+        self.m_max = c.declare(self, "dipole_limit", [DEFAULT_DIPOLE_LIMIT] * 3,
+                               "per-axis dipole saturation [A m^2]", "float[]", size=3, positive=True)
+        m_res = c.declare(self, "residual_dipole", [1.0, 1.0, 1.0],
+                          "residual magnetic dipole [A m^2] (disturbance, paper eq. 32)", "float[]", size=3)
+        self.lockstep = c.declare(self, "lockstep", True, "advance only when the command for the step arrived")
+        self.timeout = c.declare(self, "lockstep_timeout", 1.0,
+                                 "wall seconds to wait for a command before holding the last one", positive=True)
+        self.startup_timeout = c.declare(self, "startup_timeout", 30.0,
+                                         "wall seconds to wait for subscribers/controller at start", positive=True)
+        self.rtf = c.declare(self, "real_time_factor", 0.0,
+                             "pace sim time at this multiple of wall time; 0 = as fast as possible", nonnegative=True)
+        if not self.lockstep and self.rtf <= 0:
+            raise c.ParamError("real_time_factor", "expected a positive number when lockstep is false")
+        self.results_path = c.declare(self, "results_path", "", "write the run (.npz) here at the end; '' = none")
+        self.pub_torques = c.declare(self, "publish_torques", True, "publish sim/*_torque topics")
+        self.wait_peers = c.declare(self, "wait_for_peers", True,
+                                    "start when the sensors and controller are matched")
+
+        self.dyn = AttitudeDynamics.from_params(p, residual_dipole=m_res)
+        self.y = initial_state(p, dw0, q0)
+        self.k = 0
+        self.t_ns = [c.sec_to_ns(k * self.ts) for k in range(self.n + 1)]
+        self.m_cmd = np.zeros(3)
+        self.awaiting = False
+        self.started = False
+        self.finished = False
+        # recorded run (same layout as SimResult)
+        self.Y = np.zeros((self.n + 1, 7))
+        self.X = np.zeros((self.n + 1, 6))
+        self.M = np.zeros((self.n + 1, 3))
+        self.B = np.zeros((self.n + 1, 3))
+
+        self.diag = c.Diagnostics(self, ["steps", "missed_steps", "rejected_commands", "late_commands",
+                                         "saturated_commands"])
+        self.pub_clock = self.create_publisher(ClockMsg, "/clock", c.CLOCK_QOS)
+        self.pub_truth = self.create_publisher(Odometry, c.TOPIC_TRUTH, c.LOCKSTEP_QOS)
+        self.pub_field = self.create_publisher(MagneticField, c.TOPIC_TRUE_FIELD, c.LOCKSTEP_QOS)
+        self.pub_tmag = self.create_publisher(WrenchStamped, c.TOPIC_MAG_TORQUE, c.LOCKSTEP_QOS)
+        self.pub_tdist = self.create_publisher(WrenchStamped, c.TOPIC_DIST_TORQUE, c.LOCKSTEP_QOS)
+        self.sub_cmd = self.create_subscription(Vector3Stamped, c.TOPIC_DIPOLE, self.on_command, c.LOCKSTEP_QOS)
+        # preallocated messages (fields overwritten every step)
+        self.msg_clock = ClockMsg()
+        self.msg_truth = Odometry()
+        self.msg_truth.header.frame_id = c.FRAME_ORBITAL
+        self.msg_truth.child_frame_id = c.FRAME_BODY
+        self.msg_field = MagneticField()
+        self.msg_field.header.frame_id = c.FRAME_BODY
+        self.msg_tmag = WrenchStamped()
+        self.msg_tmag.header.frame_id = c.FRAME_BODY
+        self.msg_tdist = WrenchStamped()
+        self.msg_tdist.header.frame_id = c.FRAME_BODY
+
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.wall0 = time.perf_counter()
+        self.t_publish = self.wall0
+        self.watchdog = self.create_timer(0.05 if self.lockstep else self.ts / max(self.rtf, 1e-9),
+                                          self.on_timer, clock=steady)
+        self.get_logger().info(
+            f"{self.n} steps of {self.ts} s ({self.n * self.ts / p.orbit_period:.3f} orbits), "
+            f"lockstep={self.lockstep}, real_time_factor={self.rtf or 'max'}, field={p.field_model}")
+
+    # ---------------------------------------------------------------- stepping
+    def peers_ready(self) -> bool:
+        return (not self.wait_peers) or (
+            self.pub_truth.get_subscription_count() > 0 and self.pub_field.get_subscription_count() > 0
+            and self.sub_cmd.get_publisher_count() > 0)
+
+    def on_timer(self):
+        now = time.perf_counter()
+        if self.finished:
+            return
+        if not self.started:
+            if self.peers_ready():
+                self.started = True
+                self.wall0 = time.perf_counter()
+                self.publish_state()
+            elif now - self.wall0 > self.startup_timeout:
+                self.get_logger().error("no subscriber/controller matched within startup_timeout; giving up")
+                self.finish_run(code=3)
+            return
+        if not self.lockstep:
+            self.advance()  # free-running: latest command
+            return
+        limit = self.startup_timeout if self.k == 0 else self.timeout
+        if self.awaiting and now - self.t_publish > limit:
+            self.diag.count("missed_steps", f"no command for t={self.k * self.ts:.3f} s within {limit} s; "
+                                            f"holding {self.m_cmd.tolist()}")
+            self.advance()
+
+    def publish_state(self):
+        """Publish /clock, truth and true field at t_k, then wait for the command (lockstep)."""
+        k, y = self.k, self.y
+        stamp = c.ns_to_stamp(self.t_ns[k])
+        b = self.dyn.body_field(k * self.ts, y[:4])
+        self.Y[k], self.B[k] = y, b
+        self.X[k] = linear_state(y[:4], y[4:], self.dyn.orbit_rate)
+        self.msg_clock.clock = stamp
+        self.pub_clock.publish(self.msg_clock)
+        m = self.msg_truth
+        m.header.stamp = stamp
+        o = m.pose.pose.orientation
+        o.w, o.x, o.y, o.z = float(y[0]), float(y[1]), float(y[2]), float(y[3])
+        a = m.twist.twist.angular
+        a.x, a.y, a.z = float(y[4]), float(y[5]), float(y[6])
+        f = self.msg_field
+        f.header.stamp = stamp
+        f.magnetic_field.x, f.magnetic_field.y, f.magnetic_field.z = float(b[0]), float(b[1]), float(b[2])
+        self.awaiting = True
+        self.t_publish = time.perf_counter()
+        self.pub_truth.publish(m)
+        self.pub_field.publish(f)
+
+    def on_command(self, msg: Vector3Stamped):
+        v = msg.vector
+        if not c.finite(v.x, v.y, v.z):
+            self.diag.count("rejected_commands", "non-finite dipole command")
+            return
+        ns = c.stamp_to_ns(msg.header.stamp)
+        if not self.started or self.finished:
+            return
+        cur = self.t_ns[self.k]
+        if ns < cur:
+            self.diag.count("late_commands", f"command for t={ns * 1e-9:.3f} s arrived at step t={cur * 1e-9:.3f} s")
+            return
+        if ns > cur:
+            self.diag.count("rejected_commands", f"command stamped in the future ({ns * 1e-9:.3f} s > "
+                                                 f"{cur * 1e-9:.3f} s)")
+            return
+        m = np.array([v.x, v.y, v.z])
+        ms = saturate(m, self.m_max)
+        if np.any(ms != m):
+            self.diag.count("saturated_commands")
+        self.m_cmd = ms
+        if self.lockstep and self.awaiting:
+            self.advance()
+
+    def advance(self):
+        """Apply the held command over [t_k, t_k+1] and publish the next state (or finish)."""
+        k = self.k
+        self.awaiting = False
+        m = self.m_cmd
+        self.M[k] = m
+        self.diag.count("steps")
+        if self.pub_torques:
+            self.publish_torques(k, m)
+        if k >= self.n:
+            self.finish_run()
+            return
+        self.y = self.dyn.step(k * self.ts, self.y, self.ts, m, self.substeps)
+        self.k = k + 1
+        if self.rtf > 0 and self.lockstep:
+            lag = self.wall0 + self.k * self.ts / self.rtf - time.perf_counter()
+            if lag > 0:
+                time.sleep(lag)
+        self.publish_state()
+
+    def publish_torques(self, k, m):
+        y, b = self.Y[k], self.B[k]
+        stamp = c.ns_to_stamp(self.t_ns[k])
+        tm = cross(m, b)
+        td = self.dyn.disturbance_torque(k * self.ts, y[:4], y[4:], b)
+        for msg, T, pub in ((self.msg_tmag, tm, self.pub_tmag), (self.msg_tdist, td, self.pub_tdist)):
+            msg.header.stamp = stamp
+            msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z = float(T[0]), float(T[1]), float(T[2])
+            pub.publish(msg)
+
+    # ---------------------------------------------------------------- end of run
+    def finish_run(self, code: int = 0):
+        if self.finished:
+            return
+        self.finished = True
+        wall = time.perf_counter() - self.wall0
+        steps = self.k + 1 if code == 0 else self.k
+        sim_t = self.k * self.ts
+        self.diag.extra.update(wall_time=f"{wall:.3f}", real_time_factor=f"{sim_t / max(wall, 1e-9):.1f}")
+        self.diag.publish()
+        if self.results_path and code == 0:
+            res = SimResult(np.array(self.t_ns[:steps]) * 1e-9, self.Y[:steps, :4], self.Y[:steps, 4:],
+                            self.X[:steps], self.M[:steps], self.B[:steps], self.p.orbit_period)
+            res.t = np.arange(steps) * self.ts  # exactly the offline grid
+            res.to_npz(self.results_path, wall_time=wall, counters=json.dumps(self.diag.counts),
+                       ts=self.ts, substeps=self.substeps)
+        self.get_logger().info(f"done: {self.k} steps, sim {sim_t:.0f} s in {wall:.2f} s wall "
+                               f"(RTF {sim_t / max(wall, 1e-9):.0f}), counters {self.diag.counts}")
+        self.done.set_result(code)
+
+    def finish(self):
+        """Called by common.run at shutdown (e.g. Ctrl-C): nothing to flush unless finished."""
+
+
+def main(args=None):
+    raise SystemExit(c.run(Simulator, args))
+
+
+if __name__ == "__main__":
+    main()
