@@ -3,7 +3,7 @@ _root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 export VIRTUAL_ENV="$_root/.venv"
 export PATH="$_root/.venv/bin:$PATH"
 export AMENT_PREFIX_PATH="$_root/.venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
-# every colcon-built package of ros2_ws (magtune_ros, magtune_bag, ...)
+# every colcon-built package of ros2_ws (magtune_ros, ...)
 for _pkg in "$_root"/ros2_ws/install/*/; do
   [ -f "$_pkg/share/ament_index/resource_index/packages/$(basename "$_pkg")" ] || continue
   export AMENT_PREFIX_PATH="${_pkg%/}:$AMENT_PREFIX_PATH"

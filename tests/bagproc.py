@@ -11,12 +11,12 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 TESTS = ROOT / "tests"
-_EXE_DIR = ROOT / "ros2_ws" / "install" / "magtune_bag" / "lib" / "magtune_bag"
+_EXE_DIR = ROOT / "ros2_ws" / "install" / "magtune_ros" / "lib" / "magtune_ros"
 _domains = itertools.count((os.getpid() % 40) * 4 + 60)  # 60..219, a few per test process
 
 
 def executable(name: str) -> list[str]:
-    """Command of a magtune_bag node: the colcon-installed executable (as ``ros2 run`` uses)."""
+    """Command of a magtune_ros node: the colcon-installed executable (as ``ros2 run`` uses)."""
     exe = _EXE_DIR / name
     if not exe.exists():
         raise FileNotFoundError(f"{exe} missing: run scripts/bootstrap.sh (colcon build)")

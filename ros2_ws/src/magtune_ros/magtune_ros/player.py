@@ -1,6 +1,6 @@
 """``player`` node: republish a bag's messages at their recorded (sim) times, with ``/clock``.
 
-Usage (``ros2 run magtune_bag player`` or ``install/magtune_bag/lib/magtune_bag/player``)::
+Usage (``ros2 run magtune_ros player`` or ``install/magtune_ros/lib/magtune_ros/player``)::
 
     player bags/NAME [--rate R] [--topics /a /b] [--start S] [--loop] [--no-clock]
                      [--depth N] [--wait-subscribers S] [--ack-every N]
@@ -39,7 +39,7 @@ from rclpy.utilities import remove_ros_args
 
 from magtune_core import bag as baglib
 
-from .common import install_stop_handlers, message_class, offer_from_recorded
+from .bag_common import install_stop_handlers, message_class, offer_from_recorded
 
 CLOCK = "/clock"
 

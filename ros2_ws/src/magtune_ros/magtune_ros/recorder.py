@@ -1,10 +1,15 @@
 """``recorder`` node: record topics to a rosbag2-compatible MCAP bag (``magtune_core.bag``).
 
-Usage (``ros2 run magtune_bag recorder`` or ``install/magtune_bag/lib/magtune_bag/recorder``)::
+Usage (``ros2 run magtune_ros recorder`` or ``install/magtune_ros/lib/magtune_ros/recorder``)::
 
     recorder -o bags/NAME [--topics /a /b:pkg/msg/Type ...] [--all] [--custom-data k=v ...]
              [--chunk-size BYTES] [--flush-period S] [--depth N] [--wall-time]
              [--max-messages N] [--duration S]
+    recorder --ros-args -p path:=bags/NAME [-p topics:="['/a', ...]"] [-p custom_data:="['sigma=60']"]
+
+Every option is also a ROS parameter of the same name (``path`` for ``-o``; dashes become
+underscores); a command-line option wins over the parameter. Without ``--topics`` and
+``--all`` the project's topics (:data:`magtune_core.bag_topics.PROJECT_TOPICS`) are recorded.
 
 Design:
 
@@ -43,14 +48,16 @@ from rclpy.clock import Clock, ClockType
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import ReliabilityPolicy
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
 from magtune_core.bag import DEFAULT_CHUNK_SIZE, BagWriter
+from magtune_core.bag_topics import PROJECT_TOPICS, topic_specs
 from magtune_core.msgdefs import normalize_type
 
-from .common import (HIDDEN_TOPICS, adapt_request, install_stop_handlers, message_class,
+from .bag_common import (HIDDEN_TOPICS, adapt_request, install_stop_handlers, message_class,
                      qos_profile_dict)
 
 CLOCK = "/clock"
@@ -58,22 +65,48 @@ CLOCK = "/clock"
 
 def parse_args(argv):
     p = argparse.ArgumentParser(prog="recorder", description=__doc__.split("\n\n")[0])
-    p.add_argument("-o", "--output", required=True, help="bag directory to create (bags/NAME)")
-    p.add_argument("--topics", nargs="*", default=[],
+    p.add_argument("-o", "--output", "--path", dest="output", default=None,
+                   help="bag directory to create (bags/NAME)")
+    p.add_argument("--topics", nargs="*", default=None,
                    help="topics to record: /name or /name:pkg/msg/Type (typed: subscribed at once)")
     p.add_argument("--all", action="store_true", help="record every discovered topic")
     p.add_argument("--include-hidden", action="store_true", help="with --all, also /rosout etc.")
-    p.add_argument("--custom-data", nargs="*", default=[], metavar="KEY=VALUE",
+    p.add_argument("--custom-data", nargs="*", default=None, metavar="KEY=VALUE",
                    help="stored in metadata.yaml custom_data (e.g. sigma=60)")
-    p.add_argument("--chunk-size", type=int, default=DEFAULT_CHUNK_SIZE)
-    p.add_argument("--flush-period", type=float, default=1.0,
-                   help="close the open chunk every S wall seconds (crash safety)")
-    p.add_argument("--depth", type=int, default=1000, help="subscription queue depth")
-    p.add_argument("--wall-time", action="store_true", help="log wall time, not sim time")
-    p.add_argument("--max-messages", type=int, default=0, help="stop after N messages (0: never)")
-    p.add_argument("--duration", type=float, default=0.0, help="stop after S wall seconds")
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--chunk-size", type=int, default=None, help=f"default {DEFAULTS['chunk_size']}")
+    p.add_argument("--flush-period", type=float, default=None,
+                   help="close the open chunk every S wall seconds (crash safety; default 1)")
+    p.add_argument("--depth", type=int, default=None, help="subscription queue depth (1000)")
+    p.add_argument("--wall-time", action="store_true", default=None, help="log wall time, not sim time")
+    p.add_argument("--max-messages", type=int, default=None, help="stop after N messages (0: never)")
+    p.add_argument("--duration", type=float, default=None, help="stop after S wall seconds (0: never)")
+    p.add_argument("--overwrite", action="store_true", default=None)
     return p.parse_args(argv)
+
+
+#: option -> default; each is also a ROS parameter (``output`` is the parameter ``path``)
+DEFAULTS = {"output": "", "topics": [], "all": False, "include_hidden": False, "custom_data": [],
+            "chunk_size": DEFAULT_CHUNK_SIZE, "flush_period": 1.0, "depth": 1000,
+            "wall_time": False, "max_messages": 0, "duration": 0.0, "overwrite": False}
+
+
+def resolve_options(node: Node, args) -> argparse.Namespace:
+    """Command-line options, else ROS parameters, else defaults."""
+    out = {}
+    for key, default in DEFAULTS.items():
+        pname = "path" if key == "output" else key
+        if isinstance(default, list):
+            desc = ParameterDescriptor(type=ParameterType.PARAMETER_STRING_ARRAY)
+            value = node.declare_parameter(pname, Parameter.Type.STRING_ARRAY, desc).value or []
+        else:
+            value = node.declare_parameter(pname, default).value
+        cli = getattr(args, key, None)
+        out[key] = cli if cli is not None else value
+    if not out["output"]:
+        raise SystemExit("recorder: no output bag given (-o bags/NAME or -p path:=bags/NAME)")
+    if not out["topics"] and not out["all"]:
+        out["topics"] = topic_specs()
+    return argparse.Namespace(**out)
 
 
 class SimClockMap:
@@ -176,10 +209,9 @@ class BagWriterThread(threading.Thread):
 class Recorder(Node):
     """Subscribes raw to the selected topics and hands the bytes to the writer thread."""
 
-    def __init__(self, args):
-        super().__init__("magtune_recorder", parameter_overrides=[
-            Parameter("use_sim_time", value=not args.wall_time)])
-        self.args = args
+    def __init__(self, cli_args):
+        super().__init__("recorder")
+        self.args = args = resolve_options(self, cli_args)
         custom = dict(kv.split("=", 1) for kv in args.custom_data)
         self.bag = BagWriter(args.output, chunk_size=args.chunk_size, custom_data=custom,
                              overwrite=args.overwrite)
@@ -189,6 +221,9 @@ class Recorder(Node):
         self.wanted: dict[str, str | None] = {}
         for spec in args.topics:
             name, _, typ = spec.partition(":")
+            name = "/" + name.lstrip("/")
+            if not typ and name in PROJECT_TOPICS:
+                typ = PROJECT_TOPICS[name][0]
             self.wanted[name] = normalize_type(typ) if typ else None
         self.subs = {}
         self.types: dict[str, str] = {}
@@ -215,10 +250,13 @@ class Recorder(Node):
             if name not in self.subs and types and self._selected(name):
                 self._subscribe(name, normalize_type(types[0]))
         for name, sub in list(self.subs.items()):
-            if sub.qos_profile.reliability == ReliabilityPolicy.RELIABLE and any(
-                    i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
-                    for i in self.get_publishers_info_by_topic(name)):
-                self.get_logger().warning(f"{name}: best-effort publisher; resubscribing")
+            offers = [i.qos_profile for i in self.get_publishers_info_by_topic(name)]
+            q = sub.qos_profile
+            if (q.reliability == ReliabilityPolicy.RELIABLE and any(
+                    o.reliability == ReliabilityPolicy.BEST_EFFORT for o in offers)) or (
+                    q.durability == DurabilityPolicy.TRANSIENT_LOCAL and any(
+                    o.durability == DurabilityPolicy.VOLATILE for o in offers)):
+                self.get_logger().warning(f"{name}: a publisher's QoS is incompatible; resubscribing")
                 self.destroy_subscription(sub)
                 del self.subs[name]
                 self._subscribe(name, self.types[name])
@@ -226,6 +264,10 @@ class Recorder(Node):
     def _subscribe(self, name: str, typ: str):
         offered = [i.qos_profile for i in self.get_publishers_info_by_topic(name)]
         qos = adapt_request(offered, self.args.depth)
+        if not offered and PROJECT_TOPICS.get(name, ("", ""))[1] == "transient_local":
+            # subscribed before its publisher exists: ask for the late-joiner history the
+            # project's lockstep publishers keep (transient-local, depth 100)
+            qos.durability = DurabilityPolicy.TRANSIENT_LOCAL
         holder = {}
         self.types[name] = typ
         sub = self.create_subscription(message_class(typ), name,
