@@ -1,7 +1,6 @@
 """Process helpers for the ROS bag tests: isolated DDS domain, start/stop, executables."""
 from __future__ import annotations
 
-import itertools
 import os
 import signal
 import subprocess
@@ -9,10 +8,11 @@ import sys
 import time
 from pathlib import Path
 
+from magtune_core.sil import DomainLock
+
 ROOT = Path(__file__).resolve().parents[1]
 TESTS = ROOT / "tests"
 _EXE_DIR = ROOT / "ros2_ws" / "install" / "magtune_ros" / "lib" / "magtune_ros"
-_domains = itertools.count((os.getpid() % 40) * 4 + 60)  # 60..219, a few per test process
 
 
 def executable(name: str) -> list[str]:
@@ -23,13 +23,22 @@ def executable(name: str) -> list[str]:
     return [str(exe)]
 
 
-def ros_env() -> dict:
-    """Environment with a fresh ROS_DOMAIN_ID, discovery limited to this host."""
+def ros_env(lock=None) -> dict:
+    """Environment with a ROS_DOMAIN_ID reserved by ``lock`` (a ``sil.DomainLock``: a lock
+    file per id, so concurrent test runs on this machine never share a domain), discovery
+    limited to this host."""
     env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(next(_domains))
+    if lock is None:
+        lock = DomainLock()
+    env["ROS_DOMAIN_ID"] = str(lock.domain_id)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env["PYTHONUNBUFFERED"] = "1"
+    env["_MAGTUNE_LOCK"] = str(id(lock))
+    _locks[id(lock)] = lock
     return env
+
+
+_locks: dict = {}
 
 
 class Procs:
@@ -65,6 +74,7 @@ class Procs:
         raise TimeoutError(f"'{text}' not seen in {timeout} s:\n{self.output(p)}")
 
     def stop_all(self) -> None:
+        """SIGINT every process, SIGKILL what is left after 5 s, release the domain id."""
         for p in self.procs:
             if p.poll() is None:
                 p.send_signal(signal.SIGINT)
@@ -75,3 +85,6 @@ class Procs:
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
+        lock = _locks.pop(int(self.env.get("_MAGTUNE_LOCK", 0)), None)
+        if lock is not None:
+            lock.release()
