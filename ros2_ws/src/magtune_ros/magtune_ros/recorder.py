@@ -15,7 +15,7 @@ Design:
 
 * subscriptions are ``raw=True`` (the callback gets the serialized CDR bytes; nothing is
   deserialized); QoS adapted to the publishers' offers (reliable when they all are), KEEP_LAST
-  with a deep queue (``--depth``, default 1000);
+  with a deep queue (``--depth``, default 10000: seconds of backlog at full SIL speed);
 * log time = receive time in sim time (unless ``--wall-time``): the recorder always listens to
   ``/clock`` and keeps a table (DDS receive wall time of each ``/clock`` sample -> its sim
   time); a message gets the sim time of the last ``/clock`` that DDS delivered before the
@@ -76,7 +76,7 @@ def parse_args(argv):
     p.add_argument("--chunk-size", type=int, default=None, help=f"default {DEFAULTS['chunk_size']}")
     p.add_argument("--flush-period", type=float, default=None,
                    help="close the open chunk every S wall seconds (crash safety; default 1)")
-    p.add_argument("--depth", type=int, default=None, help="subscription queue depth (1000)")
+    p.add_argument("--depth", type=int, default=None, help="subscription queue depth (10000)")
     p.add_argument("--wall-time", action="store_true", default=None, help="log wall time, not sim time")
     p.add_argument("--max-messages", type=int, default=None, help="stop after N messages (0: never)")
     p.add_argument("--duration", type=float, default=None, help="stop after S wall seconds (0: never)")
@@ -86,7 +86,7 @@ def parse_args(argv):
 
 #: option -> default; each is also a ROS parameter (``output`` is the parameter ``path``)
 DEFAULTS = {"output": "", "topics": [], "all": False, "include_hidden": False, "custom_data": [],
-            "chunk_size": DEFAULT_CHUNK_SIZE, "flush_period": 1.0, "depth": 1000,
+            "chunk_size": DEFAULT_CHUNK_SIZE, "flush_period": 1.0, "depth": 10000,
             "wall_time": False, "max_messages": 0, "duration": 0.0, "overwrite": False}
 
 
