@@ -292,16 +292,25 @@ def has_summary(mcap_path: Path) -> bool:
         return False
 
 
-def iter_messages(bag, topics=None, start_ns: int | None = None,
-                  report: dict | None = None) -> Iterator[BagMessage]:
-    """Messages of a bag in log-time order.
+def iter_messages(bag, topics=None, start_ns: int | None = None, report: dict | None = None,
+                  order: str = "log") -> Iterator[BagMessage]:
+    """Messages of a bag in log-time order (``order="publish"``: by publish time, ties in
+    log-time order; ``start_ns`` then applies to publish times).
 
     A cleanly closed file is read through its index. A truncated or corrupt file (no summary) is
     scanned sequentially; every complete, CRC-valid chunk is returned and ``report`` (if a dict)
     receives what was skipped (see :func:`magtune_core.bag_recover.scan`).
     """
+    if order == "publish":
+        msgs = sorted(iter_messages(bag, topics, None, report), key=lambda m: m.publish_time)
+        yield from (m for m in msgs if start_ns is None or m.publish_time >= start_ns)
+        return
+    if order != "log":
+        raise ValueError(f"order must be 'log' or 'publish', not {order!r}")
     path = resolve_mcap(bag)
-    wanted = set(topics) if topics else None
+    wanted = set(topics) if topics is not None else None
+    if wanted is not None and not wanted:
+        return
     if has_summary(path):
         with open(path, "rb") as f:
             for schema, channel, msg in make_reader(f).iter_messages(

@@ -170,3 +170,20 @@ def test_copy_of_bag_directory_is_self_contained(tmp_path):
     shutil.copytree(p, q)
     # resolve_mcap follows metadata.yaml's relative_file_paths (run_0.mcap) in the copy
     assert bag.info(q)["message_count"] == 600
+
+
+def test_topic_filter_and_publish_order(tmp_path):
+    p = _write(tmp_path, n=20)
+    assert list(bag.iter_messages(p, topics=[])) == []          # empty filter: nothing
+    assert {m.topic for m in bag.iter_messages(p, topics=["/clock"])} == {"/clock"}
+    d = Decoder()
+    w = bag.BagWriter(tmp_path / "late", chunk_size=1024)
+    w.add_topic("/imu", "sensor_msgs/msg/Imu")
+    # a late-delivered sample: received (log) at 5 s, published at 1 s
+    w.write("/imu", _imu(d, 5), 5_000_000_000, 5_000_000_000)
+    w.write("/imu", _imu(d, 1), 5_000_000_000, 1_000_000_000)
+    w.close()
+    assert [m.publish_time for m in bag.iter_messages(tmp_path / "late", order="publish")] == \
+        [1_000_000_000, 5_000_000_000]
+    with pytest.raises(ValueError):
+        list(bag.iter_messages(tmp_path / "late", order="stamp"))

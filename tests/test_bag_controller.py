@@ -40,7 +40,11 @@ def test_replayed_sensors_reproduce_dipole_commands(tmp_path):
     gains = tmp_path / "sigma_60.yaml"
     save_gains(gains, lq_gains(SpacecraftParams(), 60.0, 1.0))
     rec1 = tmp_path / "sil_run"
-    run = sil.run_sil(gains, steps=STEPS, bag=rec1, log_dir=tmp_path / "sil_logs", timeout=120)
+    # paced at 100x real time: the recorder's DDS discovery of the simulator (it is not one of
+    # the simulator's lockstep peers) then costs at most a few steps, recovered from the
+    # transient-local history (depth 100) of the lockstep topics
+    run = sil.run_sil(gains, steps=STEPS, bag=rec1, log_dir=tmp_path / "sil_logs", timeout=120,
+                      real_time_factor=100.0)
     assert run.counters["missed_steps"] == 0
     original = _dipoles(rec1)
     assert len(original) >= 0.5 * STEPS, "SIL recording lacks dipole commands"

@@ -19,6 +19,8 @@ Usage (``ros2 run magtune_ros player`` or ``install/magtune_ros/lib/magtune_ros/
   messages; with Fast DDS an ack waits for the writer's next heartbeat, about 3 s, so this is
   a coarse throttle, off by default.) Before exiting the player waits for all acks;
 * ``--start S`` skips the first S seconds of the bag; ``--loop`` repeats until SIGINT;
+* ``--order publish`` replays on the publish-time timeline instead of the receive (log) time
+  (they differ only for samples a recorder received late, e.g. transient-local history);
 * a truncated/corrupt bag (no summary) is scanned: what is readable is replayed and the
   final JSON line on stdout reports what was not (``unreadable``).
 """
@@ -55,6 +57,8 @@ def parse_args(argv):
     p.add_argument("--depth", type=int, default=1000, help="publisher queue depth")
     p.add_argument("--ack-every", type=int, default=0,
                    help="rate 0: also wait for acks every N messages (0: never)")
+    p.add_argument("--order", choices=("log", "publish"), default="log",
+                   help="timeline: receive (log) time, as rosbag2 play, or publish time")
     p.add_argument("--wait-subscribers", type=float, default=0.0,
                    help="wait up to S seconds until every topic has a subscriber")
     return p.parse_args(argv)
@@ -119,19 +123,20 @@ class Player(Node):
         last_clock = None
         since_ack = 0
         for m in baglib.iter_messages(a.bag, topics=list(self.pubs), start_ns=start_ns,
-                                      report=report):
+                                      report=report, order=a.order):
             if stop.is_set():
                 return
+            t = m.log_time if a.order == "log" else m.publish_time
             if t0 is None:
-                t0 = m.log_time
+                t0 = t
             if a.rate > 0:
-                delay = wall0 + (m.log_time - t0) / 1e9 / a.rate - time.monotonic()
+                delay = wall0 + (t - t0) / 1e9 / a.rate - time.monotonic()
                 if delay > 0:
                     if stop.wait(delay):
                         return
-            if self.clock_pub is not None and (last_clock is None or m.log_time > last_clock):
-                self.publish_clock(m.log_time)
-                last_clock = m.log_time
+            if self.clock_pub is not None and (last_clock is None or t > last_clock):
+                self.publish_clock(t)
+                last_clock = t
                 counts[CLOCK] = counts.get(CLOCK, 0) + 1
             self.pubs[m.topic].publish(m.data)
             counts[m.topic] = counts.get(m.topic, 0) + 1

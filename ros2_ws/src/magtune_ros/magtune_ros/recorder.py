@@ -20,7 +20,10 @@ Design:
   ``/clock`` and keeps a table (DDS receive wall time of each ``/clock`` sample -> its sim
   time); a message gets the sim time of the last ``/clock`` that DDS delivered before the
   message itself (``MessageInfo.received_timestamp``). So the log time does not depend on how
-  far the Python executor lags behind at full SIL speed. publish_time = log time;
+  far the Python executor lags behind at full SIL speed. publish_time is the sim time at the
+  publisher's send (``source_timestamp`` mapped through the /clock samples' own source
+  stamps, as rosbag2's send_timestamp); it differs from log_time only for samples delivered
+  late, e.g. the transient-local history a late-matching recorder receives;
 * the executor thread only appends ``(topic, t, bytes)`` to a deque; a writer thread drains it
   into the MCAP writer, so disk I/O and zstd never block message intake;
 * every completed chunk goes straight to the OS, and the open chunk is closed every
@@ -120,6 +123,7 @@ class SimClockMap:
     def __init__(self):
         self.walls: list[int] = []
         self.sims: list[int] = []
+        self.source: "SimClockMap | None" = None   # same table keyed by source timestamps
 
     def add(self, wall_ns: int, sim_ns: int) -> None:
         if self.walls and wall_ns < self.walls[-1]:
@@ -183,8 +187,11 @@ class BagWriterThread(threading.Thread):
                     else:
                         if not self._ready(item[1]):
                             break
-                        t = item[1] if cm is None else cm.sim_at(item[1])
-                        w.write(item[0], item[2], t)
+                        if cm is None:
+                            t, tp = item[1], item[3]
+                        else:
+                            t, tp = cm.sim_at(item[1]), cm.source.sim_at(item[3])
+                        w.write(item[0], item[2], t, tp)
                         n += 1
                     q.popleft()
                 self.written += n
@@ -216,6 +223,8 @@ class Recorder(Node):
         self.bag = BagWriter(args.output, chunk_size=args.chunk_size, custom_data=custom,
                              overwrite=args.overwrite)
         self.clock_map = None if args.wall_time else SimClockMap()
+        if self.clock_map is not None:
+            self.clock_map.source = SimClockMap()
         self.thread = BagWriterThread(self.bag, args.flush_period, self.clock_map)
         self.thread.start()
         self.wanted: dict[str, str | None] = {}
@@ -228,6 +237,8 @@ class Recorder(Node):
         self.subs = {}
         self.types: dict[str, str] = {}
         self.registered: set[str] = set()
+        self.matched: set[str] = set()
+        self.all_matched = False
         self.counts: collections.Counter = collections.Counter()
         self.received = 0
         if self.clock_map is not None:
@@ -237,15 +248,29 @@ class Recorder(Node):
                 self._subscribe(name, typ)
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(0.2, self._discover, clock=self._steady)
+        self.create_timer(0.02, self._report_matches, clock=self._steady)
         self._discover()
 
     def _selected(self, name: str) -> bool:
         return name in self.wanted or (self.args.all and (
             self.args.include_hidden or name not in HIDDEN_TOPICS))
 
+    def _report_matches(self):
+        """Print ``magtune-recorder matched /topic`` once per topic when its first publisher is
+        matched, and ``magtune-recorder matched all`` when every requested topic is (a runner
+        can wait for these lines before starting the publishers' clock)."""
+        for name, sub in self.subs.items():
+            if name not in self.matched and sub.get_publisher_count() > 0:
+                self.matched.add(name)
+                print(f"magtune-recorder matched {name}", flush=True)
+        if not self.all_matched and self.wanted and all(n in self.matched for n in self.wanted):
+            self.all_matched = True
+            print("magtune-recorder matched all", flush=True)
+
     def _discover(self):
         """Subscribe to newly seen selected topics; downgrade a reliable subscription made
         before its publishers existed if one of them turns out to be best effort."""
+        self._report_matches()
         for name, types in self.get_topic_names_and_types():
             if name not in self.subs and types and self._selected(name):
                 self._subscribe(name, normalize_type(types[0]))
@@ -285,7 +310,9 @@ class Recorder(Node):
         def handle(data: bytes, info: dict):
             wall = info["received_timestamp"]
             if cm is not None:
-                cm.add(wall, clock_from_cdr(data))
+                t_sim = clock_from_cdr(data)
+                cm.add(wall, t_sim)
+                cm.source.add(info["source_timestamp"], t_sim)
             if not record:
                 return
             if name not in self.registered:
@@ -293,7 +320,7 @@ class Recorder(Node):
                 offered = [qos_profile_dict(i.qos_profile)
                            for i in self.get_publishers_info_by_topic(name)]
                 q.append((None, name, typ, offered))
-            q.append((name, wall, data))
+            q.append((name, wall, data, info["source_timestamp"]))
             self.counts[name] += 1
             self.received += 1
 
