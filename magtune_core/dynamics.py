@@ -28,8 +28,10 @@ dynamic rows; tests/test_dynamics.py checks both statements.)
 The field and the disturbance torques are pluggable: ``field`` is any callable
 ``t -> b_orb(t)`` (tesla, orbital axes), e.g. ``SpacecraftParams.field()`` (paper eq. 26) or an
 IGRF model along the orbit; ``disturbances`` is a list of callables
-``(t, q, w, b_body) -> torque in body axes`` [N m] (gravity gradient is part of the rigid-body
-model, not a plug-in: it defines the linearization).
+``(t, q, w, b_body) -> torque in body axes`` [N m] (e.g. aerodynamic drag, solar radiation
+pressure). Gravity gradient is part of the rigid-body model, not a plug-in: it defines the
+linearization; the residual dipole is built in (``residual_dipole``, scalar code for speed)
+and equals the plug-in ``residual_dipole_torque``.
 """
 from __future__ import annotations
 
@@ -112,6 +114,8 @@ class AttitudeDynamics:
     field: FieldFn
     disturbances: Sequence[TorqueFn] = dc_field(default_factory=list)
     gravity_gradient: bool = True
+    #: residual magnetic dipole m_res [A m^2] (paper eq. 32): T_d = m_res x b, built in for speed
+    residual_dipole: Sequence[float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
         I = np.asarray(self.inertia, dtype=float)
@@ -123,15 +127,25 @@ class AttitudeDynamics:
         self._I = tuple(tuple(float(v) for v in r) for r in self.inertia)
         self._J = tuple(tuple(float(v) for v in r) for r in self.inertia_inv)
         self._h = tuple(float(v) for v in self.wheel_momentum)
+        self._field_cache: dict = {}
+        self.residual_dipole = tuple(float(v) for v in np.asarray(self.residual_dipole, dtype=float).reshape(3))
+
+    def field_at(self, t: float):
+        """b_orb(t) as three floats, memoized for the few instants an RK4 step revisits."""
+        v = self._field_cache.get(t)
+        if v is None:
+            if len(self._field_cache) > 8:
+                self._field_cache.clear()
+            v = self._field_cache[t] = tuple(float(x) for x in np.asarray(self.field(t), dtype=float).reshape(3))
+        return v
 
     @classmethod
     def from_params(cls, p: SpacecraftParams, field: FieldFn | None = None,
                     residual_dipole=(1.0, 1.0, 1.0), disturbances: Sequence[TorqueFn] = ()) -> "AttitudeDynamics":
         """Paper section 5 set-up: eq. (26) field (unless ``field`` given) and the residual dipole."""
-        dist = list(disturbances)
-        if residual_dipole is not None and np.any(np.asarray(residual_dipole, dtype=float)):
-            dist.insert(0, residual_dipole_torque(residual_dipole))
-        return cls(p.inertia, p.wheel_momentum, p.orbit_rate, field or p.field(), dist)
+        m_res = (0.0, 0.0, 0.0) if residual_dipole is None else residual_dipole
+        return cls(p.inertia, p.wheel_momentum, p.orbit_rate, field or p.field(), list(disturbances),
+                   residual_dipole=m_res)
 
     # --- pieces -------------------------------------------------------------------------
     def body_field(self, t: float, q) -> np.ndarray:
@@ -144,18 +158,20 @@ class AttitudeDynamics:
         return 3.0 * self.orbit_rate**2 * cross(c, self.inertia @ c)
 
     def disturbance_torque(self, t: float, q, w, b) -> np.ndarray:
-        """Sum of the plug-in disturbance torques and (if enabled) gravity gradient [N m]."""
+        """Gravity gradient (if enabled) + residual dipole + plug-in disturbance torques [N m]."""
         T = self.gravity_gradient_torque(q) if self.gravity_gradient else np.zeros(3)
+        T = T + cross(self.residual_dipole, b)
         for f in self.disturbances:
             T = T + np.asarray(f(t, q, w, b), dtype=float)
         return T
 
     def rhs(self, t: float, y, m=None, torque=None) -> np.ndarray:
-        """dy/dt for y = [q (4); w (3)] under dipole ``m`` [A m^2] and/or extra body ``torque`` [N m].
+        """dy/dt for y = [q (4); w (3)] under dipole ``m`` [A m^2] and/or extra body ``torque`` [N m]."""
+        return np.array(self._rhs(t, [float(v) for v in y], m, torque))
 
-        Written in scalar arithmetic (the SIL simulator calls it 4 x substeps times per step).
-        """
-        q0, q1, q2, q3, wx, wy, wz = (float(v) for v in y)
+    def _rhs(self, t: float, y, m=None, torque=None) -> tuple:
+        """rhs on plain floats (the SIL simulator calls it 4 x substeps times per step)."""
+        q0, q1, q2, q3, wx, wy, wz = y
         n2 = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
         a0, a1, a2, a3 = (q0, q1, q2, q3) if n2 == 1.0 else (v / n2**0.5 for v in (q0, q1, q2, q3))
         # rows of R(q) = columns of R^T: R^T e_X (nadir), R^T e_Z (orbit normal), and R^T v
@@ -163,17 +179,19 @@ class AttitudeDynamics:
         r10, r11, r12 = 2 * (a1 * a2 + a0 * a3), a0 * a0 - a1 * a1 + a2 * a2 - a3 * a3, 2 * (a2 * a3 - a0 * a1)
         r20, r21, r22 = 2 * (a1 * a3 - a0 * a2), 2 * (a2 * a3 + a0 * a1), a0 * a0 - a1 * a1 - a2 * a2 + a3 * a3
         tx = ty = tz = 0.0
-        if m is not None or self.disturbances:
-            fo0, fo1, fo2 = self.field(t)
-            b = np.array([r00 * fo0 + r10 * fo1 + r20 * fo2,
-                          r01 * fo0 + r11 * fo1 + r21 * fo2,
-                          r02 * fo0 + r12 * fo1 + r22 * fo2])
+        mr0, mr1, mr2 = self.residual_dipole
+        if m is not None or self.disturbances or mr0 or mr1 or mr2:
+            fo0, fo1, fo2 = self.field_at(t)
+            b0 = r00 * fo0 + r10 * fo1 + r20 * fo2
+            b1 = r01 * fo0 + r11 * fo1 + r21 * fo2
+            b2 = r02 * fo0 + r12 * fo1 + r22 * fo2
             if m is not None:
                 m0, m1, m2 = m
-                b0, b1, b2 = b
                 tx, ty, tz = m1 * b2 - m2 * b1, m2 * b0 - m0 * b2, m0 * b1 - m1 * b0
+            if mr0 or mr1 or mr2:  # residual dipole disturbance m_res x b (paper eq. 32)
+                tx, ty, tz = tx + (mr1 * b2 - mr2 * b1), ty + (mr2 * b0 - mr0 * b2), tz + (mr0 * b1 - mr1 * b0)
             if self.disturbances:
-                qa, wa = np.array([q0, q1, q2, q3]), np.array([wx, wy, wz])
+                qa, wa, b = np.array([q0, q1, q2, q3]), np.array([wx, wy, wz]), np.array([b0, b1, b2])
                 for f in self.disturbances:
                     d0, d1, d2 = f(t, qa, wa, b)
                     tx, ty, tz = tx + d0, ty + d1, tz + d2
@@ -196,7 +214,7 @@ class AttitudeDynamics:
         # w_rel = w - R^T [0, 0, -W0] = w + W0 * (third row of R)
         W0 = self.orbit_rate
         vx, vy, vz = wx + W0 * r20, wy + W0 * r21, wz + W0 * r22
-        return np.array([
+        return (
             0.5 * (-q1 * vx - q2 * vy - q3 * vz),
             0.5 * (q0 * vx + q2 * vz - q3 * vy),
             0.5 * (q0 * vy - q1 * vz + q3 * vx),
@@ -204,7 +222,7 @@ class AttitudeDynamics:
             J[0][0] * e0 + J[0][1] * e1 + J[0][2] * e2,
             J[1][0] * e0 + J[1][1] * e1 + J[1][2] * e2,
             J[2][0] * e0 + J[2][1] * e1 + J[2][2] * e2,
-        ])
+        )
 
     def step(self, t: float, y, dt: float, m=None, substeps: int = 1) -> np.ndarray:
         """Advance y over [t, t + dt] with ``substeps`` classical RK4 steps, dipole m held (ZOH).
@@ -212,17 +230,20 @@ class AttitudeDynamics:
         Deterministic (fixed steps, fixed operation order); the quaternion is renormalized at
         the end of the interval.
         """
-        y = np.asarray(y, dtype=float)
+        y = [float(v) for v in y]
+        m = None if m is None else tuple(float(v) for v in m)
         h = dt / substeps
+        h2, h6 = 0.5 * h, h / 6.0
+        f = self._rhs
         for i in range(substeps):
             ti = t + i * h
-            k1 = self.rhs(ti, y, m)
-            k2 = self.rhs(ti + 0.5 * h, y + 0.5 * h * k1, m)
-            k3 = self.rhs(ti + 0.5 * h, y + 0.5 * h * k2, m)
-            k4 = self.rhs(ti + h, y + h * k3, m)
-            y = y + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-        q = y[:4] / np.sqrt(y[:4] @ y[:4])
-        return np.concatenate([q, y[4:]])
+            k1 = f(ti, y, m)
+            k2 = f(ti + h2, [a + h2 * b for a, b in zip(y, k1)], m)
+            k3 = f(ti + h2, [a + h2 * b for a, b in zip(y, k2)], m)
+            k4 = f(ti + h, [a + h * b for a, b in zip(y, k3)], m)
+            y = [a + h6 * (b1 + 2.0 * b2 + 2.0 * b3 + b4) for a, b1, b2, b3, b4 in zip(y, k1, k2, k3, k4)]
+        n = (y[0] * y[0] + y[1] * y[1] + y[2] * y[2] + y[3] * y[3]) ** 0.5
+        return np.array([y[0] / n, y[1] / n, y[2] / n, y[3] / n, y[4], y[5], y[6]])
 
     # --- linearization ------------------------------------------------------------------
     def linear_rhs(self, x, u=None) -> np.ndarray:
@@ -235,11 +256,12 @@ class AttitudeDynamics:
         dq = x[:3]
         q = np.concatenate([[np.sqrt(1.0 - dq @ dq)], dq])
         w = x[3:] + np.array([0.0, 0.0, -self.orbit_rate])
-        saved, self.disturbances = self.disturbances, []
+        saved = self.disturbances, self.residual_dipole
+        self.disturbances, self.residual_dipole = [], (0.0, 0.0, 0.0)
         try:
             ydot = self.rhs(0.0, np.concatenate([q, w]), None, None if u is None else np.asarray(u, dtype=float))
         finally:
-            self.disturbances = saved
+            self.disturbances, self.residual_dipole = saved
         return np.concatenate([ydot[1:4], ydot[4:]])
 
 

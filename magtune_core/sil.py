@@ -32,11 +32,16 @@ import yaml
 
 PACKAGE = "magtune_ros"
 NODES = ("controller", "attitude_sensors", "simulator")
-#: Recorder executable of the bags helper (started with ``--ros-args -p path:=<bag>`` when --bag is given).
+#: Recorder executable of the bags helper, started first with
+#: ``--ros-args -p use_sim_time:=true -p path:=<bag>`` when --bag is given; the simulator then
+#: waits for a second subscriber of sim/truth before step 0 and the recorder is stopped with
+#: SIGINT after the simulator finished (so it can close the MCAP file).
 RECORDER_EXE = "recorder"
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SPACECRAFT = ROOT / "config" / "spacecraft.yaml"
-DOMAIN_RANGE = range(120, 230)  # below 232 (Fast DDS port formula with up to ~10 participants)
+#: ROS_DOMAIN_IDs handed out to runs: 215-232 map Fast DDS ports above Linux's ephemeral range
+#: (32768-60999), the other range the ROS 2 docs call safe besides 0-101, which other tools use.
+DOMAIN_RANGE = range(215, 233)
 
 
 class SilError(RuntimeError):
@@ -227,6 +232,8 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
     sim = dict(common, substeps=int(substeps), results_path=str(results.resolve()), lockstep=bool(lockstep),
                lockstep_timeout=float(lockstep_timeout), startup_timeout=float(startup_timeout),
                real_time_factor=float(real_time_factor))
+    if rec_exe:
+        sim["min_truth_subscribers"] = 2  # the recorder must be listening before step 0
     if steps:
         sim["steps"] = int(steps)
     else:
@@ -284,7 +291,8 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
         if rc != 0 or not results.is_file():
             raise SilError(f"simulator exited with status {rc}:\n{sim_p.tail()}")
     finally:
-        stop_nodes(procs)
+        stop_nodes([p for p in procs if p.name != "recorder"])
+        stop_nodes([p for p in procs if p.name == "recorder"], grace=10.0)  # last: let it close the bag
         lock.release()
         if old_term in (signal.SIG_DFL, None):
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
@@ -313,7 +321,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: a free one)")
     p.add_argument("--timeout", type=float, default=None, help="abort after this many wall seconds")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
-    p.set_defaults(func=cmd_sil)
+    p.set_defaults(func=cmd_sil, handler=cmd_sil)
     return p
 
 

@@ -31,7 +31,7 @@ if [ -d "$root/ros2_ws/src" ] && [ -n "$(ls -A "$root/ros2_ws/src" 2>/dev/null)"
   if [ "$(cat "$wstamp" 2>/dev/null)" != "$wwant" ]; then
     echo "bootstrap: colcon build of ros2_ws" >&2
     (cd "$root/ros2_ws" && PATH="$venv/bin:$PATH" "$venv/bin/colcon" build \
-        --event-handlers console_cohesion- summary- >/dev/null) \
+        --event-handlers console_cohesion- summary- console_stderr- >/dev/null) \
       || { echo "bootstrap: colcon build failed; see ros2_ws/log/latest_build" >&2; exit 1; }
     echo "$wwant" > "$wstamp"
   fi

@@ -94,3 +94,20 @@ def test_magnetic_and_residual_torques():
 def test_linear_state_hemisphere():
     x = linear_state([-0.9, 0.1, -0.2, 0.3], [1e-3, 2e-3, 0.0], 1e-3)
     assert np.allclose(x, [-0.1, 0.2, -0.3, 1e-3, 2e-3, 1e-3])
+
+
+def test_disturbance_plugins():
+    """Torque plug-ins enter the Euler equation; the built-in residual dipole equals its plug-in."""
+    from magtune_core.dynamics import residual_dipole_torque
+
+    p = SpacecraftParams()
+    y = np.array([0.99, 0.1, -0.05, 0.02, 1e-3, -2e-3, -p.orbit_rate])
+    y[:4] /= np.linalg.norm(y[:4])
+    m = np.array([0.5, -1.0, 2.0])
+    built_in = AttitudeDynamics.from_params(p)
+    plug = AttitudeDynamics.from_params(p, residual_dipole=None, disturbances=[residual_dipole_torque([1, 1, 1])])
+    assert np.allclose(built_in.rhs(10.0, y, m), plug.rhs(10.0, y, m), rtol=0, atol=1e-20)
+    T0 = np.array([1e-5, -2e-5, 3e-5])
+    const = AttitudeDynamics.from_params(p, disturbances=[lambda t, q, w, b: T0])
+    dw = const.rhs(10.0, y, m)[4:] - built_in.rhs(10.0, y, m)[4:]
+    assert np.allclose(dw, T0 / p.inertia, rtol=1e-9, atol=1e-22)

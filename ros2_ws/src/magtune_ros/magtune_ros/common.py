@@ -235,8 +235,18 @@ def run(node_cls, args=None) -> int:
         node = node_cls()
         executor = make_executor()
         executor.add_node(node)
-        while rclpy.ok() and not node.done.done():
-            executor.spin_until_future_complete(node.done, timeout_sec=1.0)
+        prof = os.environ.get("MAGTUNE_PROFILE")  # directory: dump a cProfile of the spin per node
+        if prof:
+            import cProfile
+            profiler = cProfile.Profile()
+            profiler.enable()
+        try:
+            while rclpy.ok() and not node.done.done():
+                executor.spin_until_future_complete(node.done, timeout_sec=1.0)
+        finally:
+            if prof:
+                profiler.disable()
+                profiler.dump_stats(os.path.join(prof, f"{prog}.prof"))
         code = int(node.done.result() or 0) if node.done.done() else 0
     except ParamError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)

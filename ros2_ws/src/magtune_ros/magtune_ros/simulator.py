@@ -80,13 +80,19 @@ class Simulator(Node):
         self.pub_torques = c.declare(self, "publish_torques", True, "publish sim/*_torque topics")
         self.wait_peers = c.declare(self, "wait_for_peers", True,
                                     "start when the sensors and controller are matched")
+        self.min_subs = c.declare(self, "min_truth_subscribers", 1,
+                                  "subscribers of sim/truth required before starting (2 with a recorder)",
+                                  positive=True)
 
         self.dyn = AttitudeDynamics.from_params(p, residual_dipole=m_res)
         self.y = initial_state(p, dw0, q0)
         self.k = 0
         self.t_ns = [c.sec_to_ns(k * self.ts) for k in range(self.n + 1)]
         self.m_cmd = np.zeros(3)
+        self.last_cmd_ns = -1
         self.awaiting = False
+        self.progress_every = max(1, self.n // 10)
+        self.t_progress = time.perf_counter()
         self.started = False
         self.finished = False
         # recorded run (same layout as SimResult)
@@ -127,7 +133,7 @@ class Simulator(Node):
     # ---------------------------------------------------------------- stepping
     def peers_ready(self) -> bool:
         return (not self.wait_peers) or (
-            self.pub_truth.get_subscription_count() > 0 and self.pub_field.get_subscription_count() > 0
+            self.pub_truth.get_subscription_count() >= self.min_subs and self.pub_field.get_subscription_count() > 0
             and self.sub_cmd.get_publisher_count() > 0)
 
     def on_timer(self):
@@ -137,14 +143,18 @@ class Simulator(Node):
         if not self.started:
             if self.peers_ready():
                 self.started = True
-                self.wall0 = time.perf_counter()
+                self.wall0 = self.t_progress = time.perf_counter()
                 self.publish_state()
             elif now - self.wall0 > self.startup_timeout:
                 self.get_logger().error("no subscriber/controller matched within startup_timeout; giving up")
                 self.finish_run(code=3)
             return
-        if not self.lockstep:
-            self.advance()  # free-running: latest command
+        if not self.lockstep:  # free-running: latest command, after a first answer to step 0
+            if self.k == 0:
+                if self.last_cmd_ns < 0 and now - self.t_publish < self.startup_timeout:
+                    return
+                self.wall0 = now
+            self.advance()
             return
         limit = self.startup_timeout if self.k == 0 else self.timeout
         if self.awaiting and now - self.t_publish > limit:
@@ -159,8 +169,6 @@ class Simulator(Node):
         b = self.dyn.body_field(k * self.ts, y[:4])
         self.Y[k], self.B[k] = y, b
         self.X[k] = linear_state(y[:4], y[4:], self.dyn.orbit_rate)
-        self.msg_clock.clock = stamp
-        self.pub_clock.publish(self.msg_clock)
         m = self.msg_truth
         m.header.stamp = stamp
         o = m.pose.pose.orientation
@@ -174,6 +182,10 @@ class Simulator(Node):
         self.t_publish = time.perf_counter()
         self.pub_truth.publish(m)
         self.pub_field.publish(f)
+        # /clock right after the step's data: the nodes' clock callbacks then run off the
+        # lockstep critical path (their inputs are accepted up to 2 Ts from their clock)
+        self.msg_clock.clock = stamp
+        self.pub_clock.publish(self.msg_clock)
 
     def on_command(self, msg: Vector3Stamped):
         v = msg.vector
@@ -184,7 +196,10 @@ class Simulator(Node):
         if not self.started or self.finished:
             return
         cur = self.t_ns[self.k]
-        if ns < cur:
+        if ns < self.last_cmd_ns:
+            self.diag.count("rejected_commands", f"command stamp {ns * 1e-9:.3f} s older than the last applied")
+            return
+        if ns < cur and self.lockstep:
             self.diag.count("late_commands", f"command for t={ns * 1e-9:.3f} s arrived at step t={cur * 1e-9:.3f} s")
             return
         if ns > cur:
@@ -196,6 +211,7 @@ class Simulator(Node):
         if np.any(ms != m):
             self.diag.count("saturated_commands")
         self.m_cmd = ms
+        self.last_cmd_ns = ns
         if self.lockstep and self.awaiting:
             self.advance()
 
@@ -206,9 +222,14 @@ class Simulator(Node):
         m = self.m_cmd
         self.M[k] = m
         self.diag.count("steps")
-        if self.pub_torques:
-            self.publish_torques(k, m)
+        if k and k % self.progress_every == 0:
+            now = time.perf_counter()
+            self.get_logger().info(f"step {k}/{self.n}: {1e3 * (now - self.t_progress) / self.progress_every:.3f} "
+                                   "ms/step over the last interval")
+            self.t_progress = now
         if k >= self.n:
+            if self.pub_torques:
+                self.publish_torques(k, m)
             self.finish_run()
             return
         self.y = self.dyn.step(k * self.ts, self.y, self.ts, m, self.substeps)
@@ -218,6 +239,8 @@ class Simulator(Node):
             if lag > 0:
                 time.sleep(lag)
         self.publish_state()
+        if self.pub_torques:  # torques of the step just applied, off the lockstep critical path
+            self.publish_torques(k, m)
 
     def publish_torques(self, k, m):
         y, b = self.Y[k], self.B[k]
