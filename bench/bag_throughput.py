@@ -7,7 +7,7 @@
 2. recorder: tests/bag_fixture_pub.py publishes ``--steps`` steps of 5-6 messages (Imu,
    MagneticField, Vector3Stamped, Odometry, Clock, DiagnosticArray) as fast as it can; the
    recorder must record all of them; msgs/s and MB/s (CDR payload) over the publisher's wall
-   time;
+   time; a second run adds a ``--blob``-byte UInt8MultiArray per step (MB/s with big messages);
 3. player at rate 0 into a subscriber (tests/bag_fixture_sub.py) and with no subscriber;
 4. bag size per orbit: a short ``magtune sil --bag`` run (simulator + sensors + controller
    at 1 Hz) extrapolated to T = 5614.8 s, and the CDR payload per step for comparison.
@@ -46,14 +46,16 @@ def bench_writer(tmp: Path, n: int = 20000) -> dict:
     return {"messages": n, "msg_per_s": n / dt, "MB_per_s": n * len(data) / dt / 1e6}
 
 
-def bench_recorder(tmp: Path, steps: int) -> dict:
-    procs = Procs(ros_env(), tmp / "logs_rec")
-    out = tmp / "rec"
+def bench_recorder(tmp: Path, steps: int, blob: int = 0) -> dict:
+    procs = Procs(ros_env(), tmp / f"logs_rec{blob}")
+    out = tmp / f"rec{blob}"
+    topics = [f"{t}:{ty}" for t, ty in fx.TOPICS.items()]
+    if blob:
+        topics.append("/blob:std_msgs/msg/UInt8MultiArray")
     try:
-        rec = procs.start("recorder", executable("recorder") + [
-            "-o", str(out), "--topics", *[f"{t}:{ty}" for t, ty in fx.TOPICS.items()]])
+        rec = procs.start("recorder", executable("recorder") + ["-o", str(out), "--topics", *topics])
         procs.wait_for_line(rec, "magtune-recorder ready")
-        pub = procs.python("publisher", "bag_fixture_pub.py", steps)
+        pub = procs.python("publisher", "bag_fixture_pub.py", steps, "--blob", blob)
         pub.wait(300)
         line = [x for x in procs.output(pub).splitlines() if x.startswith("published")][-1]
         wall = float(line.split(" in ")[1].split()[0])
@@ -64,6 +66,8 @@ def bench_recorder(tmp: Path, steps: int) -> dict:
     finally:
         procs.stop_all()
     expected = fx.counts(steps)
+    if blob:
+        expected["/blob"] = steps
     n = sum(expected.values())
     nbytes = payload_bytes(out)
     return {"published": n, "recorded": summary["messages"],
@@ -134,12 +138,15 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--steps", type=int, default=4000)
     ap.add_argument("--sil-steps", type=int, default=600)
+    ap.add_argument("--blob", type=int, default=65536, help="large-message run: bytes per /blob")
+    ap.add_argument("--blob-steps", type=int, default=1000)
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="magtune_bench_") as d:
         tmp = Path(d)
         res = {"writer_only": bench_writer(tmp)}
         res["recorder"] = bench_recorder(tmp, a.steps)
+        res["recorder_large"] = bench_recorder(tmp, a.blob_steps, a.blob)
         res["player_rate0"] = bench_player(tmp, Path(res["recorder"]["bag"]), 4 * a.steps)
         res["bag_size"] = bench_size(tmp, a.sil_steps)
     if a.json:
@@ -150,6 +157,9 @@ def main(argv=None):
     print(f"recorder (DDS)   : {r['msg_per_s']:9.0f} msg/s  {r['MB_per_s']:6.2f} MB/s, "
           f"{r['recorded']}/{r['published']} recorded (lost {r['lost']}), file {r['file_MB']:.2f} MB "
           f"for {r['payload_MB']:.2f} MB CDR")
+    rl = res["recorder_large"]
+    print(f"recorder (large) : {rl['msg_per_s']:9.0f} msg/s  {rl['MB_per_s']:6.2f} MB/s with {a.blob} B "
+          f"/blob per step, {rl['recorded']}/{rl['published']} recorded (lost {rl['lost']})")
     ns, isub = p["no_subscriber"], p["into_subscriber"]
     print(f"player rate 0    : {ns['msg_per_s']:9.0f} msg/s without subscriber; into a Python "
           f"subscriber {isub['received']}/{isub['messages']} received, "

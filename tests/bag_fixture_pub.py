@@ -45,6 +45,8 @@ def main(argv=None):
     ap.add_argument("--rate", type=float, default=0.0, help="steps per wall second (0: max)")
     ap.add_argument("--depth", type=int, default=1000)
     ap.add_argument("--prefix", default="")
+    ap.add_argument("--blob", type=int, default=0,
+                    help="also publish /blob (std_msgs/UInt8MultiArray) of this many bytes per step")
     a = ap.parse_args(argv)
 
     import rclpy
@@ -62,6 +64,10 @@ def main(argv=None):
                      reliability=ReliabilityPolicy.RELIABLE)
     cls = {"/clock": Clock, "/imu": Imu, "/magnetic_field": MagneticField,
            "/dipole_command": Vector3Stamped, "/truth": Odometry, "/diagnostics": DiagnosticArray}
+    if a.blob:
+        from std_msgs.msg import UInt8MultiArray
+        cls["/blob"] = UInt8MultiArray
+        blob = UInt8MultiArray()
     pubs = {t: node.create_publisher(c, a.prefix + t, qos) for t, c in cls.items()}
     deadline = time.monotonic() + 20
     while any(p.get_subscription_count() == 0 for p in pubs.values()):
@@ -97,6 +103,9 @@ def main(argv=None):
             d = DiagnosticArray(); d.header.stamp = c.clock
             d.status.append(DiagnosticStatus(name="fixture", message=e["diag"]))
             pubs["/diagnostics"].publish(d)
+        if a.blob:
+            blob.data = bytes([i % 256]) * a.blob
+            pubs["/blob"].publish(blob)
         if a.rate > 0:
             time.sleep(max(0.0, t_wall + (i + 1) / a.rate - time.monotonic()))
     for p in pubs.values():
