@@ -174,3 +174,28 @@ def test_sigkill_keeps_completed_chunks(tmp_path):
     with AnyReader([out]) as r:
         assert {c.topic: c.msgcount for c in r.connections}["/imu"] == k
     assert bag.read_metadata(out)["message_count"] == rep["messages_recovered"]
+
+
+def test_recorder_ros_parameters_and_discovery(tmp_path):
+    """The SIL runner's invocation style: ROS parameters only, topics discovered (all:=true);
+    the types come from the graph, not from the command line."""
+    procs = Procs(ros_env(), tmp_path / "logs")
+    out = tmp_path / "discovered"
+    n = 200
+    try:
+        rec = procs.start("recorder", executable("recorder") + [
+            "--ros-args", "-p", f"path:={out}", "-p", "all:=true", "-p", "use_sim_time:=true",
+            "-p", "custom_data:=['sigma=120', 'note=discovery']"])
+        procs.wait_for_line(rec, "magtune-recorder ready")
+        pub = procs.python("publisher", "bag_fixture_pub.py", n)
+        assert pub.wait(60) == 0, procs.output(pub)
+        time.sleep(0.3)
+        rec.send_signal(signal.SIGINT)
+        assert rec.wait(30) == 0, procs.output(rec)
+    finally:
+        procs.stop_all()
+    topics = bag.topics_of(out)
+    assert {t: topics[t].type for t in fx.TOPICS} == fx.TOPICS
+    assert {t: topics[t].message_count for t in fx.TOPICS} == fx.counts(n)
+    assert "/rosout" not in topics and "/parameter_events" not in topics
+    assert bag.read_metadata(out)["custom_data"] == {"sigma": "120", "note": "discovery"}

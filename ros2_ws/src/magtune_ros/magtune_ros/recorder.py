@@ -24,8 +24,9 @@ Design:
   publisher's send (``source_timestamp`` mapped through the /clock samples' own source
   stamps, as rosbag2's send_timestamp); it differs from log_time only for samples delivered
   late, e.g. the transient-local history a late-matching recorder receives;
-* the executor thread only appends ``(topic, t, bytes)`` to a deque; a writer thread drains it
-  into the MCAP writer, so disk I/O and zstd never block message intake;
+* the executor thread only appends ``(topic, receive stamp, bytes, source stamp)`` to a
+  deque (each callback also drains every sample already queued on its subscription); a
+  writer thread drains the deque into the MCAP writer, so disk I/O and zstd never block message intake;
 * every completed chunk goes straight to the OS, and the open chunk is closed every
   ``--flush-period`` wall seconds (default 1 s): after SIGKILL at most that much is lost;
 * SIGINT/SIGTERM: stop taking new work, drain what DDS already delivered, write the summary
@@ -61,7 +62,7 @@ from magtune_core.bag_topics import PROJECT_TOPICS, topic_specs
 from magtune_core.msgdefs import normalize_type
 
 from .bag_common import (HIDDEN_TOPICS, adapt_request, install_stop_handlers, message_class,
-                     qos_profile_dict)
+                         qos_profile_dict)
 
 CLOCK = "/clock"
 
@@ -72,8 +73,9 @@ def parse_args(argv):
                    help="bag directory to create (bags/NAME)")
     p.add_argument("--topics", nargs="*", default=None,
                    help="topics to record: /name or /name:pkg/msg/Type (typed: subscribed at once)")
-    p.add_argument("--all", action="store_true", help="record every discovered topic")
-    p.add_argument("--include-hidden", action="store_true", help="with --all, also /rosout etc.")
+    p.add_argument("--all", action="store_true", default=None, help="record every discovered topic")
+    p.add_argument("--include-hidden", action="store_true", default=None,
+                   help="with --all, also /rosout and /parameter_events")
     p.add_argument("--custom-data", nargs="*", default=None, metavar="KEY=VALUE",
                    help="stored in metadata.yaml custom_data (e.g. sigma=60)")
     p.add_argument("--chunk-size", type=int, default=None, help=f"default {DEFAULTS['chunk_size']}")
@@ -342,6 +344,7 @@ def main(argv=None):
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     stop = install_stop_handlers()
     node = Recorder(args)
+    args = node.args  # command line merged with ROS parameters
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     print("magtune-recorder ready", flush=True)
