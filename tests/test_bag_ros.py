@@ -199,3 +199,29 @@ def test_recorder_ros_parameters_and_discovery(tmp_path):
     assert {t: topics[t].message_count for t in fx.TOPICS} == fx.counts(n)
     assert "/rosout" not in topics and "/parameter_events" not in topics
     assert bag.read_metadata(out)["custom_data"] == {"sigma": "120", "note": "discovery"}
+
+
+def test_replay_start_offset_and_loop(recorded, tmp_path):
+    """--start 25 skips the first 25 s of the bag (it starts at t = 0.1 s, so steps
+    i >= 250 remain); --loop repeats them: the subscriber sees that window twice in order."""
+    out, _ = recorded
+    procs = Procs(ros_env(), tmp_path / "logs")
+    res = tmp_path / "loop.json"
+    k = N - 250
+    try:
+        sub = procs.python("subscriber", "bag_fixture_sub.py", res, "--expect", 2 * 4 * k,
+                           "--timeout", 60)
+        procs.wait_for_line(sub, "subscriber ready")
+        ply = procs.start("player", executable("player") + [
+            str(out), "--rate", "0", "--start", "25", "--loop", "--wait-subscribers", "20",
+            "--topics", "/imu", "/magnetic_field", "/dipole_command", "/truth"])
+        assert sub.wait(90) == 0, procs.output(sub)
+        ply.send_signal(signal.SIGINT)
+        assert ply.wait(30) == 0, procs.output(ply)
+        report = json.loads(procs.output(ply).strip().splitlines()[-1])
+    finally:
+        procs.stop_all()
+    got = json.loads(res.read_text())
+    window = [fx.expected(i)["t_ns"] for i in range(250, N)]
+    assert [row[0] for row in got["/imu"][: 2 * k]] == window + window
+    assert report["loops"] >= 2 and report["published"]["/imu"] >= 2 * k
