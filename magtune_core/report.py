@@ -209,14 +209,14 @@ def _markdown(summary: dict, one: str, T: float) -> str:
              "body w.r.t. orbital axes); |m| = commanded dipole. RMS over orbits 2-5 "
              "(or the whole run if it is shorter than 2 orbits).", "",
              "| bag | label | orbits | final abs(dq_R) | peak abs(dq_R) | RMS abs(dq_R) | peak abs(m) [A m^2] "
-             "| RMS abs(m), orbits 2-5 | bag integrity |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| RMS abs(m), orbits 2-5 | samples truth/dipole | bag integrity |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for name, s in summary.items():
         integ = "complete" if s["integrity"]["complete"] else \
             f"damaged: {s['integrity'].get('messages_recovered')} msgs recovered"
         lines.append(f"| {name} | {s['label']} | {s['orbits']:.3f} | {s['final_dq']:.4e} | "
                      f"{s['peak_dq']:.4e} | {s['rms_dq']:.4e} | {s['peak_m']:.4g} | "
-                     f"{s['rms_m_orbits_2_5']:.4g} | {integ} |")
+                     f"{s['rms_m_orbits_2_5']:.4g} | {s['truth_samples']}/{s['dipole_samples']} | {integ} |")
     lines += ["", "Figures: `fig2_first_orbit.png` (Fig. 2), `fig3_orbits_2_5.png` (Fig. 3), "
               f"`fig4_quaternion.png` and `fig5_rates_dipoles.png` (Figs. 4-5, run `{one}`).", ""]
     return "\n".join(lines)

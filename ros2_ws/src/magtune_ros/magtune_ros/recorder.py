@@ -243,6 +243,7 @@ class Recorder(Node):
         self.all_matched = False
         self.counts: collections.Counter = collections.Counter()
         self.received = 0
+        self.max_lag_ns = 0  # largest (take time - DDS receive time): how far intake lagged
         if self.clock_map is not None:
             self._subscribe(CLOCK, "rosgraph_msgs/msg/Clock")
         for name, typ in self.wanted.items():
@@ -311,6 +312,9 @@ class Recorder(Node):
 
         def handle(data: bytes, info: dict):
             wall = info["received_timestamp"]
+            lag = time.time_ns() - wall
+            if lag > self.max_lag_ns:
+                self.max_lag_ns = lag
             if cm is not None:
                 t_sim = clock_from_cdr(data)
                 cm.add(wall, t_sim)
@@ -367,7 +371,8 @@ def main(argv=None):
     finally:
         node.thread.finish()
         summary = {"bag": str(node.bag.dir), "messages": node.thread.written,
-                   "per_topic": dict(sorted(node.counts.items()))}
+                   "per_topic": dict(sorted(node.counts.items())),
+                   "max_intake_lag_s": round(node.max_lag_ns * 1e-9, 4)}
         print(json.dumps(summary), flush=True)
         executor.shutdown()
         node.destroy_node()
