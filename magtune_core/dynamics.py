@@ -83,6 +83,11 @@ def saturate(m, m_max) -> np.ndarray:
     return np.clip(np.asarray(m, dtype=float), -np.asarray(m_max, dtype=float), np.asarray(m_max, dtype=float))
 
 
+def magnetic_torque(m, b, m_max=np.inf) -> np.ndarray:
+    """T_mag = sat(m) x b = S(b) sat(m) (paper eq. 12) with per-axis dipole saturation [N m]."""
+    return cross(saturate(m, m_max), b)
+
+
 def linear_state(q, w, orbit_rate: float) -> np.ndarray:
     """x = [dq; dw] of paper eq. (14): q_vec (hemisphere q0 >= 0) and w - [0, 0, -W0]."""
     q = np.asarray(q, dtype=float)

@@ -20,6 +20,7 @@ import argparse
 import fcntl
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -37,6 +38,13 @@ NODES = ("controller", "attitude_sensors", "simulator")
 #: waits for a second subscriber of sim/truth before step 0 and the recorder is stopped with
 #: SIGINT after the simulator finished (so it can close the MCAP file).
 RECORDER_EXE = "recorder"
+#: Override as "package/executable" (e.g. MAGTUNE_RECORDER=magtune_bags/recorder).
+RECORDER_ENV = "MAGTUNE_RECORDER"
+
+
+def recorder_args(bag) -> list[str]:
+    """ROS arguments of the recorder process (the bags helper's interface)."""
+    return ["-p", "use_sim_time:=true", "-p", f"path:={Path(bag).resolve()}"]
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SPACECRAFT = ROOT / "config" / "spacecraft.yaml"
 #: ROS_DOMAIN_IDs handed out to runs: 215-232 map Fast DDS ports above Linux's ephemeral range
@@ -74,16 +82,18 @@ def resolve_executable(exe: str, package: str = PACKAGE) -> Path:
     return path
 
 
-def child_env(domain_id: int, prefix: Path) -> dict:
+def child_env(domain_id: int, prefix: Path, *more: Path) -> dict:
     """Environment of the node processes: isolated domain, localhost discovery, package paths."""
     env = dict(os.environ)
     env["ROS_DOMAIN_ID"] = str(domain_id)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env.pop("ROS_STATIC_PEERS", None)
-    amp = [str(prefix)] + [p for p in env.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p and p != str(prefix)]
+    mine = [str(x) for x in (prefix, *more)]
+    amp = mine + [p for p in env.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p and p not in mine]
     env["AMENT_PREFIX_PATH"] = os.pathsep.join(amp)
-    site = prefix / "lib" / f"python{sys.version_info.major}.{sys.version_info.minor}" / "site-packages"
-    pp = [str(site), str(ROOT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]
+    pyver = f"python{sys.version_info.major}.{sys.version_info.minor}"
+    sites = [str(Path(x) / "lib" / pyver / "site-packages") for x in mine]
+    pp = sites + [str(ROOT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]
     env["PYTHONPATH"] = os.pathsep.join(pp)
     env.setdefault("RCUTILS_LOGGING_BUFFERED_STREAM", "1")
     return env
@@ -181,7 +191,7 @@ class SilRun:
     wall_time: float        # simulator's stepping time (after discovery)
     total_wall_time: float  # including process start-up and shutdown
     domain_id: int
-    log_dir: Path
+    log_dir: Path | None  # None: temporary logs removed after success
     diagnostics: dict = field(default_factory=dict)
 
     @property
@@ -213,18 +223,29 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
     gains = Path(gains)
     if not gains.is_file():
         raise SilError(f"gains file not found: {gains}")
+    from .params import ConfigError
+    from .rosparams import check_ros_params
+
+    for f in (gains, spacecraft):
+        if f:
+            try:
+                check_ros_params(f)
+            except ConfigError as exc:
+                raise SilError(str(exc)) from None
     prefix = package_prefix()
     exes = {n: resolve_executable(n) for n in NODES}
     rec_exe = None
     if bag:
         try:
-            rec_exe = resolve_executable(RECORDER_EXE)
-        except SilError:
-            raise SilError(f"--bag needs the '{RECORDER_EXE}' executable of {PACKAGE} (bags helper); "
-                           "it is not installed") from None
+            rpkg, _, rexe = os.environ.get(RECORDER_ENV, f"{PACKAGE}/{RECORDER_EXE}").rpartition("/")
+            rec_exe = resolve_executable(rexe, rpkg or PACKAGE)
+        except SilError as exc:
+            raise SilError(f"--bag needs a recorder executable ({exc}); set {RECORDER_ENV}=package/executable "
+                           "if it lives elsewhere") from None
+    own_dir = not log_dir  # a temporary log directory is removed after a successful run
     log_dir = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix="magtune_sil_"))
     log_dir.mkdir(parents=True, exist_ok=True)
-    results = Path(results) if results else log_dir / "results.npz"
+    results = Path(results) if results else log_dir / "results.npz"  # loaded into memory before cleanup
     if results.exists():
         results.unlink()
 
@@ -264,10 +285,9 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
     if old_term in (signal.SIG_DFL, None):  # turn SIGTERM into KeyboardInterrupt -> finally
         signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
-        env = child_env(lock.domain_id, prefix)
+        env = child_env(lock.domain_id, prefix, *([rec_exe.parents[2]] if rec_exe else []))
         if rec_exe:
-            procs.append(start_node("recorder", rec_exe, ["-p", "use_sim_time:=true", "-p",
-                                                          f"path:={Path(bag).resolve()}"], env, log_dir))
+            procs.append(start_node("recorder", rec_exe, recorder_args(bag), env, log_dir))
         procs.append(start_node("controller", exes["controller"],
                                 sc + ["--params-file", str(gains.resolve()), "--params-file", str(pfile)], env, log_dir))
         procs.append(start_node("attitude_sensors", exes["attitude_sensors"], sc + ["--params-file", str(pfile)],
@@ -290,6 +310,8 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
             time.sleep(0.05)
         if rc != 0 or not results.is_file():
             raise SilError(f"simulator exited with status {rc}:\n{sim_p.tail()}")
+    except SilError as exc:
+        raise SilError(f"{exc}\n(node logs in {log_dir})") from None
     finally:
         stop_nodes([p for p in procs if p.name != "recorder"])
         stop_nodes([p for p in procs if p.name == "recorder"], grace=10.0)  # last: let it close the bag
@@ -299,6 +321,9 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
     total = time.perf_counter() - t0
     res = SimResult.from_npz(results)
     counters = json.loads(str(res.info.get("counters", "{}")))
+    if own_dir:
+        shutil.rmtree(log_dir, ignore_errors=True)
+        log_dir = None
     return SilRun(res, figures_of_merit(res), counters, float(res.info.get("wall_time", total)), total,
                   lock.domain_id, log_dir)
 
@@ -308,6 +333,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     """Register ``sil`` on an argparse subparsers object (``magtune sil ...``)."""
     p = subparsers.add_parser("sil", help="software-in-the-loop run of the ROS 2 nodes (lockstep, sim time)",
                               description=__doc__.split("\n\n")[0])
+    add_arguments(p)
+    return p
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of ``magtune sil``; sets ``func``/``handler`` to cmd_sil."""
     p.add_argument("--gains", required=True, help="controller gains parameter file (config/gains/sigma_*.yaml)")
     p.add_argument("--orbits", type=float, default=5.0, help="run length in orbits (default 5)")
     p.add_argument("--steps", type=int, default=None, help="run length in controller steps (overrides --orbits)")
@@ -322,7 +353,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=float, default=None, help="abort after this many wall seconds")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_sil, handler=cmd_sil)
-    return p
 
 
 def cmd_sil(args) -> int:
@@ -339,17 +369,17 @@ def cmd_sil(args) -> int:
     if args.json:
         print(json.dumps(dict(run.figures, **{"missed_steps": run.counters.get("missed_steps", 0),
                                               "wall_time": run.wall_time, "real_time_factor": run.real_time_factor,
-                                              "counters": run.counters, "log_dir": str(run.log_dir)})))
+                                              "counters": run.counters,
+                                              "log_dir": str(run.log_dir) if run.log_dir else None})))
     else:
         print(run.summary())
     return 0
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m magtune_core.sil")
-    sub = parser.add_subparsers(dest="command", required=True)
-    add_parser(sub)
-    args = parser.parse_args(["sil", *(sys.argv[1:] if argv is None else argv)])
+    parser = argparse.ArgumentParser(prog="python -m magtune_core.sil", description=__doc__.split("\n\n")[0])
+    add_arguments(parser)
+    args = parser.parse_args(argv)
     return args.func(args)
 
 

@@ -111,3 +111,12 @@ def test_disturbance_plugins():
     const = AttitudeDynamics.from_params(p, disturbances=[lambda t, q, w, b: T0])
     dw = const.rhs(10.0, y, m)[4:] - built_in.rhs(10.0, y, m)[4:]
     assert np.allclose(dw, T0 / p.inertia, rtol=1e-9, atol=1e-22)
+
+
+def test_magnetic_torque_saturates_per_axis():
+    from magtune_core.dynamics import magnetic_torque
+
+    b = np.array([2e-5, -1e-5, 5e-6])
+    m = np.array([80.0, -3.0, -60.0])
+    T = magnetic_torque(m, b, 50.0)
+    assert np.allclose(T, skew_field(b) @ np.array([50.0, -3.0, -50.0]), rtol=1e-14, atol=0)

@@ -316,3 +316,32 @@ def test_free_running_mode(gains60, tmp_path):
     off = simulate(load_gains(gains60).K, SpacecraftParams(), steps=100)
     # a one-step command delay perturbs x by ~ Ts * |dx/dt| ~ 1e-3 at most over 100 s here
     assert np.max(np.abs(run.result.x - off.x)) < 5e-3
+
+
+def test_ros_incompatible_provenance_is_named(tmp_path, gains60):
+    """PyYAML accepts [1, 2.5] and nested lists; rcl does not: the node names the parameter."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(gains60.read_text() + "    history:\n      costs: [1, 2.5]\n")
+    with sil.DomainLock() as lock:
+        r = _run_controller(["--params-file", str(bad)], tmp_path, lock.domain_id)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "'history.costs'" in lines[0]
+    with pytest.raises(sil.SilError, match="history.costs"):
+        sil.run_sil(bad, steps=5)
+
+
+def test_simulator_disturbance_plugin(gains60, tmp_path):
+    """A torque plug-in ('module:function' factory) enters the SIL plant exactly as offline."""
+    from magtune_core.dynamics import residual_dipole_torque
+
+    run = sil.run_sil(gains60, steps=60, ts=1.0, log_dir=tmp_path, timeout=60, simulator_params=dict(
+        residual_dipole=[0.0, 0.0, 0.0], disturbance_plugins=["tests.plugins:residual_dipole_x2"]))
+    p = SpacecraftParams()
+    off = simulate(load_gains(gains60).K, p, steps=60, residual_dipole=None,
+                   disturbances=[residual_dipole_torque([2.0, 2.0, 2.0])])
+    assert np.array_equal(run.result.q, off.q) and np.array_equal(run.result.m, off.m)
+    with sil.DomainLock() as lock:
+        env = sil.child_env(lock.domain_id, sil.package_prefix())
+        r = subprocess.run([str(sil.resolve_executable("simulator")), "--ros-args", "-p",
+                            "field_plugin:=no_such_module:f"], env=env, capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2 and "parameter 'field_plugin'" in r.stderr.strip().splitlines()[-1]

@@ -76,6 +76,7 @@ _TYPES = {
     float: ParameterType.PARAMETER_DOUBLE,
     str: ParameterType.PARAMETER_STRING,
     "float[]": ParameterType.PARAMETER_DOUBLE_ARRAY,
+    "str[]": ParameterType.PARAMETER_STRING_ARRAY,
 }
 _TYPE_NAMES = {
     ParameterType.PARAMETER_BOOL: "a boolean",
@@ -83,11 +84,12 @@ _TYPE_NAMES = {
     ParameterType.PARAMETER_DOUBLE: "a floating-point number (write 1.0, not 1)",
     ParameterType.PARAMETER_STRING: "a string",
     ParameterType.PARAMETER_DOUBLE_ARRAY: "a list of floating-point numbers (write 1.0, not 1)",
+    ParameterType.PARAMETER_STRING_ARRAY: "a list of strings",
 }
 
 
 def declare(node: Node, name: str, default, description: str, ptype=None, *, size=None,
-            positive=False, nonnegative=False, choices=None, read_only=True):
+            positive=False, nonnegative=False, choices=None, read_only=True, required=True):
     """Declare a typed parameter with a description and validate its value (ParamError if bad)."""
     ptype = ptype or type(default)
     if default is None and ptype is None:
@@ -99,10 +101,13 @@ def declare(node: Node, name: str, default, description: str, ptype=None, *, siz
             # no default (an empty list would be typed BYTE_ARRAY): must come from a parameter file
             from rclpy.parameter import Parameter
             ptypes = {ParameterType.PARAMETER_DOUBLE_ARRAY: Parameter.Type.DOUBLE_ARRAY,
+                      ParameterType.PARAMETER_STRING_ARRAY: Parameter.Type.STRING_ARRAY,
                       ParameterType.PARAMETER_DOUBLE: Parameter.Type.DOUBLE,
                       ParameterType.PARAMETER_STRING: Parameter.Type.STRING}
             node.declare_parameter(name, ptypes[tcode], desc)
             value = node.get_parameter_or(name, None).value
+            if value is None and not required:
+                return []
             if value is None:
                 raise ParamError(name, "missing" + (f" (expected a list of {size} numbers)" if size else ""))
         else:
@@ -218,9 +223,10 @@ def run(node_cls, args=None) -> int:
     argv = list(sys.argv if args is None else args)
     for i, a in enumerate(argv[:-1]):  # check parameter files first: one clear line instead of rcl's
         if a == "--params-file":
-            from magtune_core.params import ConfigError, read_ros_params
+            from magtune_core.params import ConfigError
+            from magtune_core.rosparams import check_ros_params
             try:
-                read_ros_params(argv[i + 1])
+                check_ros_params(argv[i + 1])
             except ConfigError as exc:
                 print(f"{prog}: {exc}", file=sys.stderr)
                 return 2

@@ -1,7 +1,8 @@
 """Attitude simulator node: nonlinear dynamics + environment, source of simulated time.
 
 Physics: ``magtune_core.dynamics.AttitudeDynamics`` (rigid body, pitch wheel, gravity gradient,
-residual dipole, eq. 26 field), integrated with the same RK4 step as the offline
+residual dipole, eq. 26 field; other field models and disturbance torques plug in through the
+``field_plugin`` / ``disturbance_plugins`` parameters), integrated with the same RK4 step as the offline
 ``magtune_core.simulate.simulate``; the commanded dipole is held over each step (ZOH).
 
 Publishes (all stamped with simulated time t_k = k * ts):
@@ -45,6 +46,16 @@ from magtune_core.simulate import DEFAULT_DIPOLE_LIMIT, DW0, SimResult, initial_
 from . import common as c
 
 
+def load_plugin(spec: str):
+    """Import ``module:attribute`` (e.g. an environment model of magtune_core)."""
+    import importlib
+
+    mod, _, attr = spec.partition(":")
+    if not mod or not attr:
+        raise ValueError("expected 'module:function'")
+    return getattr(importlib.import_module(mod), attr)
+
+
 class Simulator(Node):
     NODE_NAME = "simulator"
 
@@ -84,7 +95,23 @@ class Simulator(Node):
                                   "subscribers of sim/truth required before starting (2 with a recorder)",
                                   positive=True)
 
-        self.dyn = AttitudeDynamics.from_params(p, residual_dipole=m_res)
+        field_plugin = c.declare(self, "field_plugin", "",
+                                 "'module:function' returning b_orb(t) [T, orbital axes] from SpacecraftParams; "
+                                 "'' = field_model of the spacecraft parameters")
+        plugins = c.declare(self, "disturbance_plugins", [], "'module:function' factories (SpacecraftParams -> "
+                            "torque(t, q, w, b) [N m]) added to gravity gradient and residual dipole",
+                            "str[]", required=False)
+        try:
+            field = load_plugin(field_plugin)(p) if field_plugin else None
+        except Exception as exc:  # noqa: BLE001 - any failure is a parameter error
+            raise c.ParamError("field_plugin", f"cannot load {field_plugin!r}: {exc}") from None
+        dist = []
+        for spec in plugins:
+            try:
+                dist.append(load_plugin(spec)(p))
+            except Exception as exc:  # noqa: BLE001
+                raise c.ParamError("disturbance_plugins", f"cannot load {spec!r}: {exc}") from None
+        self.dyn = AttitudeDynamics.from_params(p, field=field, residual_dipole=m_res, disturbances=dist)
         self.y = initial_state(p, dw0, q0)
         self.k = 0
         self.t_ns = [c.sec_to_ns(k * self.ts) for k in range(self.n + 1)]
