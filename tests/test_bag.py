@@ -187,3 +187,12 @@ def test_topic_filter_and_publish_order(tmp_path):
         [1_000_000_000, 5_000_000_000]
     with pytest.raises(ValueError):
         list(bag.iter_messages(tmp_path / "late", order="stamp"))
+
+
+def test_core_bag_modules_do_not_import_rclpy():
+    import subprocess
+    import sys
+    code = ("import sys; import magtune_core.bag, magtune_core.bag_recover, magtune_core.msgdefs, "
+            "magtune_core.bagdecode, magtune_core.report, magtune_core.replay, "
+            "magtune_core.bag_topics; assert 'rclpy' not in sys.modules, 'rclpy imported'")
+    subprocess.run([sys.executable, "-c", code], check=True)
