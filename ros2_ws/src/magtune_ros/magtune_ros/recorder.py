@@ -347,7 +347,12 @@ def main(argv=None):
     args = parse_args(remove_ros_args(argv)[1:])
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     stop = install_stop_handlers()
-    node = Recorder(args)
+    try:
+        node = Recorder(args)
+    except (FileExistsError, OSError, ValueError) as exc:
+        rclpy.try_shutdown()
+        print(f"recorder: {exc}", file=sys.stderr, flush=True)
+        return 2
     args = node.args  # command line merged with ROS parameters
     executor = SingleThreadedExecutor()
     executor.add_node(node)
