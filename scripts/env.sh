@@ -2,7 +2,17 @@
 _root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 export VIRTUAL_ENV="$_root/.venv"
 export PATH="$_root/.venv/bin:$PATH"
-export AMENT_PREFIX_PATH="$_root/ros2_ws/install/magtune_ros:$_root/.venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
-_sp="$_root/ros2_ws/install/magtune_ros/lib/python3.11/site-packages"
-[ -d "$_sp" ] && export PYTHONPATH="$_sp${PYTHONPATH:+:$PYTHONPATH}"
-unset _root _sp
+export AMENT_PREFIX_PATH="$_root/.venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
+# every colcon-built package of ros2_ws (magtune_ros, ...)
+for _pkg in "$_root"/ros2_ws/install/*/; do
+  [ -f "$_pkg/share/ament_index/resource_index/packages/$(basename "$_pkg")" ] || continue
+  export AMENT_PREFIX_PATH="${_pkg%/}:$AMENT_PREFIX_PATH"
+  _sp="${_pkg}lib/python3.11/site-packages"
+  [ -d "$_sp" ] && export PYTHONPATH="$_sp${PYTHONPATH:+:$PYTHONPATH}"
+  # colcon --symlink-install leaves only an .egg-link (no easy-install.pth): put its target
+  # (ros2_ws/build/<pkg>, holding the .egg-info with the entry points) on the path too
+  for _el in "$_sp"/*.egg-link; do
+    [ -f "$_el" ] && export PYTHONPATH="$(head -n1 "$_el"):$PYTHONPATH"
+  done
+done
+unset _root _sp _pkg _el

@@ -25,6 +25,8 @@ setup(
             "simulator = magtune_ros.simulator:main",
             "attitude_sensors = magtune_ros.attitude_sensors:main",
             "controller = magtune_ros.controller:main",
+            "recorder = magtune_ros.recorder:main",
+            "player = magtune_ros.player:main",
         ],
     },
 )

@@ -1,0 +1,391 @@
+"""``recorder`` node: record topics to a rosbag2-compatible MCAP bag (``magtune_core.bag``).
+
+Usage (``ros2 run magtune_ros recorder`` or ``install/magtune_ros/lib/magtune_ros/recorder``)::
+
+    recorder -o bags/NAME [--topics /a /b:pkg/msg/Type ...] [--all] [--custom-data k=v ...]
+             [--chunk-size BYTES] [--flush-period S] [--depth N] [--wall-time]
+             [--max-messages N] [--duration S]
+    recorder --ros-args -p path:=bags/NAME [-p topics:="['/a', ...]"] [-p custom_data:="['sigma=60']"]
+
+Every option is also a ROS parameter of the same name (``path`` for ``-o``; dashes become
+underscores); a command-line option wins over the parameter. Without ``--topics`` and
+``--all`` the project's topics (:data:`magtune_core.bag_topics.PROJECT_TOPICS`) are recorded.
+
+Design:
+
+* subscriptions are ``raw=True`` (the callback gets the serialized CDR bytes; nothing is
+  deserialized); QoS adapted to the publishers' offers (reliable when they all are), KEEP_LAST
+  with a deep queue (``--depth``, default 10000: seconds of backlog at full SIL speed);
+* log time = receive time in sim time (unless ``--wall-time``): the recorder always listens to
+  ``/clock`` and keeps a table (DDS receive wall time of each ``/clock`` sample -> its sim
+  time); a message gets the sim time of the last ``/clock`` that DDS delivered before the
+  message itself (``MessageInfo.received_timestamp``). So the log time does not depend on how
+  far the Python executor lags behind at full SIL speed. publish_time is the sim time at the
+  publisher's send (``source_timestamp`` mapped through the /clock samples' own source
+  stamps, as rosbag2's send_timestamp); it differs from log_time only for samples delivered
+  late, e.g. the transient-local history a late-matching recorder receives;
+* the executor thread only appends ``(topic, receive stamp, bytes, source stamp)`` to a
+  deque (each callback also drains every sample already queued on its subscription); a
+  writer thread drains the deque into the MCAP writer, so disk I/O and zstd never block message intake;
+* every completed chunk goes straight to the OS, and the open chunk is closed every
+  ``--flush-period`` wall seconds (default 1 s): after SIGKILL at most that much is lost;
+* SIGINT/SIGTERM: stop taking new work, drain what DDS already delivered, write the summary
+  and ``metadata.yaml``, print a JSON line with the per-topic counts, exit 0.
+
+Topics given with a type (``/name:pkg/msg/Type``) are subscribed at once, so the recorder is
+ready before any publisher exists (``magtune-recorder ready`` is printed on stdout); topics
+without a type, and ``--all``, are discovered from the graph every 0.2 s.
+"""
+from __future__ import annotations
+
+import argparse
+import bisect
+import collections
+import json
+import struct
+import sys
+import threading
+import time
+
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
+
+from magtune_core.bag import DEFAULT_CHUNK_SIZE, BagWriter
+from magtune_core.bag_topics import PROJECT_TOPICS, topic_specs
+from magtune_core.msgdefs import normalize_type
+
+from .bag_common import (HIDDEN_TOPICS, adapt_request, install_stop_handlers, message_class,
+                         qos_profile_dict)
+
+CLOCK = "/clock"
+
+
+def parse_args(argv):
+    p = argparse.ArgumentParser(prog="recorder", description=__doc__.split("\n\n")[0])
+    p.add_argument("-o", "--output", "--path", dest="output", default=None,
+                   help="bag directory to create (bags/NAME)")
+    p.add_argument("--topics", nargs="*", default=None,
+                   help="topics to record: /name or /name:pkg/msg/Type (typed: subscribed at once)")
+    p.add_argument("--all", action="store_true", default=None, help="record every discovered topic")
+    p.add_argument("--include-hidden", action="store_true", default=None,
+                   help="with --all, also /rosout and /parameter_events")
+    p.add_argument("--custom-data", nargs="*", default=None, metavar="KEY=VALUE",
+                   help="stored in metadata.yaml custom_data (e.g. sigma=60)")
+    p.add_argument("--chunk-size", type=int, default=None, help=f"default {DEFAULTS['chunk_size']}")
+    p.add_argument("--flush-period", type=float, default=None,
+                   help="close the open chunk every S wall seconds (crash safety; default 1)")
+    p.add_argument("--depth", type=int, default=None, help="subscription queue depth (10000)")
+    p.add_argument("--wall-time", action="store_true", default=None, help="log wall time, not sim time")
+    p.add_argument("--max-messages", type=int, default=None, help="stop after N messages (0: never)")
+    p.add_argument("--duration", type=float, default=None, help="stop after S wall seconds (0: never)")
+    p.add_argument("--overwrite", action="store_true", default=None)
+    return p.parse_args(argv)
+
+
+#: option -> default; each is also a ROS parameter (``output`` is the parameter ``path``)
+DEFAULTS = {"output": "", "topics": [], "all": False, "include_hidden": False, "custom_data": [],
+            "chunk_size": DEFAULT_CHUNK_SIZE, "flush_period": 1.0, "depth": 10000,
+            "wall_time": False, "max_messages": 0, "duration": 0.0, "overwrite": False}
+
+
+def resolve_options(node: Node, args) -> argparse.Namespace:
+    """Command-line options, else ROS parameters, else defaults."""
+    out = {}
+    for key, default in DEFAULTS.items():
+        pname = "path" if key == "output" else key
+        if isinstance(default, list):
+            desc = ParameterDescriptor(type=ParameterType.PARAMETER_STRING_ARRAY)
+            value = node.declare_parameter(pname, Parameter.Type.STRING_ARRAY, desc).value or []
+        else:
+            value = node.declare_parameter(pname, default).value
+        cli = getattr(args, key, None)
+        out[key] = cli if cli is not None else value
+    if not out["output"]:
+        raise SystemExit("recorder: no output bag given (-o bags/NAME or -p path:=bags/NAME)")
+    if not out["topics"] and not out["all"]:
+        out["topics"] = topic_specs()
+    return argparse.Namespace(**out)
+
+
+class SimClockMap:
+    """Maps DDS receive timestamps (wall ns) to sim time, from the ``/clock`` samples seen.
+
+    Each ``/clock`` sample is stored with the wall time DDS received it; a message received at
+    wall time ``w`` gets the sim time of the last ``/clock`` received at or before ``w``. This
+    is the sim time at reception, independent of how far the executor lags behind.
+    """
+
+    def __init__(self):
+        self.walls: list[int] = []
+        self.sims: list[int] = []
+        self.source: "SimClockMap | None" = None   # same table keyed by source timestamps
+
+    def add(self, wall_ns: int, sim_ns: int) -> None:
+        if self.walls and wall_ns < self.walls[-1]:
+            wall_ns = self.walls[-1]          # keep the table sorted (equal stamps are fine)
+        self.walls.append(wall_ns)
+        self.sims.append(sim_ns)
+
+    @property
+    def last_wall(self) -> int:
+        return self.walls[-1] if self.walls else -1
+
+    def sim_at(self, wall_ns: int) -> int:
+        i = bisect.bisect_right(self.walls, wall_ns) - 1
+        return self.sims[i] if i >= 0 else 0
+
+
+def clock_from_cdr(data: bytes) -> int:
+    """Sim time (ns) of a serialized rosgraph_msgs/Clock (CDR: 4-byte header, int32, uint32)."""
+    endian = "<" if data[1] == 1 else ">"
+    sec, nsec = struct.unpack_from(endian + "iI", data, 4)
+    return sec * 1_000_000_000 + nsec
+
+
+class BagWriterThread(threading.Thread):
+    """Drains the intake deque into a :class:`BagWriter`; flushes the chunk periodically.
+
+    Items carry the DDS receive time (wall ns). In sim-time mode an item is written once the
+    clock map has a ``/clock`` sample received after it (so its sim time is final), or after
+    ``hold_s`` seconds without one (end of the run), or at shutdown.
+    """
+
+    def __init__(self, writer: BagWriter, flush_period: float, clock_map: SimClockMap | None,
+                 hold_s: float = 0.5):
+        super().__init__(name="bag-writer", daemon=True)
+        self.writer = writer
+        self.queue: collections.deque = collections.deque()
+        self.flush_period = flush_period
+        self.clock_map = clock_map
+        self.hold_ns = int(hold_s * 1e9)
+        self._halt = threading.Event()
+        self.written = 0
+        self.error: BaseException | None = None
+
+    def _ready(self, wall_ns: int) -> bool:
+        cm = self.clock_map
+        return (cm is None or self._halt.is_set() or cm.last_wall > wall_ns
+                or time.time_ns() - wall_ns > self.hold_ns)
+
+    def run(self):
+        last_flush = time.monotonic()
+        dirty = False
+        q, w, cm = self.queue, self.writer, self.clock_map
+        try:
+            while True:
+                n = 0
+                while q:
+                    item = q[0]
+                    if item[0] is None:          # topic registration
+                        _, name, typ, profiles = item
+                        w.add_topic(name, typ, profiles)
+                    else:
+                        if not self._ready(item[1]):
+                            break
+                        if cm is None:
+                            t, tp = item[1], item[3]
+                        else:
+                            t, tp = cm.sim_at(item[1]), cm.source.sim_at(item[3])
+                        w.write(item[0], item[2], t, tp)
+                        n += 1
+                    q.popleft()
+                self.written += n
+                dirty = dirty or n > 0
+                now = time.monotonic()
+                if dirty and now - last_flush >= self.flush_period:
+                    w.flush()
+                    dirty, last_flush = False, now
+                if self._halt.is_set() and not q:
+                    break
+                if n == 0:
+                    time.sleep(0.002)
+        except BaseException as exc:  # noqa: BLE001 - reported by the node on exit
+            self.error = exc
+
+    def finish(self):
+        self._halt.set()
+        self.join()
+        self.writer.close()
+
+
+class Recorder(Node):
+    """Subscribes raw to the selected topics and hands the bytes to the writer thread."""
+
+    def __init__(self, cli_args):
+        super().__init__("recorder")
+        self.args = args = resolve_options(self, cli_args)
+        custom = dict(kv.split("=", 1) for kv in args.custom_data)
+        self.bag = BagWriter(args.output, chunk_size=args.chunk_size, custom_data=custom,
+                             overwrite=args.overwrite)
+        self.clock_map = None if args.wall_time else SimClockMap()
+        if self.clock_map is not None:
+            self.clock_map.source = SimClockMap()
+        self.thread = BagWriterThread(self.bag, args.flush_period, self.clock_map)
+        self.thread.start()
+        self.wanted: dict[str, str | None] = {}
+        for spec in args.topics:
+            name, _, typ = spec.partition(":")
+            name = "/" + name.lstrip("/")
+            if not typ and name in PROJECT_TOPICS:
+                typ = PROJECT_TOPICS[name][0]
+            self.wanted[name] = normalize_type(typ) if typ else None
+        self.subs = {}
+        self.types: dict[str, str] = {}
+        self.registered: set[str] = set()
+        self.matched: set[str] = set()
+        self.all_matched = False
+        self.counts: collections.Counter = collections.Counter()
+        self.received = 0
+        self.max_lag_ns = 0  # largest (take time - DDS receive time): how far intake lagged
+        if self.clock_map is not None:
+            self._subscribe(CLOCK, "rosgraph_msgs/msg/Clock")
+        for name, typ in self.wanted.items():
+            if typ and name not in self.subs:
+                self._subscribe(name, typ)
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(0.2, self._discover, clock=self._steady)
+        self.create_timer(0.02, self._report_matches, clock=self._steady)
+        self._discover()
+
+    def _selected(self, name: str) -> bool:
+        return name in self.wanted or (self.args.all and (
+            self.args.include_hidden or name not in HIDDEN_TOPICS))
+
+    def _report_matches(self):
+        """Print ``magtune-recorder matched /topic`` once per topic when its first publisher is
+        matched, and ``magtune-recorder matched all`` when every requested topic is (a runner
+        can wait for these lines before starting the publishers' clock)."""
+        for name, sub in self.subs.items():
+            if name not in self.matched and sub.get_publisher_count() > 0:
+                self.matched.add(name)
+                print(f"magtune-recorder matched {name}", flush=True)
+        if not self.all_matched and self.wanted and all(n in self.matched for n in self.wanted):
+            self.all_matched = True
+            print("magtune-recorder matched all", flush=True)
+
+    def _discover(self):
+        """Subscribe to newly seen selected topics; downgrade a reliable subscription made
+        before its publishers existed if one of them turns out to be best effort."""
+        self._report_matches()
+        for name, types in self.get_topic_names_and_types():
+            if name not in self.subs and types and self._selected(name):
+                self._subscribe(name, normalize_type(types[0]))
+        for name, sub in list(self.subs.items()):
+            offers = [i.qos_profile for i in self.get_publishers_info_by_topic(name)]
+            q = sub.qos_profile
+            if (q.reliability == ReliabilityPolicy.RELIABLE and any(
+                    o.reliability == ReliabilityPolicy.BEST_EFFORT for o in offers)) or (
+                    q.durability == DurabilityPolicy.TRANSIENT_LOCAL and any(
+                    o.durability == DurabilityPolicy.VOLATILE for o in offers)):
+                self.get_logger().warning(f"{name}: a publisher's QoS is incompatible; resubscribing")
+                self.destroy_subscription(sub)
+                del self.subs[name]
+                self._subscribe(name, self.types[name])
+
+    def _subscribe(self, name: str, typ: str):
+        offered = [i.qos_profile for i in self.get_publishers_info_by_topic(name)]
+        qos = adapt_request(offered, self.args.depth)
+        if not offered and PROJECT_TOPICS.get(name, ("", ""))[1] == "transient_local":
+            # subscribed before its publisher exists: ask for the late-joiner history the
+            # project's lockstep publishers keep (transient-local, depth 100)
+            qos.durability = DurabilityPolicy.TRANSIENT_LOCAL
+        holder = {}
+        self.types[name] = typ
+        sub = self.create_subscription(message_class(typ), name,
+                                       self._make_callback(name, typ, holder), qos, raw=True)
+        holder["sub"] = sub
+        self.subs[name] = sub
+
+    def _make_callback(self, name: str, typ: str, holder: dict):
+        """Callback that also drains every further sample already queued on the subscription
+        (one executor round per burst instead of per message)."""
+        q = self.thread.queue
+        record = self._selected(name)
+        cm = self.clock_map if name == CLOCK else None
+
+        def handle(data: bytes, info: dict):
+            wall = info["received_timestamp"]
+            lag = time.time_ns() - wall
+            if lag > self.max_lag_ns:
+                self.max_lag_ns = lag
+            if cm is not None:
+                t_sim = clock_from_cdr(data)
+                cm.add(wall, t_sim)
+                cm.source.add(info["source_timestamp"], t_sim)
+            if not record:
+                return
+            if name not in self.registered:
+                self.registered.add(name)
+                offered = [qos_profile_dict(i.qos_profile)
+                           for i in self.get_publishers_info_by_topic(name)]
+                q.append((None, name, typ, offered))
+            q.append((name, wall, data, info["source_timestamp"]))
+            self.counts[name] += 1
+            self.received += 1
+
+        def callback(data: bytes, info: dict):
+            handle(data, info)
+            sub = holder["sub"]
+            with sub.handle:
+                while True:
+                    r = sub.handle.take_message(sub.msg_type, True)
+                    if r is None:
+                        break
+                    handle(r[0], r[1])
+        return callback
+
+
+def main(argv=None):
+    argv = sys.argv if argv is None else argv
+    args = parse_args(remove_ros_args(argv)[1:])
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    stop = install_stop_handlers()
+    try:
+        node = Recorder(args)
+    except (FileExistsError, OSError, ValueError) as exc:
+        rclpy.try_shutdown()
+        print(f"recorder: {exc}", file=sys.stderr, flush=True)
+        return 2
+    args = node.args  # command line merged with ROS parameters
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    print("magtune-recorder ready", flush=True)
+    t0 = time.monotonic()
+    try:
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.1)
+            if args.max_messages and node.received >= args.max_messages:
+                break
+            if args.duration and time.monotonic() - t0 >= args.duration:
+                break
+            if node.thread.error:
+                raise node.thread.error
+        # drain what DDS has already delivered: spin until 3 idle rounds of 50 ms
+        idle = 0
+        while idle < 3 and not (args.max_messages and node.received >= args.max_messages):
+            before = node.received
+            executor.spin_once(timeout_sec=0.05)
+            idle = idle + 1 if node.received == before else 0
+    finally:
+        node.thread.finish()
+        summary = {"bag": str(node.bag.dir), "messages": node.thread.written,
+                   "per_topic": dict(sorted(node.counts.items())),
+                   "max_intake_lag_s": round(node.max_lag_ns * 1e-9, 4)}
+        print(json.dumps(summary), flush=True)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    if node.thread.error:
+        raise SystemExit(f"recorder: writer failed: {node.thread.error}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
