@@ -42,9 +42,13 @@ RECORDER_EXE = "recorder"
 RECORDER_ENV = "MAGTUNE_RECORDER"
 
 
-def recorder_args(bag) -> list[str]:
-    """ROS arguments of the recorder process (the bags helper's interface)."""
-    return ["-p", "use_sim_time:=true", "-p", f"path:={Path(bag).resolve()}"]
+def recorder_args(bag, custom: dict | None = None) -> list[str]:
+    """ROS arguments of the recorder process; ``custom`` goes to metadata.yaml custom_data."""
+    args = ["-p", "use_sim_time:=true", "-p", f"path:={Path(bag).resolve()}"]
+    if custom:
+        items = ", ".join(f"'{k}={v}'" for k, v in custom.items())
+        args += ["-p", f"custom_data:=[{items}]"]
+    return args
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SPACECRAFT = ROOT / "config" / "spacecraft.yaml"
 #: ROS_DOMAIN_IDs handed out to runs: 215-232 map Fast DDS ports above Linux's ephemeral range
@@ -287,7 +291,13 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
     try:
         env = child_env(lock.domain_id, prefix, *([rec_exe.parents[2]] if rec_exe else []))
         if rec_exe:
-            procs.append(start_node("recorder", rec_exe, recorder_args(bag), env, log_dir))
+            custom = {"gains": gains.name, **common_ts}
+            try:
+                from .gains import load_gains
+                custom["sigma"] = f"{load_gains(gains).sigma:g}"
+            except ValueError:
+                pass  # the controller node reports a bad gains file itself
+            procs.append(start_node("recorder", rec_exe, recorder_args(bag, custom), env, log_dir))
         procs.append(start_node("controller", exes["controller"],
                                 sc + ["--params-file", str(gains.resolve()), "--params-file", str(pfile)], env, log_dir))
         procs.append(start_node("attitude_sensors", exes["attitude_sensors"], sc + ["--params-file", str(pfile)],

@@ -12,4 +12,9 @@ echo "== Table 1: the paper's tuned controllers vs ours (shipped gains, recomput
 magtune table1
 echo
 echo "== SIL: sigma = 60 gains, ${orbits} orbit(s), Ts = 1 s, dw(0) = [1e-3, 2e-3, 0] rad/s =="
-magtune sil --gains config/gains/sigma_60.yaml --orbits "$orbits" --ts 1
+rm -rf bags/demo_sigma60
+magtune sil --gains config/gains/sigma_60.yaml --orbits "$orbits" --ts 1 --bag bags/demo_sigma60
+echo
+echo "== the recorded run (MCAP, rosbag2 layout) and its plots =="
+magtune bag info bags/demo_sigma60
+magtune report bags/demo_sigma60 --out reports/demo_sigma60

@@ -21,13 +21,15 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 #: Lockstep data topics (truth, field, sensors, dipole command, torques): reliable, and
 #: transient-local so a subscriber matched after the first publication (DDS discovery is
-#: asynchronous between the three processes) still receives it; depth 100 so a slower
-#: recorder does not lose samples.
-LOCKSTEP_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+#: asynchronous between the three processes) still receives it; depth 1000 (about 17 minutes of
+#: sim time at Ts = 1 s, a few seconds of wall time at full SIL speed) so a recorder starved of
+#: CPU on a loaded machine catches up instead of losing bursts (seen with depth 100 at load 5).
+LOCKSTEP_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                           reliability=ReliabilityPolicy.RELIABLE,
                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
-#: /clock: reliable publisher (compatible with rclpy's best-effort TimeSource subscriber).
-CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
+#: /clock: reliable publisher (compatible with rclpy's best-effort TimeSource subscriber);
+#: depth 100 for a reliable recorder that falls behind.
+CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE)
 #: /diagnostics: the usual diagnostic_aggregator QoS.
 DIAG_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
