@@ -63,7 +63,8 @@ class Procs:
     def output(p) -> str:
         return Path(p.log_path).read_text()
 
-    def wait_for_line(self, p, text: str, timeout: float = 20.0) -> None:
+    def wait_for_line(self, p, text: str, timeout: float = 60.0) -> None:
+        # generous: a Python+rclpy process start takes 1-2 s idle, 20+ s on a loaded 2-core box
         end = time.monotonic() + timeout
         while time.monotonic() < end:
             if text in self.output(p):
