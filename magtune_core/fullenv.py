@@ -21,7 +21,7 @@ Controller state. The controller is the paper's: its linear state stays
 against the actual orbital frame and W0 the *nominal* rate. In the full environment W0 is set
 to the mean orbital-frame rate of the actual orbit (:func:`nominal_orbit_period`: mean of
 ``-w_oi,z`` over the first orbits; 2 pi/5611.2 s for the default orbit, vs the paper's 5614.8 s),
-so that ``w_oi(t) - [0, 0, -W0]`` is a zero-mean periodic term (|.| <= 1.1e-6 rad/s: J2
+so that ``w_oi(t) - [0, 0, -W0]`` is a zero-mean periodic term (|.| <= 1.4e-6 rad/s: J2
 radius oscillation and out-of-plane J2 acceleration) that the controller sees as an unmodelled
 disturbance, exactly as a flight controller that uses the linear design model would. The
 nominal period also defines the orbits of the run and the RMS window of figures_of_merit.

@@ -384,7 +384,10 @@ def add_environment_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-drag", action="store_true", help="full environment: switch drag off")
     p.add_argument("--no-srp", action="store_true", help="full environment: switch SRP off")
     p.add_argument("--no-gravity-gradient", action="store_true", help="full environment: switch gravity gradient off")
-    p.add_argument("--env-field", default="igrf", help="full environment field: igrf (default) or eq26, eq26_literal")
+    from .field import FIELD_MODELS
+
+    p.add_argument("--env-field", default="igrf", choices=("igrf",) + tuple(FIELD_MODELS),
+                   help="full environment field: igrf (default) or a periodic model of field.py")
     p.add_argument("--igrf-degree", type=int, default=10, help="full environment: IGRF degree (default 10)")
 
 
