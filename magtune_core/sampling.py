@@ -22,7 +22,8 @@ Figures of merit per run (``t_k = k Ts`` controller instants, T the nominal orbi
 
 Runs are distributed over ``--workers`` processes (multiprocessing); each run is a
 deterministic fixed-step integration (no noise), so the table does not depend on the number
-of workers. Outputs: ``docs/sampling.md`` (table + verdict on the paper's claim),
+of workers. ``--backend sil`` runs every case through ``magtune sil`` instead (the three ROS 2
+nodes over DDS, lockstep); the trajectories, hence the table, are identical. Outputs: ``docs/sampling.md`` (table + verdict on the paper's claim),
 ``docs/sampling.png`` (matplotlib, Agg) and ``docs/sampling.json`` (raw numbers).
 """
 from __future__ import annotations
@@ -56,9 +57,20 @@ def _run_one(job: dict) -> dict:
     p = load_spacecraft(job["spacecraft"])
     K = load_gains(job["gains"]).K
     ts = float(job["ts"])
+    opts = FullEnvironmentOptions(**job["env_options"]) if job["environment"] == "full" else None
     t0 = time.perf_counter()
-    res = simulate(K, p, ts=ts, orbits=job["orbits"], substeps=substeps_for(ts), environment=job["environment"],
-                   env_options=FullEnvironmentOptions(**job["env_options"]) if job["environment"] == "full" else None)
+    if job.get("backend", "offline") == "sil":  # the ROS 2 nodes over DDS (same trajectory, bit for bit)
+        from .sil import run_sil
+
+        res = run_sil(job["gains"], orbits=job["orbits"], ts=ts, substeps=substeps_for(ts),
+                      spacecraft=job["spacecraft"], environment=job["environment"], env_options=opts).result
+        from .simulate import DEFAULT_DIPOLE_LIMIT
+
+        res.info["saturated_steps"] = int(np.count_nonzero(np.any(np.abs(res.m) >= DEFAULT_DIPOLE_LIMIT, axis=1)))
+        res.info["substeps"] = substeps_for(ts)
+    else:
+        res = simulate(K, p, ts=ts, orbits=job["orbits"], substeps=substeps_for(ts), environment=job["environment"],
+                       env_options=opts)
     wall = time.perf_counter() - t0
     f = figures_of_merit(res)
     dq = np.linalg.norm(res.x[:, :3], axis=1)
@@ -82,13 +94,14 @@ def settling_time(t, dq, threshold: float) -> float:
 
 
 def run_study(sigmas=DEFAULT_SIGMAS, ts_list=DEFAULT_TS, orbits: float = 5.0, environment: str = "full",
-              env_options: dict | None = None, workers: int = 2, gains_dir=None, spacecraft=None) -> list[dict]:
+              env_options: dict | None = None, workers: int = 2, gains_dir=None, spacecraft=None,
+              backend: str = "offline") -> list[dict]:
     """All (sigma, Ts) runs, with settling times; sorted by sigma then Ts."""
     gains_dir = Path(gains_dir or ROOT / "config" / "gains")
     spacecraft = str(spacecraft or ROOT / "config" / "spacecraft.yaml")
     jobs = [dict(sigma=float(s), ts=float(ts), orbits=float(orbits), environment=environment,
                  env_options=dict(env_options or {}), gains=str(gains_dir / f"sigma_{s:g}.yaml"),
-                 spacecraft=spacecraft) for s in sigmas for ts in sorted(ts_list)]
+                 spacecraft=spacecraft, backend=backend) for s in sigmas for ts in sorted(ts_list)]
     for j in jobs:
         if not Path(j["gains"]).is_file():
             raise FileNotFoundError(f"gains file not found: {j['gains']}")
@@ -227,6 +240,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--ts", type=_floats, default=list(DEFAULT_TS), help="sample periods [s], default 1,2,5,10,20,30")
     p.add_argument("--orbits", type=float, default=5.0, help="run length [orbits] (default 5)")
     p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
+    p.add_argument("--backend", choices=("offline", "sil"), default="offline",
+                   help="offline simulate() (default) or the SIL nodes over DDS (identical trajectories, slower)")
     p.add_argument("--gains-dir", default=str(ROOT / "config" / "gains"), help="holds sigma_<sigma>.yaml")
     p.add_argument("--spacecraft", default=str(ROOT / "config" / "spacecraft.yaml"))
     p.add_argument("--out-dir", default=str(ROOT / "docs"), help="writes sampling.md/.png/.json here")
@@ -240,7 +255,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def cmd_sampling(args) -> int:
-    from .sil import environment_options
+    from .sil import SilError, environment_options
 
     opts = environment_options(args)
     conclusion_arg = args.conclusion if args.conclusion.startswith("@") else ("..." if args.conclusion else "")
@@ -253,14 +268,15 @@ def cmd_sampling(args) -> int:
     t0 = time.perf_counter()
     try:
         rows = run_study(args.sigmas, args.ts, args.orbits, args.environment, env_opts, max(1, args.workers),
-                         args.gains_dir, args.spacecraft)
-    except FileNotFoundError as exc:
+                         args.gains_dir, args.spacecraft, args.backend)
+    except (FileNotFoundError, SilError) as exc:  # missing gains file, SIL failure: one line
         print(f"magtune sampling: {exc}", file=sys.stderr)
         return 1
     wall = time.perf_counter() - t0
     cmd = "magtune sampling " + " ".join(
         [f"--sigmas {','.join(f'{s:g}' for s in args.sigmas)}", f"--ts {','.join(f'{t:g}' for t in args.ts)}",
          f"--orbits {args.orbits:g}", f"--environment {args.environment}"]
+        + ([f"--backend {args.backend}"] if args.backend != "offline" else [])
         + ([f"--conclusion {conclusion_arg}"] if conclusion_arg else []))
     meta = dict(command=cmd, wall=wall, workers=args.workers, environment=args.environment, orbits=args.orbits,
                 conclusion=args.conclusion)

@@ -176,3 +176,28 @@ def test_sil_full_environment_matches_offline(tmp_path):
     assert run.result.orbit_period == off.orbit_period
     for k in ("q", "w", "x", "m", "b"):
         assert np.max(np.abs(getattr(run.result, k) - getattr(off, k))) <= 1e-9, k
+    # a bad environment name is a one-line parameter error (exit status 2)
+    import subprocess
+
+    with sil.DomainLock() as lock:
+        env = sil.child_env(lock.domain_id, sil.package_prefix())
+        r = subprocess.run([str(sil.resolve_executable("simulator")), "--ros-args", "-p", "environment:=orbit"],
+                           env=env, capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2 and "parameter 'environment'" in r.stderr.strip().splitlines()[-1]
+
+
+@pytest.mark.ros
+def test_sampling_sil_backend_equals_offline(tmp_path):
+    """`magtune sampling --backend sil` (the nodes over DDS) writes the same numbers as offline."""
+    from magtune_core import sampling, sil
+
+    try:
+        sil.resolve_executable("simulator")
+    except sil.SilError:
+        pytest.skip("magtune_ros not built (run scripts/bootstrap.sh)")
+    args = ["--sigmas", "240", "--ts", "20", "--orbits", "0.2", "--workers", "1"]
+    assert sampling.main(args + ["--backend", "sil", "--out-dir", str(tmp_path / "sil")]) == 0
+    assert sampling.main(args + ["--out-dir", str(tmp_path / "off")]) == 0
+    a, b = (json.loads((tmp_path / d / "sampling.json").read_text())["rows"][0] for d in ("sil", "off"))
+    for k in ("rms_dq", "peak_m", "peak_dq", "final_dq", "settling_time", "saturated_steps"):
+        assert a[k] == b[k], k
