@@ -18,7 +18,7 @@ from .model import AttitudeLTP
 from .params import ConfigError, load_spacecraft
 
 DEFAULT_CONFIG = "config/spacecraft.yaml"
-COMMAND_MODULES: tuple[str, ...] = ("fitfield", "sil", "replay", "report")
+COMMAND_MODULES: tuple[str, ...] = ("fitfield", "sil", "replay", "report", "sampling")
 PAPER_TABLE1 = {60: (239.19, 12072.45, 0.00283), 120: (283.96, 11039.75, 0.00345), 240: (399.32, 9348.98, 0.00598)}
 ANALYSIS_STEPS = 128  # Magnus intervals for reported figures (~1e-5 relative, see bench/)
 

@@ -216,11 +216,16 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
             lockstep: bool = True, lockstep_timeout: float = 2.0, startup_timeout: float = 30.0,
             timeout: float | None = None, domain_id: int | None = None, log_dir=None, results=None,
             simulator_params: dict | None = None, sensor_params: dict | None = None,
-            controller_params: dict | None = None, on_start=None) -> SilRun:
+            controller_params: dict | None = None, on_start=None, environment: str = "paper",
+            env_options=None) -> SilRun:
     """Start controller, attitude_sensors and simulator (+ recorder with ``bag``), wait, clean up.
 
     ``timeout`` (wall s, default generous) bounds the whole run; parameters dicts are extra
     ROS parameters per node. Raises SilError naming the failing node and its last log lines.
+    ``environment`` "paper" (default) or "full" with ``env_options`` a
+    ``fullenv.FullEnvironmentOptions``: the simulator builds the full environment and every node
+    gets the actual orbit's nominal period (``fullenv.full_params``), as the offline
+    ``simulate(..., environment="full")``.
     """
     from .simulate import SimResult, figures_of_merit
 
@@ -273,8 +278,23 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
             common_ts = {"ts": float(load_gains(gains).ts)}
         except ConfigError as exc:
             raise SilError(str(exc)) from None
+    env_sim: dict = {}
+    if environment == "full":
+        from .fullenv import FullEnvironmentOptions, full_params
+        from .params import load_spacecraft, SpacecraftParams
+
+        opts = env_options or FullEnvironmentOptions()
+        if opts.epoch != FullEnvironmentOptions().epoch or opts.raan_deg or opts.arg_lat_deg or opts.zonal_degree != 2:
+            raise SilError("the simulator node takes the default epoch/RAAN/argument of latitude/zonal degree")
+        sc_params = load_spacecraft(spacecraft) if spacecraft else SpacecraftParams()
+        common["orbit_period"] = float(full_params(sc_params, opts).orbit_period)
+        env_sim = dict(environment="full", env_gravity_gradient=bool(opts.gravity_gradient), env_drag=bool(opts.drag),
+                       env_srp=bool(opts.srp), env_field=str(opts.field), igrf_degree=int(opts.igrf_degree))
+        sim["orbit_period"] = common["orbit_period"]
+    elif environment != "paper":
+        raise SilError(f"unknown environment {environment!r} (expected 'paper' or 'full')")
     params = {
-        "simulator": {**sim, **common_ts, **(simulator_params or {})},
+        "simulator": {**sim, **env_sim, **common_ts, **(simulator_params or {})},
         "attitude_sensors": {**common, **common_ts, **(sensor_params or {})},
         "controller": {**common, **common_ts, **(controller_params or {})},
     }
@@ -362,14 +382,39 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: a free one)")
     p.add_argument("--timeout", type=float, default=None, help="abort after this many wall seconds")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_environment_arguments(p)
     p.set_defaults(func=cmd_sil, handler=cmd_sil)
+
+
+def add_environment_arguments(p: argparse.ArgumentParser) -> None:
+    """--environment and the switches of the full environment (shared with ``magtune sampling``)."""
+    p.add_argument("--environment", choices=("paper", "full"), default="paper",
+                   help="paper: eq. 26 field, circular orbit, GG + residual dipole (default); full: J2 orbit, "
+                        "IGRF degree 10, GG with actual r, residual dipole, drag, SRP (docs/environment.md)")
+    p.add_argument("--no-drag", action="store_true", help="full environment: switch drag off")
+    p.add_argument("--no-srp", action="store_true", help="full environment: switch SRP off")
+    p.add_argument("--no-gravity-gradient", action="store_true", help="full environment: switch gravity gradient off")
+    from .field import FIELD_MODELS
+
+    p.add_argument("--env-field", default="igrf", choices=("igrf",) + tuple(FIELD_MODELS),
+                   help="full environment field: igrf (default) or a periodic model of field.py")
+    p.add_argument("--igrf-degree", type=int, default=10, help="full environment: IGRF degree (default 10)")
+
+
+def environment_options(args):
+    """FullEnvironmentOptions from the parsed --environment switches."""
+    from .fullenv import FullEnvironmentOptions
+
+    return FullEnvironmentOptions(gravity_gradient=not args.no_gravity_gradient, drag=not args.no_drag,
+                                  srp=not args.no_srp, field=args.env_field, igrf_degree=args.igrf_degree)
 
 
 def cmd_sil(args) -> int:
     try:
         run = run_sil(args.gains, orbits=args.orbits, steps=args.steps, ts=args.ts, substeps=args.substeps,
                       spacecraft=args.spacecraft, real_time_factor=args.rtf, bag=args.bag, results=args.results,
-                      log_dir=args.log_dir, domain_id=args.domain_id, timeout=args.timeout)
+                      log_dir=args.log_dir, domain_id=args.domain_id, timeout=args.timeout,
+                      environment=args.environment, env_options=environment_options(args))
     except SilError as exc:
         print(f"magtune sil: {exc}", file=sys.stderr)
         return 1

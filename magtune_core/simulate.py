@@ -102,15 +102,26 @@ def simulate(K, p: SpacecraftParams | None = None, *, ts: float = 1.0, orbits: f
              steps: int | None = None, substeps: int = 2, dw0=DW0, q0=(1.0, 0.0, 0.0, 0.0),
              dipole_limit=DEFAULT_DIPOLE_LIMIT, min_field=DEFAULT_MIN_FIELD,
              residual_dipole=(1.0, 1.0, 1.0), field=None, disturbances=(),
-             dynamics: AttitudeDynamics | None = None) -> SimResult:
+             dynamics: AttitudeDynamics | None = None, environment: str = "paper",
+             env_options=None) -> SimResult:
     """Closed loop of the nonlinear model with the sample-and-hold projection controller.
 
     ``steps`` (default ``round(orbits * T / ts)``) controller periods are simulated; each
     period is integrated with ``substeps`` RK4 steps with the dipole held.
+    ``environment``: "paper" (eq. 26 field, circular orbit, gravity gradient + residual dipole)
+    or "full" (J2 orbit, IGRF, drag, SRP; ``env_options`` a
+    :class:`magtune_core.fullenv.FullEnvironmentOptions`): see :mod:`magtune_core.fullenv`. In
+    "full", T and W0 are the actual orbit's nominal values (``fullenv.full_params``).
     """
     p = p or SpacecraftParams()
-    dyn = dynamics or AttitudeDynamics.from_params(p, field=field, residual_dipole=residual_dipole,
-                                                   disturbances=disturbances)
+    if dynamics is None:
+        from .fullenv import full_params, make_dynamics
+
+        if environment == "full":
+            p = full_params(p, env_options)
+        dynamics = make_dynamics(environment, p, ts=ts, substeps=substeps, residual_dipole=residual_dipole,
+                                 field=field, disturbances=disturbances, options=env_options)
+    dyn = dynamics
     ctrl = ProjectionController(K, dipole_limit, min_field)
     n = int(steps if steps is not None else round(orbits * p.orbit_period / ts))
     y = initial_state(p, dw0, q0)
@@ -131,7 +142,8 @@ def simulate(K, p: SpacecraftParams | None = None, *, ts: float = 1.0, orbits: f
         if k < n:
             y = dyn.step(t[k], y, ts, out.m, substeps)
     return SimResult(t, Y[:, :4], Y[:, 4:], X, M, Bb, p.orbit_period,
-                     dict(saturated_steps=sat, weak_field_steps=weak, ts=ts, substeps=substeps))
+                     dict(saturated_steps=sat, weak_field_steps=weak, ts=ts, substeps=substeps,
+                          environment=environment))
 
 
 def figures_of_merit(res: SimResult) -> dict:

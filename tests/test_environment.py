@@ -173,8 +173,9 @@ def test_quaternion_convention():
 def test_torque_free_rigid_body_with_wheel_conserves_energy_and_momentum():
     """I w' = -w x (I w + h), q' = 0.5 q (x) [0; w], wheel momentum h = [0, 0, 2] N m s fixed in body.
 
-    NOTE: written against a small local integrator because magtune_core/dynamics.py (the ROS
-    helper's) is not on this branch; the same invariants should be asserted on dynamics.py.
+    Written against a small local integrator (an independent check of the equations); the same
+    invariants are asserted on dynamics.py and on fullenv.FullDynamics (actual orbital frame) in
+    tests/test_fullenv.py::test_torque_free_body_with_wheel_conserves_energy_and_momentum.
     Invariants: body kinetic energy 0.5 w.I w (d/dt = -w.(w x H) = 0) and the inertial angular
     momentum R(q) (I w + h).
     """
@@ -246,8 +247,8 @@ def test_disturbance_adapter_matches_torques(env):
 
 
 def test_plugs_into_attitude_dynamics(env):
-    """Runs once magtune_core/dynamics.py (ROS helper's branch) is merged: the environment's
-    field and disturbance plug-ins drive AttitudeDynamics.rhs, adding exactly I^-1 T_dist."""
+    """The environment's field and disturbance plug-ins drive AttitudeDynamics.rhs, adding exactly
+    I^-1 T_dist (magtune_core.fullenv.FullDynamics is the fast, fully coupled equivalent)."""
     dyn = pytest.importorskip("magtune_core.dynamics")
     p = SpacecraftParams()
     base = dyn.AttitudeDynamics(p.inertia, p.wheel_momentum, p.orbit_rate, env.field_orbital)

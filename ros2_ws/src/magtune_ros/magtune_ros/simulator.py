@@ -2,7 +2,10 @@
 
 Physics: ``magtune_core.dynamics.AttitudeDynamics`` (rigid body, pitch wheel, gravity gradient,
 residual dipole, eq. 26 field; other field models and disturbance torques plug in through the
-``field_plugin`` / ``disturbance_plugins`` parameters), integrated with the same RK4 step as the offline
+``field_plugin`` / ``disturbance_plugins`` parameters) with ``environment: paper`` (default), or
+``magtune_core.fullenv.FullDynamics`` with ``environment: full`` (J2 orbit, IGRF degree
+``igrf_degree``, gravity gradient with the actual radius, drag, SRP; switches ``env_*``; the
+nominal orbit period becomes the actual orbit's, which the controller must be given too), integrated with the same RK4 step as the offline
 ``magtune_core.simulate.simulate``; the commanded dipole is held over each step (ZOH).
 
 Publishes (all stamped with simulated time t_k = k * ts):
@@ -13,7 +16,7 @@ Publishes (all stamped with simulated time t_k = k * ts):
                                pose.position / twist.linear = 0 (circular-orbit attitude model)
   sim/magnetic_field           sensor_msgs/MagneticField  true field b = R(q)^T b_orb(t) [T], body axes
   sim/magnetic_torque          geometry_msgs/WrenchStamped  m x b at t_k [N m], body axes
-  sim/disturbance_torque       geometry_msgs/WrenchStamped  gravity gradient + residual dipole at t_k
+  sim/disturbance_torque       geometry_msgs/WrenchStamped  gravity gradient + residual dipole (+ drag, SRP) at t_k
   /diagnostics                 diagnostic_msgs/DiagnosticArray (steps, missed_steps, rejected, ...)
 Subscribes:
   controller/dipole_command    geometry_msgs/Vector3Stamped [A m^2], body axes; saturated per axis.
@@ -95,12 +98,32 @@ class Simulator(Node):
                                   "subscribers of sim/truth required before starting (2 with a recorder)",
                                   positive=True)
 
+        environment = c.declare(self, "environment", "paper",
+                                "'paper': eq. 26 field, circular orbit, GG + residual dipole; 'full': J2 orbit, "
+                                "IGRF, GG with actual r, drag, SRP (magtune_core/fullenv.py)",
+                                choices=("paper", "full"))
+        from magtune_core.field import FIELD_MODELS
+        from magtune_core.fullenv import FullEnvironmentOptions, full_params, make_dynamics
+
+        opts = FullEnvironmentOptions(
+            gravity_gradient=c.declare(self, "env_gravity_gradient", True, "full environment: gravity gradient"),
+            drag=c.declare(self, "env_drag", True, "full environment: Harris-Priester drag torque"),
+            srp=c.declare(self, "env_srp", True, "full environment: solar radiation pressure torque with eclipse"),
+            field=c.declare(self, "env_field", "igrf", "full environment: 'igrf' or a periodic model of field.py",
+                            choices=("igrf",) + tuple(FIELD_MODELS)),
+            igrf_degree=c.declare(self, "igrf_degree", 10, "full environment: IGRF truncation degree", positive=True))
         field_plugin = c.declare(self, "field_plugin", "",
                                  "'module:function' returning b_orb(t) [T, orbital axes] from SpacecraftParams; "
                                  "'' = field_model of the spacecraft parameters")
         plugins = c.declare(self, "disturbance_plugins", [], "'module:function' factories (SpacecraftParams -> "
                             "torque(t, q, w, b) [N m]) added to gravity gradient and residual dipole",
                             "str[]", required=False)
+        if environment == "full":
+            if field_plugin:
+                raise c.ParamError("field_plugin", "not available with environment 'full' (use env_field)")
+            # nominal W0 / T of the actual orbit (the controller gets the same orbit_period from `magtune sil`)
+            p = self.p = full_params(p, opts)
+            self.n = int(steps) if steps > 0 else int(round(orbits * p.orbit_period / self.ts))
         try:
             field = load_plugin(field_plugin)(p) if field_plugin else None
         except Exception as exc:  # noqa: BLE001 - any failure is a parameter error
@@ -111,7 +134,9 @@ class Simulator(Node):
                 dist.append(load_plugin(spec)(p))
             except Exception as exc:  # noqa: BLE001
                 raise c.ParamError("disturbance_plugins", f"cannot load {spec!r}: {exc}") from None
-        self.dyn = AttitudeDynamics.from_params(p, field=field, residual_dipole=m_res, disturbances=dist)
+        self.environment = environment
+        self.dyn = make_dynamics(environment, p, ts=self.ts, substeps=self.substeps, residual_dipole=m_res,
+                                 field=field, disturbances=dist, options=opts)
         self.y = initial_state(p, dw0, q0)
         self.k = 0
         self.t_ns = [c.sec_to_ns(k * self.ts) for k in range(self.n + 1)]
@@ -155,7 +180,8 @@ class Simulator(Node):
                                           self.on_timer, clock=steady)
         self.get_logger().info(
             f"{self.n} steps of {self.ts} s ({self.n * self.ts / p.orbit_period:.3f} orbits), "
-            f"lockstep={self.lockstep}, real_time_factor={self.rtf or 'max'}, field={p.field_model}")
+            f"lockstep={self.lockstep}, real_time_factor={self.rtf or 'max'}, environment={self.environment}, "
+            f"field={p.field_model if self.environment == 'paper' else opts.field}, T={p.orbit_period:.3f} s")
 
     # ---------------------------------------------------------------- stepping
     def peers_ready(self) -> bool:
