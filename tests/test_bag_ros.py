@@ -220,7 +220,10 @@ def test_replay_start_offset_and_loop(recorded, tmp_path):
     res = tmp_path / "loop.json"
     k = N - 250
     try:
-        sub = procs.python("subscriber", "bag_fixture_sub.py", res, "--expect", 2 * 4 * k,
+        # the subscriber stops at a total count over all four topics; under load the topics of
+        # a looping player interleave unevenly, so wait for 3 loops of everything to be sure
+        # the first 2 loops of /imu are complete
+        sub = procs.python("subscriber", "bag_fixture_sub.py", res, "--expect", 3 * 4 * k,
                            "--timeout", 60)
         procs.wait_for_line(sub, "subscriber ready")
         ply = procs.start("player", executable("player") + [
