@@ -148,6 +148,12 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def command_main(command: str | None, argv=None) -> int:
+    """``python -m magtune_core.<module> ARGS`` == ``magtune <command> ARGS``: one parser, one error path."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    return main(([command] if command else []) + argv)
+
+
 def main(argv=None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)

@@ -189,14 +189,8 @@ def run_fit_field(args) -> int:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m magtune_core.fitfield")
-    sub = parser.add_subparsers(dest="command")
-    add_parser(sub)
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or argv[0] != "fit-field":
-        argv = ["fit-field"] + argv
-    args = parser.parse_args(argv)
-    return args.func(args)
+    from .cli import command_main
+    return command_main('fit-field', argv)
 
 
 if __name__ == "__main__":

@@ -153,10 +153,8 @@ def add_parser(subparsers) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="magtune")
-    add_parser(ap.add_subparsers(dest="cmd", required=True))
-    a = ap.parse_args(argv)
-    return a.func(a)
+    from .cli import command_main
+    return command_main(None, argv)
 
 
 if __name__ == "__main__":

@@ -251,10 +251,8 @@ def cmd_report(args) -> int:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="magtune")
-    add_parser(p.add_subparsers(dest="cmd", required=True))
-    a = p.parse_args(["report", *(sys.argv[1:] if argv is None else argv)])
-    return a.func(a)
+    from .cli import command_main
+    return command_main('report', argv)
 
 
 if __name__ == "__main__":

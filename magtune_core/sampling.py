@@ -290,14 +290,8 @@ def cmd_sampling(args) -> int:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m magtune_core.sampling")
-    sub = ap.add_subparsers(dest="command")
-    add_parser(sub)
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or argv[0] != "sampling":
-        argv = ["sampling"] + argv
-    args = ap.parse_args(argv)
-    return args.func(args)
+    from .cli import command_main
+    return command_main('sampling', argv)
 
 
 if __name__ == "__main__":

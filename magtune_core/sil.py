@@ -1,7 +1,7 @@
 """Software-in-the-loop runner: the three magtune_ros nodes as separate processes over DDS.
 
 ``magtune sil --gains config/gains/sigma_60.yaml --orbits 5 --ts 1 [--bag bags/NAME]``
-(until cli.py registers it: ``python -m magtune_core.sil ...``).
+(also ``python -m magtune_core.sil ...``).
 
 Subprocesses only: this module never imports rclpy. Executables are resolved as ``ros2 run``
 does (``<prefix>/lib/magtune_ros/<exe>`` for the first prefix of AMENT_PREFIX_PATH holding the
@@ -432,10 +432,8 @@ def cmd_sil(args) -> int:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m magtune_core.sil", description=__doc__.split("\n\n")[0])
-    add_arguments(parser)
-    args = parser.parse_args(argv)
-    return args.func(args)
+    from .cli import command_main
+    return command_main('sil', argv)
 
 
 if __name__ == "__main__":
