@@ -315,6 +315,14 @@ class Simulator(Node):
         sim_t = self.k * self.ts
         self.diag.extra.update(wall_time=f"{wall:.3f}", real_time_factor=f"{sim_t / max(wall, 1e-9):.1f}")
         self.diag.publish()
+        if self.min_subs >= 2:  # a recorder listens: let it acknowledge the last samples first
+            from rclpy.duration import Duration
+            deadline = time.monotonic() + 5.0
+            for pub in (self.pub_truth, self.pub_field, self.pub_tmag, self.pub_tdist, self.pub_clock):
+                left = deadline - time.monotonic()
+                if left <= 0 or not pub.wait_for_all_acked(Duration(seconds=left)):
+                    self.get_logger().warning(f"{pub.topic_name}: not every sample acknowledged before exit")
+                    break
         if self.results_path and code == 0:
             res = SimResult(np.array(self.t_ns[:steps]) * 1e-9, self.Y[:steps, :4], self.Y[:steps, 4:],
                             self.X[:steps], self.M[:steps], self.B[:steps], self.p.orbit_period)
