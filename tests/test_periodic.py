@@ -171,3 +171,22 @@ def test_unstable_system_has_infinite_norm():
     sys = LTPSystem(np.array([[0.1]]), np.array([[1.0]]), np.array([[1.0]]), None, 1.0)
     assert spectral_radius(sys, 4) > 1
     assert np.isinf(hinfnorm(sys))
+
+
+def test_gamma_test_decay_model(paper_loop):
+    """The Hamiltonian closed-loop decay that hinfnorm uses to place levels: < 1 where the
+    test passes, NaN where it fails, tending to 1 as gamma falls to the norm."""
+    from magtune_core.hinf import gamma_test
+    model, K = paper_loop
+    sys = performance_system(model, np.repeat(K[None], 4, axis=0), 60.0)
+    J = hinfnorm(performance_system(model, K, 60.0), rtol=1e-9)
+    gam = J * np.array([0.99, 1.0001, 1.01, 1.05])
+    passed, rho = gamma_test(sys, gam, return_decay=True)
+    assert list(passed) == [False, True, True, True]
+    assert np.isnan(rho[0]) and np.all(rho[1:] < 1.0)
+    assert rho[1] > rho[2] > rho[3]  # slower decay nearer the norm
+    # 1e-4 above the norm (0.039): (ln rho)^2 ~ 0.31 per unit of gamma gives rho ~ 0.90
+    assert rho[1] > 0.85
+    d = np.log(rho[1:]) ** 2  # ~ linear in gamma near the norm (the model's premise)
+    slopes = np.diff(d) / np.diff(gam[1:])
+    assert 0.8 < slopes[0] / slopes[1] < 1.25
