@@ -71,6 +71,15 @@ def rotation_matrix(q) -> np.ndarray:
     ])
 
 
+def dcm_floats(q0: float, q1: float, q2: float, q3: float) -> tuple:
+    """R(q) of the normalized quaternion, row-major, on plain floats (the RK4 hot path)."""
+    n2 = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
+    a0, a1, a2, a3 = (q0, q1, q2, q3) if n2 == 1.0 else (v / n2**0.5 for v in (q0, q1, q2, q3))
+    return (a0 * a0 + a1 * a1 - a2 * a2 - a3 * a3, 2 * (a1 * a2 - a0 * a3), 2 * (a1 * a3 + a0 * a2),
+            2 * (a1 * a2 + a0 * a3), a0 * a0 - a1 * a1 + a2 * a2 - a3 * a3, 2 * (a2 * a3 - a0 * a1),
+            2 * (a1 * a3 - a0 * a2), 2 * (a2 * a3 + a0 * a1), a0 * a0 - a1 * a1 - a2 * a2 + a3 * a3)
+
+
 def cross(a, b) -> np.ndarray:
     """a x b for 3-vectors (scalar arithmetic: ~10x faster than np.cross on small arrays)."""
     a0, a1, a2 = a
@@ -177,12 +186,8 @@ class AttitudeDynamics:
     def _rhs(self, t: float, y, m=None, torque=None) -> tuple:
         """rhs on plain floats (the SIL simulator calls it 4 x substeps times per step)."""
         q0, q1, q2, q3, wx, wy, wz = y
-        n2 = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
-        a0, a1, a2, a3 = (q0, q1, q2, q3) if n2 == 1.0 else (v / n2**0.5 for v in (q0, q1, q2, q3))
         # rows of R(q) = columns of R^T: R^T e_X (nadir), R^T e_Z (orbit normal), and R^T v
-        r00, r01, r02 = a0 * a0 + a1 * a1 - a2 * a2 - a3 * a3, 2 * (a1 * a2 - a0 * a3), 2 * (a1 * a3 + a0 * a2)
-        r10, r11, r12 = 2 * (a1 * a2 + a0 * a3), a0 * a0 - a1 * a1 + a2 * a2 - a3 * a3, 2 * (a2 * a3 - a0 * a1)
-        r20, r21, r22 = 2 * (a1 * a3 - a0 * a2), 2 * (a2 * a3 + a0 * a1), a0 * a0 - a1 * a1 - a2 * a2 + a3 * a3
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = dcm_floats(q0, q1, q2, q3)
         tx = ty = tz = 0.0
         mr0, mr1, mr2 = self.residual_dipole
         if m is not None or self.disturbances or mr0 or mr1 or mr2:

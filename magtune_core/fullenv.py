@@ -43,7 +43,7 @@ from functools import lru_cache
 import numpy as np
 
 from .atmosphere import harris_priester, relative_wind_eci
-from .dynamics import AttitudeDynamics, TorqueFn
+from .dynamics import AttitudeDynamics, TorqueFn, dcm_floats
 from .earth import GM_EARTH
 from .environment import Environment, EnvironmentConfig
 from .geometry import BoxGeometry
@@ -238,11 +238,7 @@ class FullDynamics(AttitudeDynamics):
 
     def _rhs(self, t: float, y, m=None, torque=None) -> tuple:
         q0, q1, q2, q3, wx, wy, wz = y
-        n2 = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
-        a0, a1, a2, a3 = (q0, q1, q2, q3) if n2 == 1.0 else (v / n2**0.5 for v in (q0, q1, q2, q3))
-        r00, r01, r02 = a0 * a0 + a1 * a1 - a2 * a2 - a3 * a3, 2 * (a1 * a2 - a0 * a3), 2 * (a1 * a3 + a0 * a2)
-        r10, r11, r12 = 2 * (a1 * a2 + a0 * a3), a0 * a0 - a1 * a1 + a2 * a2 - a3 * a3, 2 * (a2 * a3 - a0 * a1)
-        r20, r21, r22 = 2 * (a1 * a3 - a0 * a2), 2 * (a2 * a3 + a0 * a1), a0 * a0 - a1 * a1 - a2 * a2 + a3 * a3
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = dcm_floats(q0, q1, q2, q3)
         row = self.grid.row(t)
         fo0, fo1, fo2 = row[3:6]
         b0 = r00 * fo0 + r10 * fo1 + r20 * fo2
