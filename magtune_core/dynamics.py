@@ -215,15 +215,20 @@ class AttitudeDynamics:
             tx, ty, tz = tx + k * (c1 * i2 - c2 * i1), ty + k * (c2 * i0 - c0 * i2), tz + k * (c0 * i1 - c1 * i0)
         if torque is not None:
             tx, ty, tz = tx + torque[0], ty + torque[1], tz + torque[2]
+        # w_rel = w - R^T [0, 0, -W0] = w + W0 * (third row of R)
+        W0 = self.orbit_rate
+        return self._derivative(q0, q1, q2, q3, wx, wy, wz, wx + W0 * r20, wy + W0 * r21, wz + W0 * r22, tx, ty, tz)
+
+    def _derivative(self, q0, q1, q2, q3, wx, wy, wz, vx, vy, vz, tx, ty, tz) -> tuple:
+        """(q', w') on plain floats: q' = 0.5 q (x) [0; v] with v the body rate relative to the
+        orbital frame, I w' = T - w x (I w + h) (rigid body with wheel momentum h)."""
+        I = self._I
         h0, h1, h2 = self._h
         L0 = I[0][0] * wx + I[0][1] * wy + I[0][2] * wz + h0
         L1 = I[1][0] * wx + I[1][1] * wy + I[1][2] * wz + h1
         L2 = I[2][0] * wx + I[2][1] * wy + I[2][2] * wz + h2
         e0, e1, e2 = tx - (wy * L2 - wz * L1), ty - (wz * L0 - wx * L2), tz - (wx * L1 - wy * L0)
         J = self._J
-        # w_rel = w - R^T [0, 0, -W0] = w + W0 * (third row of R)
-        W0 = self.orbit_rate
-        vx, vy, vz = wx + W0 * r20, wy + W0 * r21, wz + W0 * r22
         return (
             0.5 * (-q1 * vx - q2 * vy - q3 * vz),
             0.5 * (q0 * vx + q2 * vz - q3 * vy),

@@ -258,26 +258,12 @@ class FullDynamics(AttitudeDynamics):
                 tx, ty, tz = tx + d0, ty + d1, tz + d2
         if torque is not None:
             tx, ty, tz = tx + torque[0], ty + torque[1], tz + torque[2]
-        I, h = self._I, self._h
-        L0 = I[0][0] * wx + I[0][1] * wy + I[0][2] * wz + h[0]
-        L1 = I[1][0] * wx + I[1][1] * wy + I[1][2] * wz + h[1]
-        L2 = I[2][0] * wx + I[2][1] * wy + I[2][2] * wz + h[2]
-        e0, e1, e2 = tx - (wy * L2 - wz * L1), ty - (wz * L0 - wx * L2), tz - (wx * L1 - wy * L0)
-        J = self._J
         # w_rel = w - R(q)^T w_oi(t): rate of the body relative to the actual orbital frame
         o0, o1, o2 = row[0:3]
         vx = wx - (r00 * o0 + r10 * o1 + r20 * o2)
         vy = wy - (r01 * o0 + r11 * o1 + r21 * o2)
         vz = wz - (r02 * o0 + r12 * o1 + r22 * o2)
-        return (
-            0.5 * (-q1 * vx - q2 * vy - q3 * vz),
-            0.5 * (q0 * vx + q2 * vz - q3 * vy),
-            0.5 * (q0 * vy - q1 * vz + q3 * vx),
-            0.5 * (q0 * vz + q1 * vy - q2 * vx),
-            J[0][0] * e0 + J[0][1] * e1 + J[0][2] * e2,
-            J[1][0] * e0 + J[1][1] * e1 + J[1][2] * e2,
-            J[2][0] * e0 + J[2][1] * e1 + J[2][2] * e2,
-        )
+        return self._derivative(q0, q1, q2, q3, wx, wy, wz, vx, vy, vz, tx, ty, tz)
 
     # --- pieces (published torques, tests) ----------------------------------------------------
     def environment_torque(self, t: float, q) -> np.ndarray:
