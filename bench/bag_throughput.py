@@ -3,12 +3,12 @@
 ``python bench/bag_throughput.py [--steps 4000] [--sil-steps 600] [--json]`` (after
 ``. scripts/env.sh``). Real DDS (Fast DDS, separate processes), real MCAP files.
 
-1. writer only: :class:`magtune_core.bag.BagWriter` in-process (upper bound, no DDS);
-2. recorder: tests/bag_fixture_pub.py publishes ``--steps`` steps of 5-6 messages (Imu,
+1. writer only: :class:`magtune_core.bags.BagWriter` in-process (upper bound, no DDS);
+2. recorder: tests/support/bag_fixture_pub.py publishes ``--steps`` steps of 5-6 messages (Imu,
    MagneticField, Vector3Stamped, Odometry, Clock, DiagnosticArray) as fast as it can; the
    recorder must record all of them; msgs/s and MB/s (CDR payload) over the publisher's wall
    time; a second run adds a ``--blob``-byte UInt8MultiArray per step (MB/s with big messages);
-3. player at rate 0 into a subscriber (tests/bag_fixture_sub.py) and with no subscriber;
+3. player at rate 0 into a subscriber (tests/support/bag_fixture_sub.py) and with no subscriber;
 4. bag size per orbit: a short ``magtune sil --bag`` run (simulator + sensors + controller
    at 1 Hz) extrapolated to T = 5614.8 s, and the CDR payload per step for comparison.
 """
@@ -22,12 +22,12 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "tests" / "support"))
 
 import bag_fixture_pub as fx  # noqa: E402
 from bagproc import Procs, executable, ros_env  # noqa: E402
 
-from magtune_core import bag  # noqa: E402
+from magtune_core import bags as bag  # noqa: E402
 
 
 def payload_bytes(path) -> int:
@@ -111,13 +111,14 @@ def bench_player(tmp: Path, bag_dir: Path, n_data: int) -> dict:
 
 
 def bench_size(tmp: Path, sil_steps: int) -> dict:
-    from magtune_core.gains import save_gains
-    from magtune_core.params import SpacecraftParams
-    from magtune_core.sil import run_sil
-    from magtune_core.simulate import lq_gains
+    from magtune_core.design.gains import save_gains
+    from magtune_core.design.lq import lq_gains
+    from magtune_core.design.model import AttitudeLTP
+    from magtune_core.design.params import SpacecraftParams
+    from magtune_core.ros.sil import run_sil
     p = SpacecraftParams()
     gains = tmp / "sigma_60.yaml"
-    save_gains(gains, lq_gains(p, 60.0, 1.0))
+    save_gains(gains, lq_gains(AttitudeLTP.from_params(p), 60.0, 1.0))
     out = tmp / "sil"
     run = run_sil(gains, steps=sil_steps, bag=out, log_dir=tmp / "sil_logs", timeout=300)
     inf = bag.info(out)

@@ -12,12 +12,13 @@ import time
 
 import numpy as np
 
-from magtune_core.design import lq_gain, performance_system
-from magtune_core.hinf import gamma_test, hinfnorm
-from magtune_core.htf import htf_hinfnorm
-from magtune_core.model import AttitudeLTP
-from magtune_core.params import SpacecraftParams
-from magtune_core.tuner import TunerSettings, tune
+from magtune_core.design.lq import lq_gain
+from magtune_core.design.model import AttitudeLTP
+from magtune_core.design.params import SpacecraftParams
+from magtune_core.design.problem import performance_system
+from magtune_core.design.tuner import TunerSettings, tune
+from magtune_core.ltp.hinf import gamma_test, hinfnorm
+from magtune_core.ltp.htf import htf_hinfnorm
 
 
 def timed(fn, repeat=5):

@@ -17,10 +17,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from magtune_core import sil  # noqa: E402
-from magtune_core.gains import load_gains, save_gains  # noqa: E402
-from magtune_core.params import SpacecraftParams  # noqa: E402
-from magtune_core.simulate import lq_gains, simulate  # noqa: E402
+from magtune_core.design.gains import load_gains, save_gains  # noqa: E402
+from magtune_core.design.lq import lq_gains
+from magtune_core.design.model import AttitudeLTP  # noqa: E402
+from magtune_core.design.params import SpacecraftParams  # noqa: E402
+from magtune_core.ros import sil  # noqa: E402
+from magtune_core.sim.simulate import simulate  # noqa: E402
 
 
 def main():
@@ -34,7 +36,7 @@ def main():
     gains = a.gains
     if gains is None:
         gains = tmp / "sigma_60.yaml"
-        save_gains(gains, lq_gains(SpacecraftParams(), 60.0, 1.0))
+        save_gains(gains, lq_gains(AttitudeLTP.from_params(SpacecraftParams()), 60.0, 1.0))
     run = sil.run_sil(gains, orbits=a.orbits, ts=1.0, log_dir=tmp, environment=a.environment)
     print(f"environment {a.environment}")
     print(run.summary())

@@ -1,7 +1,7 @@
 """Disturbance-torque magnitudes over one orbit at the default orbit, and the per-step cost.
 
 Usage: python bench/torque_table.py [--error-deg 5] [--step 10]
-Prints markdown: peak and mean |T| over one orbit for each torque of magtune_core.environment,
+Prints markdown: peak and mean |T| over one orbit for each torque of magtune_core.env.environment,
 at the nominal attitude (body = orbital axes) and at a fixed attitude error (rotation of
 ``--error-deg`` about (1,1,1)/sqrt(3) w.r.t. orbital axes), then the cost of one simulator step
 (IGRF field + all torques) and of one ephemeris look-up.
@@ -13,8 +13,9 @@ import time
 
 import numpy as np
 
-from magtune_core.environment import TORQUE_NAMES, Environment, EnvironmentConfig, body_to_eci, quat_to_dcm
-from magtune_core.sun import shadow_cylindrical
+from magtune_core.base.rotations import rotation_matrix
+from magtune_core.env.environment import TORQUE_NAMES, Environment, EnvironmentConfig, body_to_eci
+from magtune_core.env.sun import shadow_cylindrical
 
 
 def attitude_quat(error_deg: float) -> np.ndarray:
@@ -82,7 +83,7 @@ def main(argv=None) -> int:
     for i in range(n):
         env.magnetic_field_eci(t1 + i, r1)
     igrf_cost = (time.perf_counter() - t0) / n
-    Rq = quat_to_dcm(q)
+    Rq = rotation_matrix(q)
     t0 = time.perf_counter()
     for i in range(n):  # the full per-step call sequence of a simulator
         s = env.sample(t1 + i)

@@ -1,9 +1,18 @@
 """magtune_core: H-infinity tuning of projection-based magnetorquer attitude controllers.
 
-Pure Python (numpy/scipy, no ROS). Implements Zanchettin & Lovera, IFAC 2011; see the
-README for the equation-to-code map. Design model: field, params, model, design. Periodic
-analysis: periodic, expm, hinf, htf, h2. Tuning: tuner, gains. Simulation: dynamics, simulate,
-fullenv and the environment (earth, orbit, igrf, sun, atmosphere, srp, geometry, environment,
-fitfield). Runners (subprocess only): sil, sampling, replay, report, bag*. CLI: cli.
+Pure Python (numpy/scipy, no ROS). Implements Zanchettin & Lovera, IFAC 2011; the README maps
+each equation to its code and ``docs/architecture.md`` draws the layers. Bottom to top:
+
+* ``ltp``     general linear time-periodic analysis (no satellite);
+* ``base``    errors, parameter files and schema, rotations, topic table, ament lookup;
+* ``env``     space-environment physics (orbit, IGRF, Sun, atmosphere, torques);
+* ``design``  the satellite design problem, tuner, gains, field fit, flight control law;
+* ``sim``     nonlinear dynamics, full-environment coupling, offline closed loop, metrics;
+* ``bags``    rosbag2-compatible MCAP bags;
+* ``ros``     runners of the ROS 2 nodes as subprocesses (no rclpy);
+* ``studies`` sampling study, bag report;
+* ``cli``     the ``magtune`` command.
+
+Each layer imports only from layers below it (tests/test_architecture.py checks it).
 """
-__version__ = "0.1.0"
+__version__ = "0.2.0"

@@ -26,7 +26,7 @@ from rclpy.node import Node
 from rclpy.task import Future
 from sensor_msgs.msg import Imu, MagneticField
 
-from magtune_core.dynamics import quat_mul
+from magtune_core.base.rotations import quat_mul
 
 from . import common as c
 

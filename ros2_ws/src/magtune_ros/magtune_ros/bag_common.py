@@ -6,10 +6,10 @@ import signal
 import threading
 
 from rclpy.duration import Duration
-from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from magtune_core.bag import qos_dict
-from magtune_core.msgdefs import split_type
+from magtune_core.bags.layout import qos_dict
+from magtune_core.bags.msgdefs import split_type
 
 # topics every ROS graph has; not recorded by --all unless asked for
 HIDDEN_TOPICS = ("/rosout", "/parameter_events")

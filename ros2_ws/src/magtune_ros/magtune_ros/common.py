@@ -33,17 +33,19 @@ CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=R
 #: /diagnostics: the usual diagnostic_aggregator QoS.
 DIAG_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
-# Topic names (relative: remappable and namespaceable).
-TOPIC_TRUTH = "sim/truth"                    # nav_msgs/Odometry
-TOPIC_TRUE_FIELD = "sim/magnetic_field"      # sensor_msgs/MagneticField (true, body axes)
-TOPIC_MAG_TORQUE = "sim/magnetic_torque"     # geometry_msgs/WrenchStamped
-TOPIC_DIST_TORQUE = "sim/disturbance_torque"  # geometry_msgs/WrenchStamped
-TOPIC_MAG = "sensors/magnetic_field"         # sensor_msgs/MagneticField (measured)
-TOPIC_ATTITUDE = "sensors/attitude"          # sensor_msgs/Imu (measured attitude + rate)
-TOPIC_DIPOLE = "controller/dipole_command"   # geometry_msgs/Vector3Stamped [A m^2]
-
-FRAME_ORBITAL = "orbital"  # LVLH: X nadir (yaw), Y velocity (roll), Z orbit normal (pitch)
-FRAME_BODY = "body"
+# Topic names (relative: remappable and namespaceable) and frames: one table, magtune_core.base.topics.
+from magtune_core.base.topics import (  # noqa: E402,F401
+    FRAME_BODY,
+    FRAME_ORBITAL,
+    TOPIC_ATTITUDE,
+    TOPIC_DIAGNOSTICS,
+    TOPIC_DIPOLE,
+    TOPIC_DIST_TORQUE,
+    TOPIC_MAG,
+    TOPIC_MAG_TORQUE,
+    TOPIC_TRUE_FIELD,
+    TOPIC_TRUTH,
+)
 
 
 class ParamError(ValueError):
@@ -141,27 +143,42 @@ def declare(node: Node, name: str, default, description: str, ptype=None, *, siz
     return value
 
 
-def declare_spacecraft(node: Node):
-    """Spacecraft/orbit parameters (``config/spacecraft.yaml``, paper section 5) -> SpacecraftParams."""
-    from magtune_core.field import FIELD_MODELS
-    from magtune_core.params import SpacecraftParams
+#: magtune_core.base.schema field kinds -> the ``ptype`` of :func:`declare`.
+_SCHEMA_PTYPES = {"float": float, "int": int, "bool": bool, "str": str, "float[]": "float[]"}
 
-    d = SpacecraftParams()
-    return SpacecraftParams(
-        inertia=declare(node, "inertia", d.inertia.tolist(), "principal moments Ixx, Iyy, Izz [kg m^2]",
-                        "float[]", size=3, positive=True),
-        wheel_inertia=declare(node, "wheel_inertia", d.wheel_inertia, "pitch wheel inertia J [kg m^2]",
-                              positive=True),
-        wheel_speed=declare(node, "wheel_speed", d.wheel_speed, "nominal wheel speed [rad/s]"),
-        orbit_period=declare(node, "orbit_period", d.orbit_period, "circular orbit period T [s]",
-                             positive=True),
-        altitude=declare(node, "altitude", d.altitude, "orbit altitude [m]", positive=True),
-        inclination_deg=declare(node, "inclination", d.inclination_deg, "orbit inclination [deg]"),
-        field_model=declare(node, "field_model", d.field_model, "geomagnetic field model in orbital axes",
-                            choices=FIELD_MODELS),
-        constant_field=declare(node, "constant_field", d.constant_field.tolist(),
-                               "field [T] in orbital axes for field_model = constant", "float[]", size=3),
-    )
+
+def declare_schema(node: Node, fields, where: str | None = None) -> dict:
+    """Declare one parameter per schema field (type, description, default) and return the raw
+    values, for the schema's own ``from_mapping`` to validate (same checks as the CLI's).
+
+    Required fields have no default: a parameter file must set them.
+    """
+    values = {}
+    for f in fields:
+        default = None if f.required else (list(f.default) if isinstance(f.default, tuple) else f.default)
+        # only the ROS type is checked here; values are validated by the schema (same errors as the CLI)
+        v = declare(node, f.name, default, f.description, _SCHEMA_PTYPES[f.kind], required=False)
+        if not (f.required and (v is None or (isinstance(v, list) and not v))):
+            values[f.name] = list(v) if f.kind == "float[]" else v
+    return values
+
+
+def from_schema(node: Node, cls, **kw):
+    """``cls.from_mapping`` of the node's declared ``cls.FIELDS``; a ConfigError becomes ParamError."""
+    from magtune_core.base.errors import ConfigError
+
+    values = declare_schema(node, cls.FIELDS)
+    try:
+        return cls.from_mapping(values, f"node '{node.get_name()}'", **kw)
+    except ConfigError as exc:
+        raise ParamError(exc.field or "?", exc.expected) from None
+
+
+def declare_spacecraft(node: Node):
+    """Spacecraft/orbit parameters (``config/spacecraft.yaml``): the schema SpacecraftParams.FIELDS."""
+    from magtune_core.design.params import SpacecraftParams
+
+    return from_schema(node, SpacecraftParams)
 
 
 def declare_overrides(node: Node, exclude=()):
@@ -225,8 +242,8 @@ def run(node_cls, args=None) -> int:
     argv = list(sys.argv if args is None else args)
     for i, a in enumerate(argv[:-1]):  # check parameter files first: one clear line instead of rcl's
         if a == "--params-file":
-            from magtune_core.params import ConfigError
-            from magtune_core.rosparams import check_ros_params
+            from magtune_core.base.errors import ConfigError
+            from magtune_core.base.paramfile import check_ros_params
             try:
                 check_ros_params(argv[i + 1])
             except ConfigError as exc:

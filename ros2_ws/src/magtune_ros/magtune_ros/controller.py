@@ -1,6 +1,6 @@
 """Projection-based magnetorquer controller node (paper eq. 17), digital sample-and-hold.
 
-    m = sat( S(b)^T K x / |b|^2 ),   x = [dq; dw]  (magtune_core.simulate.ProjectionController)
+    m = sat( S(b)^T K x / |b|^2 ),   x = [dq; dw]  (magtune_core.design.law.ProjectionController)
 
 Parameters: the gains file ``config/gains/sigma_*.yaml`` (``gain``: 18 doubles, row-major 3x6 K;
 ``sigma``; ``ts``; provenance entries are declared read-only) and ``config/spacecraft.yaml``
@@ -30,12 +30,10 @@ from rclpy.node import Node
 from rclpy.task import Future
 from sensor_msgs.msg import Imu, MagneticField
 
-from magtune_core.dynamics import linear_state
-from magtune_core.simulate import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD, ProjectionController
+from magtune_core.design.gains import Gains
+from magtune_core.design.law import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD, ProjectionController, linear_state
 
 from . import common as c
-
-OWN = ("gain", "sigma", "ts", "dipole_limit", "min_field", "use_sim_time")
 
 
 class Controller(Node):
@@ -44,11 +42,8 @@ class Controller(Node):
     def __init__(self):
         super().__init__(self.NODE_NAME)
         self.done = Future()
-        K = c.declare(self, "gain", None, "3x6 gain K (u = T_id = K x), 18 doubles row-major; "
-                      "rows = torque axes, columns = [dq; dw]", "float[]", size=18)
-        self.sigma = c.declare(self, "sigma", 0.0, "control weight sigma of the design (informative)",
-                               nonnegative=True)
-        self.ts = c.declare(self, "ts", 1.0, "controller sample period Ts [s] (sim time)", positive=True)
+        gains = c.from_schema(self, Gains)  # gain, sigma, ts: the gains-file schema, as `magtune analyze`
+        K, self.sigma, self.ts = gains.K, gains.sigma, gains.ts
         m_max = c.declare(self, "dipole_limit", [DEFAULT_DIPOLE_LIMIT] * 3, "per-axis dipole saturation [A m^2]",
                           "float[]", size=3, positive=True)
         b_min = c.declare(self, "min_field", DEFAULT_MIN_FIELD,
@@ -56,7 +51,7 @@ class Controller(Node):
         p = c.declare_spacecraft(self)
         c.declare_overrides(self)
         self.w0 = p.orbit_rate
-        self.law = ProjectionController(K.reshape(3, 6), m_max, b_min)
+        self.law = ProjectionController(K, m_max, b_min)
         self.ts_ns = c.sec_to_ns(self.ts)
         self.gate = c.StampGate(self, 2 * self.ts_ns)
         self.sync = c.PairSync()

@@ -39,7 +39,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
-from magtune_core import bag as baglib
+from magtune_core import bags as baglib
 
 from .bag_common import install_stop_handlers, message_class, offer_from_recorded
 

@@ -1,4 +1,4 @@
-"""``recorder`` node: record topics to a rosbag2-compatible MCAP bag (``magtune_core.bag``).
+"""``recorder`` node: record topics to a rosbag2-compatible MCAP bag (``magtune_core.bags``).
 
 Usage (``ros2 run magtune_ros recorder`` or ``install/magtune_ros/lib/magtune_ros/recorder``)::
 
@@ -9,7 +9,7 @@ Usage (``ros2 run magtune_ros recorder`` or ``install/magtune_ros/lib/magtune_ro
 
 Every option is also a ROS parameter of the same name (``path`` for ``-o``; dashes become
 underscores); a command-line option wins over the parameter. Without ``--topics`` and
-``--all`` the project's topics (:data:`magtune_core.bag_topics.PROJECT_TOPICS`) are recorded.
+``--all`` the project's topics (:data:`magtune_core.base.topics.PROJECT_TOPICS`) are recorded.
 
 Design:
 
@@ -48,21 +48,20 @@ import threading
 import time
 
 import rclpy
+from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
-from magtune_core.bag import DEFAULT_CHUNK_SIZE, BagWriter
-from magtune_core.bag_topics import PROJECT_TOPICS, topic_specs
-from magtune_core.msgdefs import normalize_type
+from magtune_core.bags.msgdefs import normalize_type
+from magtune_core.bags.writer import DEFAULT_CHUNK_SIZE, BagWriter
+from magtune_core.base.topics import PROJECT_TOPICS, topic_specs
 
-from .bag_common import (HIDDEN_TOPICS, adapt_request, install_stop_handlers, message_class,
-                         qos_profile_dict)
+from .bag_common import HIDDEN_TOPICS, adapt_request, install_stop_handlers, message_class, qos_profile_dict
 
 CLOCK = "/clock"
 

@@ -1,12 +1,12 @@
 """Attitude simulator node: nonlinear dynamics + environment, source of simulated time.
 
-Physics: ``magtune_core.dynamics.AttitudeDynamics`` (rigid body, pitch wheel, gravity gradient,
+Physics: ``magtune_core.sim.dynamics.AttitudeDynamics`` (rigid body, pitch wheel, gravity gradient,
 residual dipole, eq. 26 field; other field models and disturbance torques plug in through the
 ``field_plugin`` / ``disturbance_plugins`` parameters) with ``environment: paper`` (default), or
-``magtune_core.fullenv.FullDynamics`` with ``environment: full`` (J2 orbit, IGRF degree
+``magtune_core.sim.fullenv.FullDynamics`` with ``environment: full`` (J2 orbit, IGRF degree
 ``igrf_degree``, gravity gradient with the actual radius, drag, SRP; switches ``env_*``; the
 nominal orbit period becomes the actual orbit's, which the controller must be given too), integrated with the same RK4 step as the offline
-``magtune_core.simulate.simulate``; the commanded dipole is held over each step (ZOH).
+``magtune_core.sim.simulate.simulate``; the commanded dipole is held over each step (ZOH).
 
 Publishes (all stamped with simulated time t_k = k * ts):
   /clock                       rosgraph_msgs/Clock        (this node is the time source)
@@ -26,12 +26,11 @@ stamped t_k before integrating to t_k+1; after ``lockstep_timeout`` wall seconds
 last command and counts a missed step. ``real_time_factor`` > 0 paces against the wall clock
 (0 = as fast as possible). With ``lockstep: false`` the simulator free-runs at
 ``real_time_factor`` and applies the latest command. At the end it writes ``results_path``
-(.npz, the arrays of ``magtune_core.simulate.SimResult`` plus counters) and exits.
+(.npz, the arrays of ``magtune_core.sim.simulate.SimResult`` plus counters) and exits.
 """
 from __future__ import annotations
 
 import json
-import math
 import time
 
 import numpy as np
@@ -43,8 +42,9 @@ from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import MagneticField
 
-from magtune_core.dynamics import AttitudeDynamics, cross, linear_state, saturate
-from magtune_core.simulate import DEFAULT_DIPOLE_LIMIT, DW0, SimResult, initial_state
+from magtune_core.base.rotations import cross
+from magtune_core.design.law import DEFAULT_DIPOLE_LIMIT, linear_state, saturate
+from magtune_core.sim.simulate import DW0, SimResult, initial_state
 
 from . import common as c
 
@@ -100,10 +100,10 @@ class Simulator(Node):
 
         environment = c.declare(self, "environment", "paper",
                                 "'paper': eq. 26 field, circular orbit, GG + residual dipole; 'full': J2 orbit, "
-                                "IGRF, GG with actual r, drag, SRP (magtune_core/fullenv.py)",
+                                "IGRF, GG with actual r, drag, SRP (magtune_core/sim/fullenv.py)",
                                 choices=("paper", "full"))
-        from magtune_core.field import FIELD_MODELS
-        from magtune_core.fullenv import FullEnvironmentOptions, full_params, make_dynamics
+        from magtune_core.design.field import FIELD_MODELS
+        from magtune_core.sim.fullenv import FullEnvironmentOptions, full_params, make_dynamics
 
         opts = FullEnvironmentOptions(
             gravity_gradient=c.declare(self, "env_gravity_gradient", True, "full environment: gravity gradient"),

@@ -1,0 +1,148 @@
+"""The rosbag2 (Jazzy, metadata version 9) MCAP bag layout: metadata.yaml, QoS, topic records.
+
+Shared by the writer, the reader and recovery; see :mod:`magtune_core.bags` for the format.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import NamedTuple
+
+import yaml
+from mcap.reader import make_reader
+
+METADATA_VERSION = 9
+STORAGE_ID = "mcap"
+ROS_DISTRO = "jazzy"
+LIBRARY = "magtune-bag 0.1 (mcap-python writer, rosbag2_storage_mcap conventions)"
+DEFAULT_CHUNK_SIZE = 256 * 1024
+# rmw's "infinite" duration as rosbag2 stores it: RMW_DURATION_INFINITE = INT64_MAX ns
+INFINITE = {"sec": 9223372036, "nsec": 854775807}
+
+
+def qos_dict(*, reliability="reliable", durability="volatile", history="keep_last", depth=10,
+             deadline=None, lifespan=None, liveliness="automatic", lease=None,
+             avoid_ros_namespace_conventions=False) -> dict:
+    """One offered QoS profile in rosbag2's metadata-version-9 form (string enums)."""
+    return {
+        "history": history, "depth": int(depth), "reliability": reliability,
+        "durability": durability, "deadline": dict(deadline or INFINITE),
+        "lifespan": dict(lifespan or INFINITE), "liveliness": liveliness,
+        "liveliness_lease_duration": dict(lease or INFINITE),
+        "avoid_ros_namespace_conventions": bool(avoid_ros_namespace_conventions),
+    }
+
+
+def qos_yaml(profiles: list[dict]) -> str:
+    """Channel metadata ``offered_qos_profiles``: a YAML block sequence, as yaml-cpp dumps it."""
+    if not profiles:
+        return ""
+    return yaml.safe_dump(list(profiles), sort_keys=False, default_flow_style=False).rstrip("\n")
+
+
+@dataclass
+class TopicInfo:
+    """A topic of a bag: rosbag2 ``topic_metadata`` plus its message count."""
+
+    name: str
+    type: str
+    offered_qos_profiles: list = field(default_factory=list)
+    type_description_hash: str = ""
+    serialization_format: str = "cdr"
+    message_count: int = 0
+
+    def to_metadata(self) -> dict:
+        return {
+            "topic_metadata": {
+                "name": self.name, "type": self.type,
+                "serialization_format": self.serialization_format,
+                "offered_qos_profiles": list(self.offered_qos_profiles),
+                "type_description_hash": self.type_description_hash,
+            },
+            "message_count": int(self.message_count),
+        }
+
+
+def mcap_file_name(bag_dir: Path) -> str:
+    return f"{Path(bag_dir).name}_0.mcap"
+
+
+def build_metadata(bag_dir: Path, topics: list[TopicInfo], start_ns: int, end_ns: int,
+                   custom_data: dict | None = None, files: list[str] | None = None) -> dict:
+    """The ``rosbag2_bagfile_information`` document (version 9)."""
+    count = sum(t.message_count for t in topics)
+    duration = max(0, end_ns - start_ns) if count else 0
+    start = start_ns if count else 0
+    files = files or [mcap_file_name(bag_dir)]
+    return {"rosbag2_bagfile_information": {
+        "version": METADATA_VERSION,
+        "storage_identifier": STORAGE_ID,
+        "duration": {"nanoseconds": int(duration)},
+        "starting_time": {"nanoseconds_since_epoch": int(start)},
+        "message_count": int(count),
+        "topics_with_message_count": [t.to_metadata() for t in topics],
+        "compression_format": "",
+        "compression_mode": "",
+        "relative_file_paths": list(files),
+        "files": [{"path": f, "starting_time": {"nanoseconds_since_epoch": int(start)},
+                   "duration": {"nanoseconds": int(duration)}, "message_count": int(count)}
+                  for f in files],
+        "custom_data": {str(k): str(v) for k, v in (custom_data or {}).items()},
+        "ros_distro": ROS_DISTRO,
+    }}
+
+
+def write_metadata(bag_dir: Path, doc: dict) -> Path:
+    """Atomically write ``metadata.yaml``."""
+    path = Path(bag_dir) / "metadata.yaml"
+    tmp = path.with_suffix(".yaml.tmp")
+    tmp.write_text(yaml.safe_dump(doc, sort_keys=False, default_flow_style=False))
+    os.replace(tmp, path)
+    return path
+
+
+def read_metadata(bag_dir: Path) -> dict:
+    """The ``rosbag2_bagfile_information`` mapping of a bag directory."""
+    doc = yaml.safe_load((Path(bag_dir) / "metadata.yaml").read_text())
+    return doc["rosbag2_bagfile_information"]
+
+
+class BagMessage(NamedTuple):
+    """One recorded message: topic, type, receive (log) time, publish time, CDR bytes."""
+
+    topic: str
+    type: str
+    log_time: int
+    publish_time: int
+    data: bytes
+
+
+def resolve_mcap(bag) -> Path:
+    """The ``.mcap`` file of a bag directory (or the file itself)."""
+    p = Path(bag)
+    if p.is_file():
+        return p
+    meta = p / "metadata.yaml"
+    if meta.is_file():
+        try:
+            files = read_metadata(p).get("relative_file_paths") or []
+            if files and (p / files[0]).is_file():
+                return p / files[0]
+        except (yaml.YAMLError, KeyError, TypeError):
+            pass
+    cands = sorted(p.glob("*.mcap"))
+    if not cands:
+        raise FileNotFoundError(f"no .mcap file in {p}")
+    return cands[0]
+
+
+def has_summary(mcap_path: Path) -> bool:
+    """True if the file ends with a valid footer + magic (i.e. was closed cleanly)."""
+    try:
+        with open(mcap_path, "rb") as f:
+            return make_reader(f).get_summary() is not None
+    except Exception:  # noqa: BLE001 - any parse failure means: not a complete file
+        return False
+
+

@@ -1,0 +1,85 @@
+"""ROS 2 parameter files (``node: {ros__parameters: {...}}``) read without rclpy.
+
+``read_ros_params`` merges the ``/**`` and per-node sections the way rcl does;
+``check_ros_params`` also rejects what rcl's parser (rcl_yaml_param_parser) rejects although
+PyYAML loads it: lists mixing types (``[1, 2.5]``: write ``[1.0, 2.5]``), lists of lists or of
+mappings, lists holding null, and strings that YAML 1.1 reads as booleans inside string lists
+(``[x, y]``: ``y`` is ``true``). A node handed such a file fails inside ``rclpy.init`` with a
+parser message; this check names the offending parameter instead.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+from .errors import ConfigError
+
+
+def read_ros_params(path, node: str | None = None) -> dict:
+    """Merge the ``ros__parameters`` of ``/**`` and of ``node`` (or of every node if None)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(path, None, "file not found (expected a ROS 2 parameter YAML file)")
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        raise ConfigError(path, None, f"malformed YAML{at}: {getattr(exc, 'problem', exc)}") from None
+    if not isinstance(doc, dict) or not doc:
+        raise ConfigError(path, None, "expected a mapping 'node_name: {ros__parameters: {...}}'")
+    merged: dict = {}
+    for name, body in doc.items():
+        if node is not None and name not in ("/**", node, "/" + node.lstrip("/")):
+            continue
+        if not isinstance(body, dict) or not isinstance(body.get("ros__parameters"), dict):
+            raise ConfigError(path, f"{name}.ros__parameters", "expected a mapping of parameters under 'ros__parameters'")
+        merged.update(body["ros__parameters"])
+    return merged
+
+
+
+#: Plain scalars that rcl (YAML 1.1 core) reads as booleans.
+YAML11_BOOLS = {s for w in ("y", "yes", "n", "no", "true", "false", "on", "off")
+                for s in (w, w.upper(), w.capitalize())}
+
+
+def _kind(v):
+    if isinstance(v, bool):
+        return "bool"
+    if isinstance(v, int):
+        return "integer"
+    if isinstance(v, float):
+        return "double"
+    if isinstance(v, str):
+        return "bool" if v in YAML11_BOOLS else "string"
+    if v is None:
+        return "null"
+    return "nested"
+
+
+def _walk(prefix, params, path):
+    for key, v in params.items():
+        name = f"{prefix}{key}"
+        if isinstance(v, dict):
+            _walk(name + ".", v, path)
+        elif isinstance(v, (list, tuple)):
+            kinds = {_kind(x) for x in v}
+            if "nested" in kinds:
+                raise ConfigError(path, name, "lists of lists or of mappings are not ROS 2 parameters; flatten "
+                                              "them (e.g. a row-major list of numbers)")
+            if "null" in kinds:
+                raise ConfigError(path, name, "a ROS 2 parameter list cannot hold null")
+            if len(kinds) > 1:
+                raise ConfigError(path, name, f"ROS 2 parameter lists must hold one type, got {sorted(kinds)} "
+                                              "(write 1.0 rather than 1 in a list of numbers; quote 'y'/'n')")
+
+
+def check_ros_params(path) -> dict:
+    """Validate every node's ``ros__parameters`` of ``path``; return the merged parameters."""
+    merged = read_ros_params(path)  # file, YAML and layout errors
+    doc = yaml.safe_load(Path(path).read_text())
+    for node, body in doc.items():
+        _walk("", body["ros__parameters"], path)
+    return merged

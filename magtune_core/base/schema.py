@@ -1,0 +1,112 @@
+"""One schema per parameter file: typed fields with defaults, limits and a description.
+
+The same :class:`Field` tuple drives the command line (values read from the YAML file with
+:func:`magtune_core.base.paramfile.read_ros_params`) and the ROS 2 nodes (which declare one
+parameter per field, with its description, and hand the declared values back to
+:func:`parse`), so a file the CLI rejects is rejected by the nodes with the same message, and
+the defaults are the same everywhere.
+"""
+from __future__ import annotations
+
+import array
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import ConfigError
+
+#: Marks a field without default: it must be given.
+REQUIRED = object()
+#: Field kinds and the ROS 2 parameter type they map to (see magtune_ros.common.declare_schema).
+KINDS = ("float", "int", "bool", "str", "float[]")
+_SEQUENCES = (list, tuple, np.ndarray, array.array)
+
+
+@dataclass(frozen=True)
+class Field:
+    """One parameter: name, kind (one of :data:`KINDS`), description and constraints."""
+
+    name: str
+    kind: str
+    description: str
+    default: object = REQUIRED
+    size: int | None = None
+    positive: bool = False
+    nonnegative: bool = False
+    choices: tuple | None = None
+
+    def __post_init__(self):
+        if self.kind not in KINDS:
+            raise ValueError(f"Field {self.name}: kind {self.kind!r} not in {KINDS}")
+
+    @property
+    def required(self) -> bool:
+        return self.default is REQUIRED
+
+
+def _number(v) -> bool:
+    return not isinstance(v, bool) and isinstance(v, (int, float, np.integer, np.floating))
+
+
+def parse_value(f: Field, v, where):
+    """Validate one value against its field; return it as float / int / bool / str / ndarray."""
+    if f.kind == "float[]":
+        n = f"{f.size} " if f.size else ""
+        if isinstance(v, str) or not isinstance(v, _SEQUENCES) or (f.size and len(v) != f.size) \
+                or any(not _number(x) for x in v):
+            raise ConfigError(where, f.name, f"expected a list of {n}numbers, got {_show(v)}")
+        arr = np.asarray(list(v), dtype=float)
+        if not np.all(np.isfinite(arr)):
+            raise ConfigError(where, f.name, f"expected finite numbers, got {_show(v)}")
+        if f.positive and np.any(arr <= 0):
+            raise ConfigError(where, f.name, f"expected positive numbers, got {_show(v)}")
+        if f.nonnegative and np.any(arr < 0):
+            raise ConfigError(where, f.name, f"expected non-negative numbers, got {_show(v)}")
+        return arr
+    if f.kind in ("float", "int"):
+        if not _number(v) or (f.kind == "int" and float(v) != int(v)):
+            what = "an integer" if f.kind == "int" else "a finite number"
+            raise ConfigError(where, f.name, f"expected {what}, got {v!r}")
+        if not math.isfinite(v):
+            raise ConfigError(where, f.name, f"expected a finite number, got {v!r}")
+        if f.positive and v <= 0:
+            raise ConfigError(where, f.name, f"expected a positive number, got {v!r}")
+        if f.nonnegative and v < 0:
+            raise ConfigError(where, f.name, f"expected a non-negative number, got {v!r}")
+        v = int(v) if f.kind == "int" else float(v)
+    elif f.kind == "bool":
+        if not isinstance(v, bool):
+            raise ConfigError(where, f.name, f"expected true or false, got {v!r}")
+    elif f.kind == "str":
+        if not isinstance(v, str):
+            raise ConfigError(where, f.name, f"expected a string, got {v!r}")
+    if f.choices is not None and v not in f.choices:
+        raise ConfigError(where, f.name, f"expected one of {', '.join(map(str, f.choices))}, got {v!r}")
+    return v
+
+
+def parse(mapping: dict, fields, where) -> dict:
+    """Validate ``mapping`` against ``fields``; return ``{name: value}`` with defaults filled in.
+
+    Keys of ``mapping`` that are not fields are ignored here (the caller decides: provenance,
+    other nodes' parameters). A missing required field raises ConfigError naming it.
+    """
+    out = {}
+    for f in fields:
+        if f.name in mapping and mapping[f.name] is not None:
+            out[f.name] = parse_value(f, mapping[f.name], where)
+        elif f.required:
+            what = {"float[]": f"a list of {f.size or ''} numbers".replace("  ", " "), "float": "a number",
+                    "int": "an integer", "bool": "true or false", "str": "a string"}[f.kind]
+            raise ConfigError(where, f.name, f"missing (expected {what}{': ' + f.description if f.description else ''})")
+        else:
+            out[f.name] = parse_value(f, f.default, where) if f.default is not None else None
+    return out
+
+
+def _show(v) -> str:
+    if isinstance(v, (np.ndarray, array.array)):
+        v = list(v)
+    text = repr(v)
+    return text if len(text) <= 80 else text[:77] + "..."

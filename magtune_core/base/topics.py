@@ -1,0 +1,49 @@
+"""The project's ROS 2 interface: topic names, message types, durability, frames (no rclpy).
+
+One table for the nodes (``magtune_ros`` publishes and subscribes the relative names, so
+namespaces and remapping work), the recorder (default topic set, typed so it can subscribe
+before the publishers exist, with the durability they offer) and the bag report.
+"""
+from __future__ import annotations
+
+# Topic names as the nodes use them: relative, hence remappable and namespaceable.
+TOPIC_TRUTH = "sim/truth"                     # nav_msgs/Odometry: attitude (body w.r.t. orbital), body rate
+TOPIC_TRUE_FIELD = "sim/magnetic_field"       # sensor_msgs/MagneticField: true b [T], body axes
+TOPIC_MAG_TORQUE = "sim/magnetic_torque"      # geometry_msgs/WrenchStamped
+TOPIC_DIST_TORQUE = "sim/disturbance_torque"  # geometry_msgs/WrenchStamped
+TOPIC_MAG = "sensors/magnetic_field"          # sensor_msgs/MagneticField: measured b
+TOPIC_ATTITUDE = "sensors/attitude"           # sensor_msgs/Imu: measured attitude + rate (controller input)
+TOPIC_DIPOLE = "controller/dipole_command"    # geometry_msgs/Vector3Stamped: m [A m^2]
+TOPIC_CLOCK = "/clock"                        # rosgraph_msgs/Clock (absolute, as ROS requires)
+TOPIC_DIAGNOSTICS = "/diagnostics"            # diagnostic_msgs/DiagnosticArray (absolute, by convention)
+
+#: Frames (REP-103): orbital = LVLH with X nadir (yaw), Y along-track (roll), Z = -orbit
+#: normal (pitch) as in the paper's section 3; body = spacecraft principal axes.
+FRAME_ORBITAL = "orbital"
+FRAME_BODY = "body"
+
+# Names as recorded in bags of an un-namespaced run (absolute).
+TRUTH = "/" + TOPIC_TRUTH
+TRUE_FIELD = "/" + TOPIC_TRUE_FIELD
+MAG = "/" + TOPIC_MAG
+ATTITUDE = "/" + TOPIC_ATTITUDE
+DIPOLE = "/" + TOPIC_DIPOLE
+CONTROLLER_INPUTS = (MAG, ATTITUDE)
+
+#: name -> (type, durability offered by the publisher: lockstep topics are transient-local)
+PROJECT_TOPICS: dict[str, tuple[str, str]] = {
+    TOPIC_CLOCK: ("rosgraph_msgs/msg/Clock", "volatile"),
+    TRUTH: ("nav_msgs/msg/Odometry", "transient_local"),
+    TRUE_FIELD: ("sensor_msgs/msg/MagneticField", "transient_local"),
+    "/" + TOPIC_MAG_TORQUE: ("geometry_msgs/msg/WrenchStamped", "transient_local"),
+    "/" + TOPIC_DIST_TORQUE: ("geometry_msgs/msg/WrenchStamped", "transient_local"),
+    MAG: ("sensor_msgs/msg/MagneticField", "transient_local"),
+    ATTITUDE: ("sensor_msgs/msg/Imu", "transient_local"),
+    DIPOLE: ("geometry_msgs/msg/Vector3Stamped", "transient_local"),
+    TOPIC_DIAGNOSTICS: ("diagnostic_msgs/msg/DiagnosticArray", "volatile"),
+}
+
+
+def topic_specs() -> list[str]:
+    """``/name:pkg/msg/Type`` list for the recorder's ``--topics``."""
+    return [f"{n}:{t}" for n, (t, _) in PROJECT_TOPICS.items()]

@@ -1,0 +1,59 @@
+"""``magtune sampling``: the sampling-period study, sigma x Ts grid (:mod:`..studies.sampling`)."""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+from ..base.ament import ROOT
+from ..studies import sampling
+from .common import CommandError, add_environment_arguments, environment_options, positive_floats
+
+
+def register(sub) -> None:
+    p = sub.add_parser("sampling", help="sampling-period study: sigma x Ts grid, table and plot in docs/",
+                              description=sampling.__doc__.split("\n\n")[0])
+    p.add_argument("--sigmas", type=positive_floats, default=list(sampling.DEFAULT_SIGMAS), help="default 60,120,240")
+    p.add_argument("--ts", type=positive_floats, default=list(sampling.DEFAULT_TS), help="sample periods [s], default 1,2,5,10,20,30")
+    p.add_argument("--orbits", type=float, default=5.0, help="run length [orbits] (default 5)")
+    p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
+    p.add_argument("--backend", choices=("offline", "sil"), default="offline",
+                   help="offline simulate() (default) or the SIL nodes over DDS (identical trajectories, slower)")
+    p.add_argument("--gains-dir", default=str(ROOT / "config" / "gains"), help="holds sigma_<sigma>.yaml")
+    p.add_argument("--spacecraft", default=str(ROOT / "config" / "spacecraft.yaml"))
+    p.add_argument("--out-dir", default=str(ROOT / "docs"), help="writes sampling.md/.png/.json here")
+    p.add_argument("--conclusion", default="", help="paragraph appended to the verdict (text, or @FILE)")
+    add_environment_arguments(p, default="full")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    opts = environment_options(args)
+    conclusion_arg = args.conclusion if args.conclusion.startswith("@") else ("..." if args.conclusion else "")
+    if args.conclusion.startswith("@"):
+        args.conclusion = Path(args.conclusion[1:]).read_text().strip()
+    env_opts = dict(gravity_gradient=opts.gravity_gradient, drag=opts.drag, srp=opts.srp, field=opts.field,
+                    igrf_degree=opts.igrf_degree)
+    out = Path(args.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    try:
+        rows = sampling.run_study(args.sigmas, args.ts, args.orbits, args.environment, env_opts, max(1, args.workers),
+                         args.gains_dir, args.spacecraft, args.backend)
+    except FileNotFoundError as exc:  # missing gains file: one line
+        raise CommandError(str(exc)) from None
+    wall = time.perf_counter() - t0
+    cmd = "magtune sampling " + " ".join(
+        [f"--sigmas {','.join(f'{s:g}' for s in args.sigmas)}", f"--ts {','.join(f'{t:g}' for t in args.ts)}",
+         f"--orbits {args.orbits:g}", f"--environment {args.environment}"]
+        + ([f"--backend {args.backend}"] if args.backend != "offline" else [])
+        + ([f"--conclusion {conclusion_arg}"] if conclusion_arg else []))
+    meta = dict(command=cmd, wall=wall, workers=args.workers, environment=args.environment, orbits=args.orbits,
+                conclusion=args.conclusion)
+    md = sampling.write_markdown(rows, out / "sampling.md", meta)
+    sampling.plot(rows, out / "sampling.png")
+    (out / "sampling.json").write_text(json.dumps(dict(meta=meta, rows=[
+        {k: v for k, v in r.items() if k not in ("t_plot", "dq_plot", "m_plot")} for r in rows]), indent=1))
+    print(md)
+    print(f"wrote {out / 'sampling.md'}, {out / 'sampling.png'}, {out / 'sampling.json'} in {wall:.0f} s")
+    return 0

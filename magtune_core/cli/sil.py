@@ -1,0 +1,42 @@
+"""``magtune sil``: software-in-the-loop run of the ROS 2 nodes (lockstep, sim time)."""
+from __future__ import annotations
+
+import json
+
+from ..ros import sil
+from .common import add_environment_arguments, environment_options
+
+
+def register(sub) -> None:
+    p = sub.add_parser("sil", help="software-in-the-loop run of the ROS 2 nodes (lockstep, sim time)",
+                       description=sil.__doc__.split("\n\n")[0])
+    p.add_argument("--gains", required=True, help="controller gains parameter file (config/gains/sigma_*.yaml)")
+    p.add_argument("--orbits", type=float, default=5.0, help="run length in orbits (default 5)")
+    p.add_argument("--steps", type=int, default=None, help="run length in controller steps (overrides --orbits)")
+    p.add_argument("--ts", type=float, default=None, help="controller sample period [s] (default: gains file ts)")
+    p.add_argument("--substeps", type=int, default=2, help="RK4 sub-steps per sample period (default 2)")
+    p.add_argument("--spacecraft", default=str(sil.DEFAULT_SPACECRAFT), help="spacecraft parameter file")
+    p.add_argument("--rtf", type=float, default=0.0, help="pace at this real-time factor (default 0: max speed)")
+    p.add_argument("--bag", default=None, help="record the run to this MCAP bag (needs the recorder node)")
+    p.add_argument("--results", default=None, help="keep the trajectory .npz here")
+    p.add_argument("--log-dir", default=None, help="node logs and generated parameters (default: temp dir)")
+    p.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: a free one)")
+    p.add_argument("--timeout", type=float, default=None, help="abort after this many wall seconds")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_environment_arguments(p)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    res = sil.run_sil(args.gains, orbits=args.orbits, steps=args.steps, ts=args.ts, substeps=args.substeps,
+                      spacecraft=args.spacecraft, real_time_factor=args.rtf, bag=args.bag, results=args.results,
+                      log_dir=args.log_dir, domain_id=args.domain_id, timeout=args.timeout,
+                      environment=args.environment, env_options=environment_options(args))
+    if args.json:
+        print(json.dumps(dict(res.figures, **{"missed_steps": res.counters.get("missed_steps", 0),
+                                              "wall_time": res.wall_time, "real_time_factor": res.real_time_factor,
+                                              "counters": res.counters,
+                                              "log_dir": str(res.log_dir) if res.log_dir else None})))
+    else:
+        print(res.summary())
+    return 0

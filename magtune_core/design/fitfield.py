@@ -1,0 +1,156 @@
+"""Fit a periodic design-model field b(t) (orbital axes) to IGRF along the real orbit.
+
+``magtune fit-field --altitude 450 --inclination 87 [--harmonics 2] --out config/field_model.yaml``
+(the command lives in :mod:`magtune_core.cli.fit_field`).
+
+Method: propagate the J2 orbit of :mod:`orbit` for ``days`` days (default 3: ~46 orbits, the
+Earth turns under the orbit 3 times, so the fit averages over longitude), sample the IGRF-14
+field (degree 10) in orbital axes every ``step`` seconds, and fit by linear least squares
+
+    b(u) = mean + sum_{k=1..H} [cos_k cos(k u) + sin_k sin(k u)]
+
+against the argument of latitude u (angle from the ascending node). With t counted from an
+ascending-node crossing, u = W t, W the mean nodal rate measured from the samples, so the result
+is a :class:`magtune_core.design.field.FourierField` with ``omega = W`` - the same form as the paper's
+eq. (26) (whose t = 0 is thus read as the ascending node). The longitude-dependent part of the
+field (tilted dipole, higher degrees) is what the periodic model cannot represent: it is the fit
+residual, reported as RMS per axis.
+
+Output file (ROS 2 parameter layout, loadable by :func:`load_field_model` and by any node)::
+
+    /**:
+      ros__parameters:
+        field_fourier_omega: 0.00111...          # rad/s
+        field_fourier_harmonics: 2
+        field_fourier_mean: [bx, by, bz]         # T
+        field_fourier_cos: [c1x, c1y, c1z, c2x, ...]   # T, row-major (harmonic k, axis)
+        field_fourier_sin: [s1x, s1y, s1z, s2x, ...]   # T
+        field_fit_rms: [rx, ry, rz]              # T, residual RMS per axis
+        field_fit_*: provenance (altitude, inclination, IGRF degree, epoch, days, step)
+
+ROS 2 parameters cannot hold nested lists, hence the flattened (H*3) coefficient arrays.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..base.errors import ConfigError
+from ..base.paramfile import read_ros_params
+from ..base.schema import Field, parse, parse_value
+from ..env.igrf import IGRF
+from ..env.orbit import DEFAULT_EPOCH, Orbit, OrbitConfig, argument_of_latitude, eci_to_orbital
+from .field import FourierField
+
+
+@dataclass(frozen=True)
+class FitReport:
+    """Quality of a periodic fit: residual RMS and max per orbital axis [T], over the samples."""
+
+    rms: np.ndarray
+    max_abs: np.ndarray
+    field_rms: np.ndarray  #: RMS of the IGRF samples themselves per axis [T]
+    n_samples: int
+    days: float
+    omega: float
+    harmonics: int
+
+    @property
+    def rms_total(self) -> float:
+        return float(np.sqrt(np.sum(self.rms**2)))
+
+    def markdown(self) -> str:
+        ax = "XYZ"
+        rows = ["| axis | IGRF RMS [uT] | fit residual RMS [uT] | max residual [uT] |", "|---|---|---|---|"]
+        for i in range(3):
+            rows.append(f"| {ax[i]} | {self.field_rms[i] * 1e6:.2f} | {self.rms[i] * 1e6:.2f} | {self.max_abs[i] * 1e6:.2f} |")
+        return "\n".join(rows)
+
+
+def sample_igrf_along_orbit(orbit_cfg: OrbitConfig, days: float = 3.0, step: float = 20.0, degree: int = 10):
+    """(t [s], u [rad], b_orbital [T] (N, 3)) of IGRF along the propagated orbit."""
+    t = np.arange(0.0, days * 86400.0 + 0.5 * step, step)
+    orbit = Orbit(orbit_cfg, duration=float(t[-1]) + step)
+    r, v = orbit.state(t)
+    igrf = IGRF(orbit.jd0, degree)
+    b_eci = igrf.eci(r, orbit.jd(t))
+    b_orb = np.einsum("nij,nj->ni", eci_to_orbital(r, v), b_eci)
+    return t, argument_of_latitude(r, v), b_orb
+
+
+def fit_fourier(u, b, harmonics: int):
+    """Least-squares (mean (3,), cos (H, 3), sin (H, 3), residual (N, 3)) of b(u)."""
+    u = np.asarray(u, dtype=float)
+    k = np.arange(1, harmonics + 1)
+    A = np.hstack([np.ones((u.size, 1)), np.cos(np.outer(u, k)), np.sin(np.outer(u, k))])
+    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+    return coef[0], coef[1:harmonics + 1], coef[harmonics + 1:], b - A @ coef
+
+
+def fit_field(altitude: float = 450e3, inclination_deg: float = 87.0, harmonics: int = 2, days: float = 3.0,
+              step: float = 20.0, degree: int = 10, epoch=DEFAULT_EPOCH, raan_deg: float = 0.0):
+    """Fit IGRF along the orbit; returns (FourierField with omega = mean nodal rate, FitReport)."""
+    if harmonics < 1:
+        raise ValueError("harmonics must be >= 1")
+    cfg = OrbitConfig(altitude=altitude, inclination_deg=inclination_deg, raan_deg=raan_deg, epoch=epoch,
+                      rtol=1e-10, atol=1e-3)
+    t, u, b = sample_igrf_along_orbit(cfg, days, step, degree)
+    omega = float(np.polyfit(t, np.unwrap(u), 1)[0])
+    mean, cos, sin, res = fit_fourier(u, b, harmonics)
+    report = FitReport(rms=np.sqrt(np.mean(res**2, axis=0)), max_abs=np.max(np.abs(res), axis=0),
+                       field_rms=np.sqrt(np.mean(b**2, axis=0)), n_samples=t.size, days=days, omega=omega,
+                       harmonics=harmonics)
+    name = f"igrf_fit_{altitude / 1e3:g}km_{inclination_deg:g}deg_h{harmonics}"
+    return FourierField(omega, mean=mean, cos=cos, sin=sin, name=name), report
+
+
+def _fmt(values) -> str:
+    return "[" + ", ".join(f"{float(x):.6e}" for x in np.ravel(values)) + "]"
+
+
+def write_field_model(path, field: FourierField, report: FitReport, meta: dict) -> None:
+    """Write the fitted field as a ROS 2 parameter file (layout in the module docstring)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lines = [
+        "# Periodic geomagnetic field model in orbital axes (X nadir, Y along-track, Z = -orbit normal),",
+        "# b(t) = mean + sum_k cos_k cos(k omega t) + sin_k sin(k omega t), t from an ascending-node crossing.",
+        "# Least-squares fit of IGRF-14 along the J2 orbit: `magtune fit-field` (magtune_core/design/fitfield.py).",
+        f"# Residual RMS per axis [uT]: {', '.join(f'{x * 1e6:.2f}' for x in report.rms)}",
+        "/**:",
+        "  ros__parameters:",
+        f"    field_fourier_omega: {field.omega:.12e}   # mean nodal rate [rad/s] (period {field.period:.1f} s)",
+        f"    field_fourier_harmonics: {field.cos.shape[0]}",
+        f"    field_fourier_mean: {_fmt(field.mean)}   # [T]",
+        f"    field_fourier_cos: {_fmt(field.cos)}   # [T], row-major (harmonic, axis)",
+        f"    field_fourier_sin: {_fmt(field.sin)}   # [T], row-major (harmonic, axis)",
+        f"    field_fit_rms: {_fmt(report.rms)}   # [T]",
+    ]
+    for key, val in meta.items():
+        lines.append(f"    field_fit_{key}: {val!r}" if isinstance(val, str) else f"    field_fit_{key}: {val}")
+    path.write_text("\n".join(lines) + "\n")
+
+
+#: The schema of a field-model file (``magtune fit-field`` output); ``field_fit_*`` is provenance.
+FIELD_MODEL_FIELDS = (
+    Field("field_fourier_omega", "float", "fundamental rate omega [rad/s]", positive=True),
+    Field("field_fourier_harmonics", "int", "number of harmonics H", positive=True),
+    Field("field_fourier_mean", "float[]", "mean field [T] in orbital axes", size=3),
+)
+
+
+def load_field_model(path) -> FourierField:
+    """Read a file written by :func:`write_field_model` back into a FourierField."""
+    p = read_ros_params(path)
+    v = parse(p, FIELD_MODEL_FIELDS, path)
+    H = v["field_fourier_harmonics"]
+    coef = {}
+    for name in ("field_fourier_cos", "field_fourier_sin"):
+        f = Field(name, "float[]", f"{3 * H} coefficients [T], row-major (harmonic, axis)", size=3 * H)
+        if name not in p:
+            raise ConfigError(path, name, f"missing (expected a list of {3 * H} numbers)")
+        coef[name] = parse_value(f, p[name], path).reshape(H, 3)
+    return FourierField(v["field_fourier_omega"], mean=v["field_fourier_mean"], cos=coef["field_fourier_cos"],
+                        sin=coef["field_fourier_sin"], name=f"file:{Path(path).name}")

@@ -1,0 +1,82 @@
+"""Controller gains as ROS 2 parameter files (``config/gains/sigma_*.yaml``): the gains schema.
+
+Layout: ``controller: ros__parameters: {gain: [18 doubles, row-major 3x6], sigma, ts, ...}``
+plus read-only provenance (figures of merit, seed, tuner settings, field model) that
+``magtune analyze`` recomputes and compares. The controller node declares the same
+:attr:`Gains.FIELDS` and validates them with :meth:`Gains.from_mapping`.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..base.paramfile import read_ros_params
+from ..base.schema import Field, parse
+
+CONTROLLER_NODE = "controller"
+
+
+@dataclass
+class Gains:
+    """Constant gain K (u = T_id = K x, paper eq. 19) and its provenance."""
+
+    K: np.ndarray
+    sigma: float
+    ts: float = 1.0
+    provenance: dict = field(default_factory=dict)
+
+    #: The schema of a gains file (the controller node's own parameters among them).
+    FIELDS = (
+        Field("gain", "float[]", "the 3x6 gain K, row-major (rows: torque axes; columns: [dq; dw])", size=18),
+        Field("sigma", "float", "control-effort weight sigma of the design", positive=True),
+        Field("ts", "float", "controller sample period Ts [s] (sim time)", 1.0, positive=True),
+    )
+
+    @classmethod
+    def from_mapping(cls, params: dict, where="gains", *, provenance_exclude=()) -> "Gains":
+        """Validate a parameter mapping against :attr:`FIELDS`; other keys become provenance.
+
+        Raises ConfigError naming ``where``, the field and what was expected.
+        """
+        v = parse(params, cls.FIELDS, where)
+        own = {f.name for f in cls.FIELDS} | set(provenance_exclude)
+        prov = {k: x for k, x in params.items() if k not in own}
+        return cls(v["gain"].reshape(3, 6), v["sigma"], v["ts"], prov)
+
+
+def load_gains(path) -> Gains:
+    """Read a gains parameter file (section ``controller`` and ``/**``), validated by the schema."""
+    return Gains.from_mapping(read_ros_params(path, CONTROLLER_NODE), path)
+
+
+def save_gains(path, gains: Gains, header: str = "") -> None:
+    """Write a gains parameter file in the controller node's ROS 2 layout."""
+    params = {
+        "gain": [float(v) for v in np.asarray(gains.K).ravel()],
+        "sigma": float(gains.sigma),
+        "ts": float(gains.ts),
+    }
+    for k, v in gains.provenance.items():
+        params[k] = _plain(v)
+    params.setdefault("written", _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"))
+    text = yaml.safe_dump({CONTROLLER_NODE: {"ros__parameters": params}}, sort_keys=False, width=120)
+    lines = ["# Projection-based magnetorquer controller gains (magtune). u = K x, m = S(b)^T u / |b|^2.",
+             "# gain: 3x6 K, row-major; rows = torque axes (x yaw, y roll, z pitch), columns = [dq; dw]."]
+    lines += [f"# {h}" for h in header.splitlines() if h]
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text("\n".join(lines) + "\n" + text)
+
+
+def _plain(v):
+    """Convert numpy scalars/arrays to YAML-plain Python values."""
+    if isinstance(v, dict):
+        return {k: _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return [_plain(x) for x in np.asarray(v).tolist()] if isinstance(v, np.ndarray) else [_plain(x) for x in v]
+    if isinstance(v, np.generic):
+        return v.item()
+    return v

@@ -1,0 +1,69 @@
+"""The flight control law: paper eq. 17 with per-axis saturation, and its input state (eq. 14).
+
+This module is what the ROS 2 controller node runs and what the offline simulation calls,
+so flight code never imports simulation code and both compute bit-identical dipoles.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .model import skew_field
+
+#: Default per-axis dipole limit [A m^2] (the paper gives none; typical 10-50 A m^2 small-sat rods).
+DEFAULT_DIPOLE_LIMIT = 50.0
+#: Below this field magnitude [T] the projection law is ill-conditioned: command zero dipole.
+DEFAULT_MIN_FIELD = 1e-7
+
+
+def saturate(m, m_max) -> np.ndarray:
+    """Per-axis dipole saturation |m_i| <= m_max_i [A m^2] (``m_max`` scalar or 3-vector; inf = none)."""
+    return np.clip(np.asarray(m, dtype=float), -np.asarray(m_max, dtype=float), np.asarray(m_max, dtype=float))
+
+
+def linear_state(q, w, orbit_rate: float) -> np.ndarray:
+    """x = [dq; dw] of paper eq. (14): q_vec (hemisphere q0 >= 0) and w - [0, 0, -W0].
+
+    ``q`` scalar-first attitude of the body w.r.t. orbital axes, ``w`` inertial body rate in body
+    axes [rad/s]; see :mod:`magtune_core.sim.dynamics` for why dw is the inertial-rate deviation.
+    """
+    q = np.asarray(q, dtype=float)
+    s = -1.0 if q[0] < 0.0 else 1.0
+    return np.array([s * q[1], s * q[2], s * q[3], w[0], w[1], w[2] + orbit_rate])
+
+
+@dataclass
+class ControlOutput:
+    """One controller evaluation: saturated dipole and what happened."""
+
+    m: np.ndarray
+    saturated: bool = False
+    weak_field: bool = False
+
+
+@dataclass
+class ProjectionController:
+    """m = sat(S(b)^T K x / |b|^2) (paper eq. 17), with a weak-field guard.
+
+    Written with explicit float arithmetic (no einsum) so that the offline simulation and
+    the ROS controller node compute bit-identical dipoles from the same inputs.
+    """
+
+    K: np.ndarray
+    dipole_limit: float | np.ndarray = DEFAULT_DIPOLE_LIMIT
+    min_field: float = DEFAULT_MIN_FIELD
+
+    def __post_init__(self):
+        self.K = np.asarray(self.K, dtype=float).reshape(3, 6)
+        self.dipole_limit = np.broadcast_to(np.asarray(self.dipole_limit, dtype=float), (3,)).copy()
+
+    def __call__(self, x, b) -> ControlOutput:
+        b = np.asarray(b, dtype=float)
+        b2 = float(b @ b)
+        if not b2 >= self.min_field**2:  # also catches NaN
+            return ControlOutput(np.zeros(3), weak_field=True)
+        u = self.K @ np.asarray(x, dtype=float)  # ideal torque T_id = K x (eq. 19)
+        m = skew_field(b).T @ u / b2
+        ms = saturate(m, self.dipole_limit)
+        return ControlOutput(ms, saturated=bool(np.any(ms != m)))

@@ -1,0 +1,26 @@
+"""The LQ starting gain of paper 4.2 on the time-averaged model (Stickler & Alfriend).
+
+The one LQ design of the project: the tuner's start (paper 4.2) and SPEC.md's reference design.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import solve_continuous_are
+
+from .model import Z_ATT, AttitudeLTP
+
+
+def lq_gain(model: AttitudeLTP, sigma: float) -> np.ndarray:
+    """K = -R^-1 Bbar^T P, LQ on the averaged model, Q = Z^T Z, R = sigma^2 I (weights of z)."""
+    Bbar = model.B_mean()
+    Q = Z_ATT.T @ Z_ATT
+    R = sigma**2 * np.eye(3)
+    P = solve_continuous_are(model.A, Bbar, Q, R)
+    return -np.linalg.solve(R, Bbar.T @ P)
+
+
+def lq_gains(model: AttitudeLTP, sigma: float, ts: float = 1.0):
+    """:func:`lq_gain` wrapped as :class:`~magtune_core.design.gains.Gains` with its provenance."""
+    from .gains import Gains
+
+    return Gains(lq_gain(model, sigma), sigma, ts, {"design": "lq_averaged", "field_model": model.field.name})

@@ -1,0 +1,73 @@
+"""Spacecraft and orbit parameters (paper section 5): the schema of ``config/spacecraft.yaml``.
+
+Parameter files use the standard ROS 2 layout ``node_name: {ros__parameters: {...}}``;
+``/**`` applies to every node. Every loader error names the file, the field and what was
+expected, so a user can fix the file without reading code.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..base.paramfile import read_ros_params
+from ..base.schema import Field, parse
+from .field import FIELD_MODELS, FourierField, paper_field
+
+
+@dataclass(frozen=True)
+class SpacecraftParams:
+    """Inertia, wheel and circular-orbit data of paper section 5 (SI units)."""
+
+    inertia: np.ndarray = field(default_factory=lambda: np.array([35.0, 17.0, 25.0]))
+    wheel_inertia: float = 0.01
+    wheel_speed: float = -200.0
+    orbit_period: float = 5614.8
+    altitude: float = 450e3
+    inclination_deg: float = 87.0
+    field_model: str = "eq26"
+    constant_field: np.ndarray = field(default_factory=lambda: np.array([2e-5, 0.0, 1e-5]))
+
+    #: The schema of ``config/spacecraft.yaml``: CLI and nodes (magtune_ros.common) declare and
+    #: validate exactly these parameters. The physical data are required; the orbit geometry
+    #: and field model default to the paper's section 5.
+    FIELDS = (
+        Field("inertia", "float[]", "principal moments Ixx, Iyy, Izz [kg m^2]", size=3, positive=True),
+        Field("wheel_inertia", "float", "pitch wheel inertia J [kg m^2]", positive=True),
+        Field("wheel_speed", "float", "nominal wheel speed Wwheel [rad/s]"),
+        Field("orbit_period", "float", "circular orbit period T [s]", positive=True),
+        Field("altitude", "float", "orbit altitude [m]", 450e3, positive=True),
+        Field("inclination", "float", "orbit inclination [deg]", 87.0),
+        Field("field_model", "str", "geomagnetic field model in orbital axes", "eq26", choices=FIELD_MODELS),
+        Field("constant_field", "float[]", "field [T] in orbital axes for field_model = constant",
+              (2e-5, 0.0, 1e-5), size=3),
+    )
+
+    @classmethod
+    def from_mapping(cls, params: dict, where="spacecraft parameters") -> "SpacecraftParams":
+        """Validate a parameter mapping (file or declared node parameters) against :attr:`FIELDS`.
+
+        Raises ConfigError naming ``where``, the field and what was expected.
+        """
+        v = parse(params, cls.FIELDS, where)
+        return cls(inertia=v["inertia"], wheel_inertia=v["wheel_inertia"], wheel_speed=v["wheel_speed"],
+                   orbit_period=v["orbit_period"], altitude=v["altitude"], inclination_deg=v["inclination"],
+                   field_model=v["field_model"], constant_field=v["constant_field"])
+
+    @property
+    def orbit_rate(self) -> float:
+        """W0 = 2 pi / T [rad/s]."""
+        return 2.0 * np.pi / self.orbit_period
+
+    @property
+    def wheel_momentum(self) -> np.ndarray:
+        """Wheel angular momentum in body axes, h = [0, 0, -J Wwheel] (SPEC.md sign check)."""
+        return np.array([0.0, 0.0, -self.wheel_inertia * self.wheel_speed])
+
+    def field(self, model: str | None = None) -> FourierField:
+        return paper_field(self.orbit_rate, model or self.field_model, self.constant_field)
+
+
+def load_spacecraft(path) -> SpacecraftParams:
+    """Read ``config/spacecraft.yaml`` (every node section merged) into SpacecraftParams."""
+    return SpacecraftParams.from_mapping(read_ros_params(path), path)

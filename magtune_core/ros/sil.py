@@ -1,0 +1,320 @@
+"""Software-in-the-loop runner: the three magtune_ros nodes as separate processes over DDS.
+
+``magtune sil --gains config/gains/sigma_60.yaml --orbits 5 --ts 1 [--bag bags/NAME]``
+(the command: :mod:`magtune_core.cli.sil`).
+
+Subprocesses only: this module never imports rclpy. Executables are resolved as ``ros2 run``
+does (``<prefix>/lib/magtune_ros/<exe>`` for the first prefix of AMENT_PREFIX_PATH holding the
+package's ament index marker). Each run gets a ROS_DOMAIN_ID of its own (held by a lock file,
+so concurrent runs never share a domain) and ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST. Every
+node runs in its own process group, stopped in a ``finally`` block (SIGINT, then SIGTERM,
+then SIGKILL), so neither Ctrl-C nor a failing node leaves orphans.
+
+The simulator runs in lockstep with the controller (see magtune_ros/simulator.py) and writes
+its trajectory to an .npz (``SimResult``), from which the summary (paper section 5
+figures: final and peak |dq_R|, RMS over orbits 2-5, peak |m|) is computed.
+"""
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import shutil
+import signal
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from ..base import ament
+from ..base.ament import ROOT
+from ..base.paramfile import check_ros_params
+from ..design.gains import load_gains
+from ..design.params import load_spacecraft
+from ..sim.fullenv import FullEnvironmentOptions, full_params
+from ..sim.metrics import format_figures
+from ..sim.simulate import SimResult
+
+PACKAGE = "magtune_ros"
+NODES = ("controller", "attitude_sensors", "simulator")
+#: Recorder executable of the bags helper, started first with
+#: ``--ros-args -p use_sim_time:=true -p path:=<bag>`` when --bag is given; the simulator then
+#: waits for a second subscriber of sim/truth before step 0 and the recorder is stopped with
+#: SIGINT after the simulator finished (so it can close the MCAP file).
+RECORDER_EXE = "recorder"
+#: Override as "package/executable" (e.g. MAGTUNE_RECORDER=magtune_bags/recorder).
+RECORDER_ENV = "MAGTUNE_RECORDER"
+
+
+def recorder_args(bag, custom: dict | None = None) -> list[str]:
+    """ROS arguments of the recorder process; ``custom`` goes to metadata.yaml custom_data."""
+    args = ["-p", "use_sim_time:=true", "-p", f"path:={Path(bag).resolve()}"]
+    if custom:
+        items = ", ".join(f"'{k}={v}'" for k, v in custom.items())
+        args += ["-p", f"custom_data:=[{items}]"]
+    return args
+DEFAULT_SPACECRAFT = ROOT / "config" / "spacecraft.yaml"
+#: ROS_DOMAIN_IDs handed out to runs: 215-232 map Fast DDS ports above Linux's ephemeral range
+#: (32768-60999), the other range the ROS 2 docs call safe besides 0-101, which other tools use.
+DOMAIN_RANGE = range(215, 233)
+
+
+class SilError(RuntimeError):
+    """The SIL run could not be started or a node failed."""
+
+
+# ------------------------------------------------------------------ resolution
+def package_prefix(package: str = PACKAGE) -> Path:
+    """The install prefix of ``package`` (:func:`magtune_core.base.ament.package_prefix`)."""
+    try:
+        return ament.package_prefix(package)
+    except ament.AmentNotFound as exc:
+        raise SilError(str(exc)) from None
+
+
+def resolve_executable(exe: str, package: str = PACKAGE) -> Path:
+    """<prefix>/lib/<package>/<exe>, exactly where ``ros2 run <package> <exe>`` looks."""
+    try:
+        return ament.executable(package, exe)
+    except ament.AmentNotFound as exc:
+        raise SilError(str(exc)) from None
+
+
+def child_env(domain_id: int, prefix: Path, *more: Path) -> dict:
+    """Environment of the node processes: isolated domain, localhost discovery, package paths."""
+    env = ament.child_env(prefix, *more)
+    env["ROS_DOMAIN_ID"] = str(domain_id)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.pop("ROS_STATIC_PEERS", None)
+    env.setdefault("RCUTILS_LOGGING_BUFFERED_STREAM", "1")
+    return env
+
+
+class DomainLock:
+    """Reserve a ROS_DOMAIN_ID for this run with an exclusive lock file in the temp directory."""
+
+    def __init__(self, domain_id: int | None = None):
+        self.fh = None
+        ids = [domain_id] if domain_id is not None else list(DOMAIN_RANGE)
+        start = os.getpid() % len(ids)
+        for did in ids[start:] + ids[:start]:
+            fh = open(Path(tempfile.gettempdir()) / f"magtune_ros_domain_{did}.lock", "w")
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                fh.close()
+                continue
+            self.fh, self.domain_id = fh, did
+            return
+        raise SilError(f"no free ROS_DOMAIN_ID in {ids[0]}..{ids[-1]}")
+
+    def release(self):
+        if self.fh:
+            self.fh.close()
+            self.fh = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.release()
+
+
+# ------------------------------------------------------------------ processes
+@dataclass
+class NodeProcess:
+    name: str
+    popen: subprocess.Popen
+    log: Path
+
+    def tail(self, n: int = 5) -> str:
+        try:
+            lines = self.log.read_text(errors="replace").strip().splitlines()
+        except OSError:
+            return ""
+        return "\n".join(lines[-n:])
+
+
+def start_node(name: str, exe: Path, ros_args: list[str], env: dict, log_dir: Path) -> NodeProcess:
+    log = log_dir / f"{name}.log"
+    with open(log, "wb") as fh:
+        p = subprocess.Popen([str(exe), "--ros-args", *ros_args], env=env, stdout=fh, stderr=subprocess.STDOUT,
+                             stdin=subprocess.DEVNULL, start_new_session=True)
+    return NodeProcess(name, p, log)
+
+
+def stop_nodes(procs: list[NodeProcess], grace: float = 5.0) -> None:
+    """SIGINT each process group, then SIGTERM, then SIGKILL; reap everything."""
+    for sig, wait in ((signal.SIGINT, grace), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
+        alive = [p for p in procs if p.popen.poll() is None]
+        if not alive:
+            break
+        for p in alive:
+            try:
+                os.killpg(p.popen.pid, sig)
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + wait
+        for p in alive:
+            try:
+                p.popen.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                pass
+    for p in procs:  # group leftovers (e.g. grandchildren) after the leader exited
+        try:
+            os.killpg(p.popen.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+
+
+# ------------------------------------------------------------------ run
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+@dataclass
+class SilRun:
+    """Outcome of a SIL run: the simulator's trajectory, its figures of merit and counters."""
+
+    result: SimResult
+    figures: dict
+    counters: dict
+    wall_time: float        # simulator's stepping time (after discovery)
+    total_wall_time: float  # including process start-up and shutdown
+    domain_id: int
+    log_dir: Path | None  # None: temporary logs removed after success
+    diagnostics: dict = field(default_factory=dict)
+
+    @property
+    def real_time_factor(self) -> float:
+        return float(self.result.t[-1]) / max(self.wall_time, 1e-9)
+
+    def summary(self) -> str:
+        return (f"{format_figures(self.figures)}\n"
+                f"missed steps {self.counters.get('missed_steps', 0)}  steps {self.counters.get('steps', 0)}  "
+                f"wall {self.wall_time:.2f} s (total {self.total_wall_time:.2f} s)  "
+                f"real-time factor {self.real_time_factor:.0f}x")
+
+
+def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float | None = None,
+            spacecraft=DEFAULT_SPACECRAFT, substeps: int = 2, bag=None, real_time_factor: float = 0.0,
+            lockstep: bool = True, lockstep_timeout: float = 2.0, startup_timeout: float = 30.0,
+            timeout: float | None = None, domain_id: int | None = None, log_dir=None, results=None,
+            simulator_params: dict | None = None, sensor_params: dict | None = None,
+            controller_params: dict | None = None, on_start=None, environment: str = "paper",
+            env_options=None) -> SilRun:
+    """Start controller, attitude_sensors and simulator (+ recorder with ``bag``), wait, clean up.
+
+    ``timeout`` (wall s, default generous) bounds the whole run; parameters dicts are extra
+    ROS parameters per node. Raises SilError naming the failing node and its last log lines.
+    ``environment`` "paper" (default) or "full" with ``env_options`` a
+    ``fullenv.FullEnvironmentOptions``: the simulator builds the full environment and every node
+    gets the actual orbit's nominal period (``fullenv.full_params``), as the offline
+    ``simulate(..., environment="full")``.
+    """
+    gains = Path(gains)
+    # every input is validated before any process starts (ConfigError: one line, exit 2 in the CLI)
+    check_ros_params(gains)
+    gains_params = load_gains(gains)
+    check_ros_params(spacecraft)
+    sc_params = load_spacecraft(spacecraft)
+    prefix = package_prefix()
+    exes = {n: resolve_executable(n) for n in NODES}
+    rec_exe = None
+    if bag:
+        try:
+            rpkg, _, rexe = os.environ.get(RECORDER_ENV, f"{PACKAGE}/{RECORDER_EXE}").rpartition("/")
+            rec_exe = resolve_executable(rexe, rpkg or PACKAGE)
+        except SilError as exc:
+            raise SilError(f"--bag needs a recorder executable ({exc}); set {RECORDER_ENV}=package/executable "
+                           "if it lives elsewhere") from None
+    own_dir = not log_dir  # a temporary log directory is removed after a successful run
+    log_dir = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix="magtune_sil_"))
+    log_dir.mkdir(parents=True, exist_ok=True)
+    results = Path(results) if results else log_dir / "results.npz"  # loaded into memory before cleanup
+    if results.exists():
+        results.unlink()
+
+    common = {"use_sim_time": True}
+    sim = dict(common, substeps=int(substeps), results_path=str(results.resolve()), lockstep=bool(lockstep),
+               lockstep_timeout=float(lockstep_timeout), startup_timeout=float(startup_timeout),
+               real_time_factor=float(real_time_factor))
+    if rec_exe:
+        sim["min_truth_subscribers"] = 2  # the recorder must be listening before step 0
+    if steps:
+        sim["steps"] = int(steps)
+    else:
+        sim["orbits"] = float(orbits)
+    common_ts = {"ts": float(ts if ts is not None else gains_params.ts)}
+    env_sim: dict = {}
+    if environment == "full":
+        opts = env_options or FullEnvironmentOptions()
+        if opts.epoch != FullEnvironmentOptions().epoch or opts.raan_deg or opts.arg_lat_deg or opts.zonal_degree != 2:
+            raise SilError("the simulator node takes the default epoch/RAAN/argument of latitude/zonal degree")
+        common["orbit_period"] = float(full_params(sc_params, opts).orbit_period)
+        env_sim = dict(environment="full", env_gravity_gradient=bool(opts.gravity_gradient), env_drag=bool(opts.drag),
+                       env_srp=bool(opts.srp), env_field=str(opts.field), igrf_degree=int(opts.igrf_degree))
+        sim["orbit_period"] = common["orbit_period"]
+    elif environment != "paper":
+        raise SilError(f"unknown environment {environment!r} (expected 'paper' or 'full')")
+    params = {
+        "simulator": {**sim, **env_sim, **common_ts, **(simulator_params or {})},
+        "attitude_sensors": {**common, **common_ts, **(sensor_params or {})},
+        "controller": {**common, **common_ts, **(controller_params or {})},
+    }
+    pfile = log_dir / "sil_params.yaml"
+    pfile.write_text(yaml.safe_dump({k: {"ros__parameters": v} for k, v in params.items()}))
+    sc = ["--params-file", str(Path(spacecraft).resolve())]
+
+    procs: list[NodeProcess] = []
+    lock = DomainLock(domain_id)
+    t0 = time.perf_counter()
+    old_term = signal.getsignal(signal.SIGTERM)
+    if old_term in (signal.SIG_DFL, None):  # turn SIGTERM into KeyboardInterrupt -> finally
+        signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        env = child_env(lock.domain_id, prefix, *([rec_exe.parents[2]] if rec_exe else []))
+        if rec_exe:
+            custom = {"gains": gains.name, **common_ts, "sigma": f"{gains_params.sigma:g}"}
+            procs.append(start_node("recorder", rec_exe, recorder_args(bag, custom), env, log_dir))
+        procs.append(start_node("controller", exes["controller"],
+                                sc + ["--params-file", str(gains.resolve()), "--params-file", str(pfile)], env, log_dir))
+        procs.append(start_node("attitude_sensors", exes["attitude_sensors"], sc + ["--params-file", str(pfile)],
+                                env, log_dir))
+        procs.append(start_node("simulator", exes["simulator"], sc + ["--params-file", str(pfile)], env, log_dir))
+        if on_start:
+            on_start(lock.domain_id, procs)
+        sim_p = procs[-1]
+        n_steps = steps or orbits * sc_params.orbit_period / common_ts["ts"]
+        deadline = time.monotonic() + (timeout if timeout else startup_timeout + 60.0 + 0.05 * n_steps)
+        while True:
+            rc = sim_p.popen.poll()
+            if rc is not None:
+                break
+            for p in procs[:-1]:
+                if p.popen.poll() is not None:
+                    raise SilError(f"node '{p.name}' exited with status {p.popen.returncode}:\n{p.tail()}")
+            if time.monotonic() > deadline:
+                raise SilError(f"SIL run timed out after {time.monotonic() - t0:.0f} s; simulator log:\n{sim_p.tail()}")
+            time.sleep(0.05)
+        if rc != 0 or not results.is_file():
+            raise SilError(f"simulator exited with status {rc}:\n{sim_p.tail()}")
+    except SilError as exc:
+        raise SilError(f"{exc}\n(node logs in {log_dir})") from None
+    finally:
+        stop_nodes([p for p in procs if p.name != "recorder"])
+        stop_nodes([p for p in procs if p.name == "recorder"], grace=10.0)  # last: let it close the bag
+        lock.release()
+        if old_term in (signal.SIG_DFL, None):
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    total = time.perf_counter() - t0
+    res = SimResult.from_npz(results)
+    counters = json.loads(str(res.info.get("counters", "{}")))
+    if own_dir:
+        shutil.rmtree(log_dir, ignore_errors=True)
+        log_dir = None
+    return SilRun(res, res.figures_of_merit(), counters, float(res.info.get("wall_time", total)), total,
+                  lock.domain_id, log_dir)

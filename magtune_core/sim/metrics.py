@@ -1,0 +1,58 @@
+"""Figures of merit of a closed-loop run (paper Figs. 2-3), from time histories.
+
+One implementation for the offline simulation, the SIL runner, the sampling study and the
+bag report: arrays in, a dict of floats out.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def figures_of_merit(t, x, m, orbit_period: float, tm=None) -> dict:
+    """|dq_R| final/peak, RMS |dq_R| over orbits 2-5, peak |m| and RMS |m| over orbits 2-5.
+
+    ``t`` (n,) [s], ``x`` (n, 6) linear state [dq; dw] (paper eq. 14), ``m`` (k, 3) dipole
+    [A m^2] at times ``tm`` (default ``t``), ``orbit_period`` T [s].
+
+    Returns
+    -------
+    dict
+        ``final_dq``, ``peak_dq``, ``rms_dq`` (|dq_R| = |Z x| over the window ``rms_window`` =
+        t in [T, 5T]; a run not longer than one orbit uses all of it), ``peak_m``,
+        ``rms_m_orbits_2_5`` (nan when no dipole sample lies in [T, 5T]) and ``orbits``.
+    """
+    t = np.asarray(t, dtype=float)
+    dq = np.linalg.norm(np.asarray(x, dtype=float)[:, :3], axis=1)  # |dq_R| = sqrt(x^T Z^T Z x)
+    tm = t if tm is None else np.asarray(tm, dtype=float)
+    mn = np.linalg.norm(np.asarray(m, dtype=float).reshape(-1, 3), axis=1)
+    T = float(orbit_period)
+    sel = (t >= T) & (t <= 5 * T)
+    if np.count_nonzero(sel) < 2:  # run not longer than one orbit: use all of it
+        sel = np.ones_like(dq, dtype=bool)
+    msel = (tm >= T) & (tm <= 5 * T) if len(mn) else np.zeros(0, bool)
+    return dict(
+        final_dq=float(dq[-1]),
+        peak_dq=float(dq.max()),
+        rms_dq=float(np.sqrt(np.mean(dq[sel] ** 2))),
+        rms_window=(float(t[sel][0]), float(t[sel][-1])),
+        peak_m=float(mn.max()) if len(mn) else float("nan"),
+        rms_m_orbits_2_5=float(np.sqrt(np.mean(mn[msel] ** 2))) if np.count_nonzero(msel) else float("nan"),
+        orbits=float(t[-1] / T),
+    )
+
+
+def settling_time(t, dq, threshold: float) -> float:
+    """First t_k after which dq stays below ``threshold`` to the end (nan if it ends above)."""
+    t, dq = np.asarray(t), np.asarray(dq)
+    above = np.nonzero(~(dq < threshold))[0]
+    if above.size == 0:
+        return float(t[0])
+    k = above[-1] + 1
+    return float(t[k]) if k < t.size else float("nan")
+
+
+def format_figures(fom: dict) -> str:
+    """One line of :func:`figures_of_merit` for terminals."""
+    a, b = fom["rms_window"]
+    return (f"|dq_R| final {fom['final_dq']:.4e}  peak {fom['peak_dq']:.4e}  "
+            f"RMS[{a:.0f}s..{b:.0f}s] {fom['rms_dq']:.4e}  |m| peak {fom['peak_m']:.4g} A m^2")

@@ -1,0 +1,165 @@
+"""The layering of magtune_core (docs/architecture.md), checked on the source itself.
+
+Every import statement of every module (also those inside functions) is an edge; the tests
+assert: no import circle between modules, every edge goes to the same subpackage or a lower
+layer, ``ltp`` imports nothing else from magtune_core, no rclpy anywhere in the core, and
+flight code (the controller node) imports no simulation code.
+"""
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PKG = ROOT / "magtune_core"
+#: Layer rank of each subpackage, bottom (0) to top. An import must go to the same
+#: subpackage or to a strictly lower rank; ltp and base are both at the bottom and
+#: independent of each other.
+LAYERS = {"ltp": 0, "base": 0, "env": 1, "design": 2, "sim": 3, "bags": 3, "ros": 4, "studies": 5, "cli": 6}
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(ROOT).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def _modules() -> dict[str, Path]:
+    return {_module_name(p): p for p in sorted(PKG.rglob("*.py"))}
+
+
+def _imports(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
+    """magtune_core modules imported by ``name`` (resolved to the deepest existing module)."""
+    pkg = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    out: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        targets: list[str] = []
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = pkg.split(".")
+                anchor = anchor[: len(anchor) - (node.level - 1)]
+                base = ".".join(anchor + ([base] if base else []))
+            # ``from X import a``: the module X.a if there is one, else X itself
+            targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names]
+        for t in targets:
+            while t and t not in modules:
+                t = t.rpartition(".")[0]
+            if t.startswith("magtune_core") and t != name:
+                out.add(t)
+    # importing a.b.c also runs a and a.b: parents of a target are edges of the package
+    # __init__ files, which the walk covers on their own
+    return out
+
+
+def _graph() -> dict[str, set[str]]:
+    mods = _modules()
+    return {m: _imports(m, p, mods) for m, p in mods.items()}
+
+
+def _layer(mod: str) -> str | None:
+    parts = mod.split(".")
+    return parts[1] if len(parts) > 1 and parts[1] in LAYERS else None
+
+
+def test_walker_sees_the_packages():
+    g = _graph()
+    assert {"magtune_core.ltp.hinf", "magtune_core.design.tuner", "magtune_core.cli"} <= set(g)
+    assert "magtune_core.ltp.system" in g["magtune_core.ltp.hinf"]  # relative import resolved
+    assert "magtune_core.design.law" in g["magtune_core.sim.simulate"]
+
+
+def test_no_import_circles():
+    g = _graph()
+    # Tarjan's strongly connected components: any component of size > 1 is a circle
+    index, low, stack, on, comps = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in g.get(v, ()):
+            if w not in g:
+                continue
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            comps.append(comp)
+
+    sys.setrecursionlimit(10_000)
+    for v in g:
+        if v not in index:
+            visit(v)
+    circles = [sorted(c) for c in comps if len(c) > 1]
+    assert circles == [], f"import circles: {circles}"
+
+
+def test_imports_only_go_down():
+    bad = []
+    for mod, deps in _graph().items():
+        lay = _layer(mod)
+        if lay is None:  # magtune_core/__init__.py, __main__.py
+            continue
+        for d in deps:
+            dl = _layer(d)
+            if d in ("magtune_core",) and mod.startswith("magtune_core.cli"):
+                continue  # __version__
+            if dl is None or (dl != lay and LAYERS[dl] >= LAYERS[lay]):
+                bad.append(f"{mod} -> {d}")
+    assert bad == [], "imports against the layering:\n" + "\n".join(sorted(bad))
+
+
+def test_ltp_knows_no_satellite():
+    g = _graph()
+    outside = {f"{m} -> {d}" for m, deps in g.items() if _layer(m) == "ltp" for d in deps if _layer(d) != "ltp"}
+    assert outside == set()
+    code = ("import sys, magtune_core.ltp as L; "
+            "bad = [m for m in sys.modules if m.startswith(('magtune_core.design', 'magtune_core.env', "
+            "'magtune_core.sim', 'magtune_core.base', 'magtune_core.bags'))]; "
+            "assert not bad, bad; assert all(hasattr(L, n) for n in ('LTPSystem', 'multipliers', 'hinfnorm', 'h2norm'))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 0, r.stderr
+
+
+def test_core_never_imports_rclpy():
+    for path in PKG.rglob("*.py"):
+        tree = ast.parse(path.read_text())
+        names = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+        names |= {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+        assert not any(x.split(".")[0] in ("rclpy", "rosidl_runtime_py") for x in names), path
+    code = ("import sys, pkgutil, importlib, magtune_core; "
+            "[importlib.import_module(m.name) for m in pkgutil.walk_packages(magtune_core.__path__, 'magtune_core.') "
+            "if not m.name.endswith('__main__')]; assert 'rclpy' not in sys.modules")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 0, r.stderr
+
+
+@pytest.mark.parametrize("node", ["controller.py", "attitude_sensors.py"])
+def test_flight_nodes_import_no_simulation(node):
+    src = (ROOT / "ros2_ws" / "src" / "magtune_ros" / "magtune_ros" / node).read_text()
+    assert "magtune_core.sim" not in src
+
+
+def test_no_argparse_below_cli():
+    offenders = [str(p.relative_to(ROOT)) for p in PKG.rglob("*.py")
+                 if _layer(_module_name(p)) not in (None, "cli") and ("import argparse" in p.read_text()
+                                                                      or "def main(" in p.read_text())]
+    assert offenders == []
