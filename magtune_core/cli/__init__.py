@@ -7,7 +7,6 @@ exit with status 2 (bad input, nothing started) or 1 (a run failed): see
 from __future__ import annotations
 
 import argparse
-import sys
 
 from .. import __version__
 from . import analyze, bag, fit_field, replay, report, sampling, sil, table1, tune
@@ -31,7 +30,3 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     return run_command(args)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

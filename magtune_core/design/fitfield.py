@@ -3,7 +3,7 @@
 ``magtune fit-field --altitude 450 --inclination 87 [--harmonics 2] --out config/field_model.yaml``
 (the command lives in :mod:`magtune_core.cli.fit_field`).
 
-Method: propagate the J2 orbit of :mod:`orbit` for ``days`` days (default 3: ~46 orbits, the
+Method: propagate the J2 orbit of :mod:`magtune_core.env.orbit` for ``days`` days (default 3: ~46 orbits, the
 Earth turns under the orbit 3 times, so the fit averages over longitude), sample the IGRF-14
 field (degree 10) in orbital axes every ``step`` seconds, and fit by linear least squares
 

@@ -11,7 +11,13 @@ from .model import Z_ATT, AttitudeLTP
 
 
 def lq_gain(model: AttitudeLTP, sigma: float) -> np.ndarray:
-    """K = -R^-1 Bbar^T P, LQ on the averaged model, Q = Z^T Z, R = sigma^2 I (weights of z)."""
+    """K = -R^-1 Bbar^T P, LQ on the averaged model, Q = Z^T Z, R = sigma^2 I (weights of z).
+
+    Returns
+    -------
+    ndarray (3, 6)
+        The LQ gain K of the time-averaged model (paper 4.2's starting point).
+    """
     Bbar = model.B_mean()
     Q = Z_ATT.T @ Z_ATT
     R = sigma**2 * np.eye(3)

@@ -56,7 +56,14 @@ class Figures:
 
 
 def figures(model: AttitudeLTP, K, sigma: float, steps: int = DEFAULT_STEPS, rtol: float = 1e-7) -> Figures:
-    """All figures of merit of gain K (3x6) for weight sigma."""
+    """All figures of merit of gain K (3x6) for weight sigma.
+
+    Returns
+    -------
+    Figures
+        J (eq. 21), c1 (eq. 28), c2 (eq. 29, H2), rho (eq. 30) and ``stable``; J, c1, c2 are inf when
+        the closed loop is unstable (rho >= 1).
+    """
     K = np.asarray(K, dtype=float).reshape(3, 6)
     rho = float(spectral_radius(attitude_system(model, K), steps))
     if not rho < 1.0:

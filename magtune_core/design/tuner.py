@@ -101,6 +101,11 @@ def tournament(ev: CandidateEvaluator, Ks: np.ndarray, upper: float, rtol: float
 
     Batched bisection on a shared level: each round tests a geometric grid of levels on the
     surviving candidates; those passing at the lowest level any of them passes survive.
+
+    Returns
+    -------
+    (index, lo, hi) : tuple
+        Position in ``Ks`` of the best candidate and the bracket [lo, hi] of its J.
     """
     alive = np.arange(len(Ks))
     hi, lo, lo_ok = upper, 0.9 * upper, False
@@ -129,7 +134,14 @@ def tournament(ev: CandidateEvaluator, Ks: np.ndarray, upper: float, rtol: float
 
 def tune(model: AttitudeLTP, sigma: float, seed: int = 0, settings: TunerSettings = TunerSettings(),
          K0=None, progress=None) -> TuneResult:
-    """Run the randomized algorithm of paper section 4.2 from the LQ gain (or K0)."""
+    """Run the randomized algorithm of paper section 4.2 from the LQ gain (or K0).
+
+    Returns
+    -------
+    TuneResult
+        The best gain K and its J, the start K0 and J0, iterations, history, wall time and whether
+        the stopping rule (r >= r_max for ``patience`` iterations) fired.
+    """
     t_start = time.perf_counter()
     s = settings
     rng = np.random.default_rng(seed)

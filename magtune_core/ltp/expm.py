@@ -15,7 +15,13 @@ _THETA13 = 5.371920351148152
 
 
 def expm(a: np.ndarray) -> np.ndarray:
-    """exp(a) for a stack of square matrices (..., n, n); non-finite inputs give NaN outputs."""
+    """exp(a) for a stack of square matrices (..., n, n); non-finite inputs give NaN outputs.
+
+    Returns
+    -------
+    ndarray (..., n, n)
+        exp(a) per matrix, by Pade-13 scaling and squaring; NaN where ``a`` has non-finite entries.
+    """
     a = np.asarray(a, dtype=float)
     n = a.shape[-1]
     norm1 = np.max(np.sum(np.abs(a), axis=-2), axis=-1)

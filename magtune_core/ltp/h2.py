@@ -30,7 +30,13 @@ def _van_loan(sys: LTPSystem, t):
 
 
 def periodic_gramian(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
-    """P(t_k) at the grid t_k = k T / steps, shape (*batch, steps, n, n)."""
+    """P(t_k) at the grid t_k = k T / steps, shape (*batch, steps, n, n).
+
+    Returns
+    -------
+    ndarray (*batch, steps, n, n)
+        The periodic controllability Gramian P(t_k), t_k = k T / steps (Van Loan blocks, Smith doubling).
+    """
     M1, M2, h = generator_at_nodes(lambda t: _van_loan(sys, t), sys.period, steps)
     Y = magnus_exponentials(M1, M2, h)
     n = Y.shape[-1] // 2
@@ -64,7 +70,13 @@ def _stein(a: np.ndarray, q: np.ndarray, tol: float = 1e-15, max_iter: int = 64)
 
 
 def h2norm(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
-    """H2 norm sqrt((1/T) int_0^T tr(C P C^T) dt) of a stable, strictly proper LTP system."""
+    """H2 norm sqrt((1/T) int_0^T tr(C P C^T) dt) of a stable, strictly proper LTP system.
+
+    Returns
+    -------
+    ndarray (*batch)
+        The periodic H2 norm per system (paper eq. 29 in the standard reading); a float array of shape ().
+    """
     if sys.has_feedthrough:
         raise ValueError("h2norm: the H2 norm of a system with a feedthrough D(t) != 0 is infinite")
     P = periodic_gramian(sys, steps)

@@ -181,6 +181,13 @@ def gamma_test(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS, return_decay: 
     period, (I - G_T X(0))^-1 E_T with X the stabilizing solution (NaN where the test fails).
     It tends to 1 as gamma falls to the norm (like exp(-c sqrt(gamma - norm)) at a generic
     peak), which ``hinfnorm`` uses to place its next levels.
+
+    Returns
+    -------
+    passed : ndarray of bool, broadcast shape of the batch and ``gamma``
+        True where ||G||_inf < gamma (and the system is stable).
+    rho : ndarray of float, same shape (only with ``return_decay``)
+        Decay of the Hamiltonian closed loop over one period; NaN where the test fails.
     """
     gamma = np.asarray(gamma, dtype=float)
     dmax = feedthrough_bound(sys)
@@ -225,6 +232,12 @@ def hinfnorm(sys: LTPSystem, rtol: float = 1e-6, steps: int = DEFAULT_STEPS, gue
     tests) and a batch a grid of 4 (fewer rounds of Python overhead). Works on a batch of
     systems (leading axes of the matrices). Accuracy: relative ``rtol`` of the bracket, plus the
     discretization error of ``steps`` Magnus intervals (see tests and bench/).
+
+    Returns
+    -------
+    ndarray (*batch)
+        ||G||_inf per system to relative accuracy ``rtol`` (midpoint of the final bracket); inf where
+        the system is unstable or no passing level was found.
     """
     batch = _batch_shape(sys)
     if grid is None:

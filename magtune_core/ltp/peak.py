@@ -20,7 +20,13 @@ from .system import LTPSystem, interval_grid, interval_transitions
 
 
 def peak_to_peak(sys: LTPSystem, steps: int = 2048, periods: int = 3, outputs: int = 64) -> float:
-    """sup_t max_i sum_j int |g_ij(t, tau)| dtau over ``outputs`` output times per period."""
+    """sup_t max_i sum_j int |g_ij(t, tau)| dtau over ``outputs`` output times per period.
+
+    Returns
+    -------
+    float
+        The L-inf-induced (peak-to-peak) gain, eq. 29 read literally: max over output times and rows.
+    """
     phi = interval_transitions(sys, steps)  # phi_k = phi(t_{k+1}, t_k), (steps, n, n)
     if phi.ndim != 3:
         raise ValueError("peak_to_peak: only a single system (no batch axes) is supported")

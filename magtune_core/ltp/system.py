@@ -94,7 +94,13 @@ def generator_at_nodes(fun: Callable[[np.ndarray], np.ndarray], period: float, s
 
 
 def interval_transitions(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
-    """phi_A(t_{k+1}, t_k) for the ``steps`` intervals of one period: shape (*batch, steps, n, n)."""
+    """phi_A(t_{k+1}, t_k) for the ``steps`` intervals of one period: shape (*batch, steps, n, n).
+
+    Returns
+    -------
+    ndarray (*batch, steps, n, n)
+        phi_A(t_{k+1}, t_k), k = 0..steps-1 (4th-order Magnus, two Gauss nodes per interval).
+    """
     M1, M2, h = generator_at_nodes(lambda t: sys.sample("A", t), sys.period, steps)
     return magnus_exponentials(M1, M2, h)
 
@@ -111,20 +117,44 @@ def chain_product(phis: np.ndarray) -> np.ndarray:
 
 
 def monodromy(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
-    """Monodromy matrix psi_A(0) = phi_A(T, 0) (paper eq. 4), shape (*batch, n, n)."""
+    """Monodromy matrix psi_A(0) = phi_A(T, 0) (paper eq. 4), shape (*batch, n, n).
+
+    Returns
+    -------
+    ndarray (*batch, n, n)
+        psi_A(0) = phi_A(T, 0).
+    """
     return chain_product(interval_transitions(sys, steps))
 
 
 def multipliers(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
-    """Characteristic multipliers: eigenvalues of the monodromy matrix (paper Theorem 2.1)."""
+    """Characteristic multipliers: eigenvalues of the monodromy matrix (paper Theorem 2.1).
+
+    Returns
+    -------
+    ndarray (*batch, n), complex
+        Eigenvalues of the monodromy matrix.
+    """
     return np.linalg.eigvals(monodromy(sys, steps))
 
 
 def spectral_radius(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
-    """rho(psi_A(0)) = max |multiplier| (paper eq. 30); the system is stable iff < 1."""
+    """rho(psi_A(0)) = max |multiplier| (paper eq. 30); the system is stable iff < 1.
+
+    Returns
+    -------
+    ndarray (*batch)
+        max |multiplier|.
+    """
     return np.max(np.abs(multipliers(sys, steps)), axis=-1)
 
 
 def is_stable(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
-    """Uniform exponential stability test of paper Theorem 2.1."""
+    """Uniform exponential stability test of paper Theorem 2.1.
+
+    Returns
+    -------
+    ndarray of bool (*batch)
+        True where every characteristic multiplier lies in the open unit disc.
+    """
     return spectral_radius(sys, steps) < 1.0

@@ -4,20 +4,20 @@
 constant rate W0, eq. (26) field, gravity gradient 3 W0^2 c x (I c), residual dipole.
 ``environment = "full"`` (this module, :class:`FullDynamics`) replaces it by
 
-* the J2 orbit of :mod:`orbit` (DOP853 ephemeris from the orbital elements, Montenbruck & Gill
+* the J2 orbit of :mod:`magtune_core.env.orbit` (DOP853 ephemeris from the orbital elements, Montenbruck & Gill
   2000 ch. 3), and the attitude is taken **relative to the actual orbital frame** of that orbit
   (X = -r/|r|, Z = -(r x v)/|r x v|): the kinematics are
   ``q' = 0.5 q (x) [0; w - R(q)^T w_oi(t)]`` with ``w_oi(t)`` the frame's inertial rate in
   orbital axes from :func:`orbit.orbital_rate` (``[-|r| a_h/|h|, 0, -|h|/|r|^2]``), instead of the
   constant ``[0, 0, -W0]``;
-* IGRF-14 up to degree 10 (:mod:`igrf`, epoch + elapsed time) rotated to orbital, then body axes
-  (or, selectable, one of the paper's periodic models of :mod:`field`);
+* IGRF-14 up to degree 10 (:mod:`magtune_core.env.igrf`, epoch + elapsed time) rotated to orbital, then body axes
+  (or, selectable, one of the paper's periodic models of :mod:`magtune_core.design.field`);
 * gravity gradient ``3 GM/|r|^3 c x (I c)`` with the actual radius; residual dipole;
-  Harris-Priester drag and solar radiation pressure with eclipse (:mod:`atmosphere`,
-  :mod:`srp`, :mod:`sun`, box of :mod:`geometry`), each switchable.
+  Harris-Priester drag and solar radiation pressure with eclipse (:mod:`magtune_core.env.atmosphere`,
+  :mod:`magtune_core.env.srp`, :mod:`magtune_core.env.sun`, box of :mod:`magtune_core.env.geometry`), each switchable.
 
 Controller state. The controller is the paper's: its linear state stays
-``x = [dq; dw] = [q_vec; w - [0, 0, -W0]]`` (:func:`dynamics.linear_state`), with dq now measured
+``x = [dq; dw] = [q_vec; w - [0, 0, -W0]]`` (:func:`magtune_core.design.law.linear_state`), with dq now measured
 against the actual orbital frame and W0 the *nominal* rate. In the full environment W0 is set
 to the mean orbital-frame rate of the actual orbit (:func:`nominal_orbit_period`: mean of
 ``-w_oi,z`` over the first orbits; 2 pi/5611.2 s for the default orbit, vs the paper's 5614.8 s),
@@ -30,7 +30,7 @@ Performance. Everything that does not depend on the attitude (orbit state, frame
 IGRF, density, relative wind, Sun direction, shadow) is evaluated vectorized on the grid of
 RK4 stage times ``j * Ts/(2 substeps)`` in chunks (:class:`_TimeGrid`), then looked up as
 plain floats; the attitude-dependent part is scalar float code (drag and SRP on the convex box
-reduce to ``cp_offset x F``, see :mod:`geometry`). The SIL simulator node and the offline
+reduce to ``cp_offset x F``, see :mod:`magtune_core.env.geometry`). The SIL simulator node and the offline
 ``simulate`` build this same object, so their trajectories agree bit for bit.
 """
 from __future__ import annotations
