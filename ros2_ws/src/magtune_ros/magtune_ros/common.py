@@ -107,7 +107,9 @@ def declare(node: Node, name: str, default, description: str, ptype=None, *, siz
             ptypes = {ParameterType.PARAMETER_DOUBLE_ARRAY: Parameter.Type.DOUBLE_ARRAY,
                       ParameterType.PARAMETER_STRING_ARRAY: Parameter.Type.STRING_ARRAY,
                       ParameterType.PARAMETER_DOUBLE: Parameter.Type.DOUBLE,
-                      ParameterType.PARAMETER_STRING: Parameter.Type.STRING}
+                      ParameterType.PARAMETER_INTEGER: Parameter.Type.INTEGER,
+                      ParameterType.PARAMETER_BOOL: Parameter.Type.BOOL,
+                      ParameterType.PARAMETER_STRING: Parameter.Type.STRING}  # every schema kind
             node.declare_parameter(name, ptypes[tcode], desc)
             value = node.get_parameter_or(name, None).value
             if value is None and not required:
