@@ -56,10 +56,10 @@ def python_site(prefix: Path) -> Path:
     return Path(prefix) / "lib" / f"python{sys.version_info.major}.{sys.version_info.minor}" / "site-packages"
 
 
-def child_env(*package_prefixes: Path, base: dict | None = None) -> dict:
+def child_env(*package_prefixes: Path) -> dict:
     """Environment for a node process: ``package_prefixes`` first on AMENT_PREFIX_PATH and their
     Python packages (and the repository, for magtune_core) first on PYTHONPATH."""
-    env = dict(os.environ if base is None else base)
+    env = dict(os.environ)
     mine = [str(x) for x in package_prefixes]
     amp = mine + [p for p in env.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p and p not in mine]
     env["AMENT_PREFIX_PATH"] = os.pathsep.join(amp)

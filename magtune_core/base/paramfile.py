@@ -16,8 +16,8 @@ import yaml
 from .errors import ConfigError
 
 
-def read_ros_params(path, node: str | None = None) -> dict:
-    """Merge the ``ros__parameters`` of ``/**`` and of ``node`` (or of every node if None)."""
+def _load(path) -> dict:
+    """The parsed file, checked to be ``{node: {ros__parameters: {...}}}`` (read once)."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(path, None, "file not found (expected a ROS 2 parameter YAML file)")
@@ -29,15 +29,24 @@ def read_ros_params(path, node: str | None = None) -> dict:
         raise ConfigError(path, None, f"malformed YAML{at}: {getattr(exc, 'problem', exc)}") from None
     if not isinstance(doc, dict) or not doc:
         raise ConfigError(path, None, "expected a mapping 'node_name: {ros__parameters: {...}}'")
-    merged: dict = {}
     for name, body in doc.items():
-        if node is not None and name not in ("/**", node, "/" + node.lstrip("/")):
-            continue
         if not isinstance(body, dict) or not isinstance(body.get("ros__parameters"), dict):
             raise ConfigError(path, f"{name}.ros__parameters", "expected a mapping of parameters under 'ros__parameters'")
-        merged.update(body["ros__parameters"])
+    return doc
+
+
+def _merge(doc: dict, node: str | None) -> dict:
+    """The ``ros__parameters`` of ``/**`` and of ``node`` (of every node if None), later ones win."""
+    merged: dict = {}
+    for name, body in doc.items():
+        if node is None or name in ("/**", node, "/" + node.lstrip("/")):
+            merged.update(body["ros__parameters"])
     return merged
 
+
+def read_ros_params(path, node: str | None = None) -> dict:
+    """Merge the ``ros__parameters`` of ``/**`` and of ``node`` (or of every node if None)."""
+    return _merge(_load(path), node)
 
 
 #: Plain scalars that rcl (YAML 1.1 core) reads as booleans.
@@ -76,10 +85,10 @@ def _walk(prefix, params, path):
                                               "(write 1.0 rather than 1 in a list of numbers; quote 'y'/'n')")
 
 
-def check_ros_params(path) -> dict:
-    """Validate every node's ``ros__parameters`` of ``path``; return the merged parameters."""
-    merged = read_ros_params(path)  # file, YAML and layout errors
-    doc = yaml.safe_load(Path(path).read_text())
-    for node, body in doc.items():
+def check_ros_params(path, node: str | None = None) -> dict:
+    """Validate every node's ``ros__parameters`` of ``path`` as rcl would; return the parameters
+    :func:`read_ros_params` returns for ``node`` (one read of the file for both)."""
+    doc = _load(path)  # file, YAML and layout errors
+    for body in doc.values():
         _walk("", body["ros__parameters"], path)
-    return merged
+    return _merge(doc, node)

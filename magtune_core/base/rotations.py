@@ -37,6 +37,8 @@ def rotation_matrix(q) -> np.ndarray:
             np.stack([2 * (q1 * q2 + q0 * q3), q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3, 2 * (q2 * q3 - q0 * q1)], -1),
             np.stack([2 * (q1 * q3 - q0 * q2), 2 * (q2 * q3 + q0 * q1), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3], -1),
         ], axis=-2)
+    # one quaternion: the arithmetic of the earlier dynamics.rotation_matrix, kept bit for bit
+    # (the offline simulation and the SIL evaluate the measured field with it)
     q0, q1, q2, q3 = q / np.sqrt(np.dot(q, q))
     return np.array([
         [q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3, 2 * (q1 * q2 - q0 * q3), 2 * (q1 * q3 + q0 * q2)],

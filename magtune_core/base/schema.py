@@ -97,7 +97,7 @@ def parse(mapping: dict, fields, where) -> dict:
         if f.name in mapping and mapping[f.name] is not None:
             out[f.name] = parse_value(f, mapping[f.name], where)
         elif f.required:
-            what = {"float[]": f"a list of {f.size or ''} numbers".replace("  ", " "), "float": "a number",
+            what = {"float[]": f"a list of {f.size} numbers" if f.size else "a list of numbers", "float": "a number",
                     "int": "an integer", "bool": "true or false", "str": "a string"}[f.kind]
             raise ConfigError(where, f.name, f"missing (expected {what}{': ' + f.description if f.description else ''})")
         else:

@@ -37,9 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..base.errors import ConfigError
 from ..base.paramfile import read_ros_params
-from ..base.schema import Field, parse, parse_value
+from ..base.schema import Field, parse
 from ..env.igrf import IGRF
 from ..env.orbit import DEFAULT_EPOCH, Orbit, OrbitConfig, argument_of_latitude, eci_to_orbital
 from .field import FourierField
@@ -145,12 +144,8 @@ def load_field_model(path) -> FourierField:
     """Read a file written by :func:`write_field_model` back into a FourierField."""
     p = read_ros_params(path)
     v = parse(p, FIELD_MODEL_FIELDS, path)
-    H = v["field_fourier_harmonics"]
-    coef = {}
-    for name in ("field_fourier_cos", "field_fourier_sin"):
-        f = Field(name, "float[]", f"{3 * H} coefficients [T], row-major (harmonic, axis)", size=3 * H)
-        if name not in p:
-            raise ConfigError(path, name, f"missing (expected a list of {3 * H} numbers)")
-        coef[name] = parse_value(f, p[name], path).reshape(H, 3)
-    return FourierField(v["field_fourier_omega"], mean=v["field_fourier_mean"], cos=coef["field_fourier_cos"],
-                        sin=coef["field_fourier_sin"], name=f"file:{Path(path).name}")
+    H = v["field_fourier_harmonics"]  # the coefficient lists' size depends on it
+    c = parse(p, [Field(name, "float[]", f"{3 * H} coefficients [T], row-major (harmonic, axis)", size=3 * H)
+                  for name in ("field_fourier_cos", "field_fourier_sin")], path)
+    return FourierField(v["field_fourier_omega"], mean=v["field_fourier_mean"], cos=c["field_fourier_cos"].reshape(H, 3),
+                        sin=c["field_fourier_sin"].reshape(H, 3), name=f"file:{Path(path).name}")

@@ -37,13 +37,13 @@ class Gains:
     )
 
     @classmethod
-    def from_mapping(cls, params: dict, where="gains", *, provenance_exclude=()) -> "Gains":
+    def from_mapping(cls, params: dict, where="gains") -> "Gains":
         """Validate a parameter mapping against :attr:`FIELDS`; other keys become provenance.
 
         Raises ConfigError naming ``where``, the field and what was expected.
         """
         v = parse(params, cls.FIELDS, where)
-        own = {f.name for f in cls.FIELDS} | set(provenance_exclude)
+        own = {f.name for f in cls.FIELDS}
         prov = {k: x for k, x in params.items() if k not in own}
         return cls(v["gain"].reshape(3, 6), v["sigma"], v["ts"], prov)
 

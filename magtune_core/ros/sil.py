@@ -32,8 +32,8 @@ import yaml
 from ..base import ament
 from ..base.ament import ROOT
 from ..base.paramfile import check_ros_params
-from ..design.gains import load_gains
-from ..design.params import load_spacecraft
+from ..design.gains import CONTROLLER_NODE, Gains
+from ..design.params import SpacecraftParams
 from ..sim.fullenv import FullEnvironmentOptions, full_params
 from ..sim.metrics import format_figures
 from ..sim.simulate import SimResult
@@ -56,6 +56,8 @@ def recorder_args(bag, custom: dict | None = None) -> list[str]:
         items = ", ".join(f"'{k}={v}'" for k, v in custom.items())
         args += ["-p", f"custom_data:=[{items}]"]
     return args
+
+
 DEFAULT_SPACECRAFT = ROOT / "config" / "spacecraft.yaml"
 #: ROS_DOMAIN_IDs handed out to runs: 215-232 map Fast DDS ports above Linux's ephemeral range
 #: (32768-60999), the other range the ROS 2 docs call safe besides 0-101, which other tools use.
@@ -217,10 +219,9 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
     """
     gains = Path(gains)
     # every input is validated before any process starts (ConfigError: one line, exit 2 in the CLI)
-    check_ros_params(gains)
-    gains_params = load_gains(gains)
-    check_ros_params(spacecraft)
-    sc_params = load_spacecraft(spacecraft)
+    # (one read per file: the rcl-compatibility check returns the parameters the schema validates)
+    gains_params = Gains.from_mapping(check_ros_params(gains, CONTROLLER_NODE), gains)
+    sc_params = SpacecraftParams.from_mapping(check_ros_params(spacecraft), spacecraft)
     prefix = package_prefix()
     exes = {n: resolve_executable(n) for n in NODES}
     rec_exe = None
