@@ -4,12 +4,12 @@ from __future__ import annotations
 import json
 
 from ..ros import sil
-from .common import add_environment_arguments, environment_options
+from .common import add_environment_arguments, environment_options, plain_summary
 
 
 def register(sub) -> None:
     p = sub.add_parser("sil", help="software-in-the-loop run of the ROS 2 nodes (lockstep, sim time)",
-                       description=sil.__doc__.split("\n\n")[0])
+                       description=plain_summary(sil.__doc__))
     p.add_argument("--gains", required=True, help="controller gains parameter file (config/gains/sigma_*.yaml)")
     p.add_argument("--orbits", type=float, default=5.0, help="run length in orbits (default 5)")
     p.add_argument("--steps", type=int, default=None, help="run length in controller steps (overrides --orbits)")
