@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -32,6 +33,13 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def _progress(t0: float):
+    def show(i, n, row):
+        print(f"magtune sampling: run {i}/{n} done (sigma={row['sigma']:g}, Ts={row['ts']:g} s) "
+              f"after {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    return show
+
+
 def run(args) -> int:
     opts = environment_options(args)
     conclusion_arg = args.conclusion if args.conclusion.startswith("@") else ("..." if args.conclusion else "")
@@ -45,7 +53,7 @@ def run(args) -> int:
     t0 = time.perf_counter()
     try:
         rows = sampling.run_study(args.sigmas, args.ts, args.orbits, args.environment, env_opts, max(1, args.workers),
-                         args.gains_dir, args.spacecraft, args.backend)
+                                  args.gains_dir, args.spacecraft, args.backend, progress=_progress(t0))
     except FileNotFoundError as exc:  # missing gains file: one line
         raise CommandError(str(exc)) from None
     wall = time.perf_counter() - t0

@@ -23,15 +23,24 @@ def register(sub) -> None:
     p.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: a free one)")
     p.add_argument("--timeout", type=float, default=None, help="abort after this many wall seconds")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     add_environment_arguments(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    import sys
+
+    def progress(k, n):  # one line per tenth of the run (the simulator's own step log)
+        if not args.quiet:
+            print(f"magtune sil: step {k}/{n} ({100 * k // max(n, 1)} %)", file=sys.stderr, flush=True)
+
+    if not args.quiet:
+        print("magtune sil: starting the nodes (discovery takes a few seconds)", file=sys.stderr, flush=True)
     res = sil.run_sil(args.gains, orbits=args.orbits, steps=args.steps, ts=args.ts, substeps=args.substeps,
                       spacecraft=args.spacecraft, real_time_factor=args.rtf, bag=args.bag, results=args.results,
                       log_dir=args.log_dir, domain_id=args.domain_id, timeout=args.timeout,
-                      environment=args.environment, env_options=environment_options(args))
+                      environment=args.environment, env_options=environment_options(args), progress=progress)
     if args.json:
         print(json.dumps(dict(res.figures, **{"missed_steps": res.counters.get("missed_steps", 0),
                                               "wall_time": res.wall_time, "real_time_factor": res.real_time_factor,
