@@ -19,6 +19,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -31,7 +32,9 @@ import yaml
 
 from ..base import ament
 from ..base.ament import ROOT
+from ..base.errors import ConfigError
 from ..base.paramfile import check_ros_params
+from ..design.fitfield import field_for_spacecraft
 from ..design.gains import CONTROLLER_NODE, Gains
 from ..design.params import SpacecraftParams
 from ..sim.fullenv import FullEnvironmentOptions, full_params
@@ -172,6 +175,38 @@ def stop_nodes(procs: list[NodeProcess], grace: float = 5.0) -> None:
             pass
 
 
+class LogProgress:
+    """Follows the simulator's log for its ``step k/n`` lines (logged every tenth of the run)
+    and hands them to ``callback(k, n)``: progress without another topic or subscriber."""
+
+    PATTERN = re.compile(rb"step (\d+)/(\d+)")
+
+    def __init__(self, log: Path, callback=None):
+        self.log, self.callback, self.offset, self.n, self.last = log, callback, 0, 0, -1
+
+    def poll(self) -> None:
+        if self.callback is None:
+            return
+        try:
+            with open(self.log, "rb") as fh:
+                fh.seek(self.offset)
+                data = fh.read()
+        except OSError:
+            return
+        end = data.rfind(b"\n") + 1  # whole lines only
+        self.offset += end
+        for m in self.PATTERN.finditer(data[:end]):
+            k, self.n = int(m.group(1)), int(m.group(2))
+            if k > self.last:
+                self.last = k
+                self.callback(k, self.n)
+
+    def finish(self) -> None:
+        self.poll()
+        if self.callback is not None and self.n and self.last < self.n:
+            self.callback(self.n, self.n)
+
+
 # ------------------------------------------------------------------ run
 def _raise_interrupt(signum, frame):
     raise KeyboardInterrupt(f"signal {signum}")
@@ -207,7 +242,7 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
             timeout: float | None = None, domain_id: int | None = None, log_dir=None, results=None,
             simulator_params: dict | None = None, sensor_params: dict | None = None,
             controller_params: dict | None = None, on_start=None, environment: str = "paper",
-            env_options=None) -> SilRun:
+            env_options=None, field=None, progress=None) -> SilRun:
     """Start controller, attitude_sensors and simulator (+ recorder with ``bag``), wait, clean up.
 
     ``timeout`` (wall s, default generous) bounds the whole run; parameters dicts are extra
@@ -215,13 +250,23 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
     ``environment`` "paper" (default) or "full" with ``env_options`` a
     ``fullenv.FullEnvironmentOptions``: the simulator builds the full environment and every node
     gets the actual orbit's nominal period (``fullenv.full_params``), as the offline
-    ``simulate(..., environment="full")``.
+    ``simulate(..., environment="full")``. The orbit (altitude, inclination, RAAN, argument of
+    latitude, epoch) is the spacecraft file's. ``field``: a field file (``magtune fit-field``) the
+    simulator uses as b(t) in the paper environment instead of the spacecraft's ``field_model``
+    (the full environment keeps IGRF along the actual orbit).
+    ``progress(k, n)`` is called with each "step k/n"
+    line the simulator logs (every tenth of the run) and once with ``(n, n)`` at the end.
     """
     gains = Path(gains)
     # every input is validated before any process starts (ConfigError: one line, exit 2 in the CLI)
     # (one read per file: the rcl-compatibility check returns the parameters the schema validates)
     gains_params = Gains.from_mapping(check_ros_params(gains, CONTROLLER_NODE), gains)
     sc_params = SpacecraftParams.from_mapping(check_ros_params(spacecraft), spacecraft)
+    if field is not None:
+        if environment == "full":
+            raise ConfigError("--field", None, "the full environment uses IGRF along the actual orbit; give --field "
+                              "with --environment paper")
+        field_for_spacecraft(field, sc_params)  # validated here: one line before any process starts
     prefix = package_prefix()
     exes = {n: resolve_executable(n) for n in NODES}
     rec_exe = None
@@ -253,12 +298,16 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
     env_sim: dict = {}
     if environment == "full":
         opts = env_options or FullEnvironmentOptions()
-        if opts.epoch != FullEnvironmentOptions().epoch or opts.raan_deg or opts.arg_lat_deg or opts.zonal_degree != 2:
-            raise SilError("the simulator node takes the default epoch/RAAN/argument of latitude/zonal degree")
+        if opts.epoch is not None or opts.raan_deg is not None or opts.arg_lat_deg is not None \
+                or opts.zonal_degree != 2:
+            raise SilError("the simulator node flies the spacecraft file's orbit: set epoch, raan, arg_latitude "
+                           "there (zonal degree 2)")
         common["orbit_period"] = float(full_params(sc_params, opts).orbit_period)
         env_sim = dict(environment="full", env_gravity_gradient=bool(opts.gravity_gradient), env_drag=bool(opts.drag),
                        env_srp=bool(opts.srp), env_field=str(opts.field), igrf_degree=int(opts.igrf_degree))
         sim["orbit_period"] = common["orbit_period"]
+    elif environment == "paper" and field is not None:
+        env_sim = dict(field_file=str(Path(field).resolve()))
     elif environment != "paper":
         raise SilError(f"unknown environment {environment!r} (expected 'paper' or 'full')")
     params = {
@@ -267,7 +316,9 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
         "controller": {**common, **common_ts, **(controller_params or {})},
     }
     pfile = log_dir / "sil_params.yaml"
-    pfile.write_text(yaml.safe_dump({k: {"ros__parameters": v} for k, v in params.items()}))
+    # keyed /**/<node>: applies whatever the namespace (see base.paramfile.node_matches); given
+    # last on each command line so its values win over the spacecraft and gains files
+    pfile.write_text(yaml.safe_dump({f"/**/{k}": {"ros__parameters": v} for k, v in params.items()}))
     sc = ["--params-file", str(Path(spacecraft).resolve())]
 
     procs: list[NodeProcess] = []
@@ -291,8 +342,10 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
         sim_p = procs[-1]
         n_steps = steps or orbits * sc_params.orbit_period / common_ts["ts"]
         deadline = time.monotonic() + (timeout if timeout else startup_timeout + 60.0 + 0.05 * n_steps)
+        watch = LogProgress(sim_p.log, progress)
         while True:
             rc = sim_p.popen.poll()
+            watch.poll()
             if rc is not None:
                 break
             for p in procs[:-1]:
@@ -303,6 +356,7 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
             time.sleep(0.05)
         if rc != 0 or not results.is_file():
             raise SilError(f"simulator exited with status {rc}:\n{sim_p.tail()}")
+        watch.finish()
     except SilError as exc:
         raise SilError(f"{exc}\n(node logs in {log_dir})") from None
     finally:
