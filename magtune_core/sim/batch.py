@@ -37,6 +37,7 @@ import numpy as np
 
 from ..design.law import DEFAULT_MIN_FIELD
 from ..design.params import SpacecraftParams
+from ..env.orbit import orbital_rate
 from .fullenv import FullEnvironmentOptions, _environment, environment_table, nominal_orbit_period
 
 #: Sensor noise is drawn per run in blocks of this many controller steps (9 normals per step:
@@ -257,12 +258,13 @@ class _EnvTables:
         if runs.environment == "full":
             unique = list(dict.fromkeys(runs.env_options))
             self.index = np.array([unique.index(o) for o in runs.env_options])
-            # the Environment's inertia only serves its own torque helpers (unused here), so the
-            # cached Environment of nominal_orbit_period (same config) is the run's environment
+            # the Environment's inertia only serves its own torque helpers (unused here): the
+            # Environment of the base spacecraft is the environment of every run on that orbit
             self.envs, periods = [], []
             for o in unique:
-                self.envs.append(_environment(o.environment_config(runs.p)))
-                periods.append(nominal_orbit_period(runs.p, o))  # hits the cache: same config
+                env = _environment(o.environment_config(runs.p))
+                self.envs.append(env)
+                periods.append(_nominal_period(env))
             self.periods = np.array(periods)[self.index]
             self.field_fns = [None if o.field == "igrf" else runs.p.field(o.field) for o in unique]
         else:
@@ -284,6 +286,16 @@ class _EnvTables:
         out[:, 3:6, 0] = np.asarray(self.field(t), dtype=float).reshape(t.size, 3)
         out[:, 6, 0] = 3.0 * self.W0**2
         return out
+
+
+def _nominal_period(env, orbits: int = 5) -> float:
+    """:func:`magtune_core.env.orbit.mean_frame_period` evaluated on the Environment's own ephemeris
+    (the same Orbit(cfg, 6 x 5700 s) it builds, so the same number) without a second propagation."""
+    cfg = env.config.orbit
+    t = np.arange(0.0, orbits * cfg.keplerian_period, 10.0)
+    r, v = env.orbit.state(t)
+    wz = orbital_rate(r, v, zonal_degree=cfg.zonal_degree)[:, 2]
+    return float(2.0 * np.pi / np.mean(-wz))
 
 
 def run_orbit_periods(runs: BatchRuns) -> np.ndarray:

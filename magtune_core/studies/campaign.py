@@ -58,7 +58,6 @@ from ..base.errors import ConfigError
 from ..base.schema import Field, parse
 from ..design.gains import load_gains
 from ..design.params import SpacecraftParams, load_spacecraft
-from ..env.orbit import DEFAULT_EPOCH
 from ..sim.batch import BatchRuns, SensorNoise, simulate_batch
 from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions, nominal_orbit_period, substeps_for
 from ..sim.metrics import settling_time
@@ -81,7 +80,8 @@ CAMPAIGN_FIELDS = (
     Field("gravity_gradient", "bool", "full environment: gravity gradient", True),
     Field("field", "str", "full environment: igrf or a periodic model of design/field.py", "igrf"),
     Field("igrf_degree", "int", "full environment: IGRF degree", 10, positive=True),
-    Field("arg_lat_deg", "float", "full environment: argument of latitude at the epoch [deg]", 0.0),
+    Field("arg_lat_deg", "float", "full environment: argument of latitude at the epoch [deg] (default: the "
+          "spacecraft file's arg_latitude)", None),
     Field("min_field", "float", "weak-field guard of the controller [T]", 1e-7, positive=True),
 )
 
@@ -97,9 +97,9 @@ DISPERSION_FIELDS = (
     Field("rate_mean", "float[]", "initial rate error dw(0) mean [rad/s]", DW0, size=3),
     Field("rate_max", "float[]", "initial rate error: + U(-max, max) per axis [rad/s]", (0.0, 0.0, 0.0), size=3,
           nonnegative=True),
-    Field("epoch_min", "str", "epoch range start (UTC, ISO 8601)", DEFAULT_EPOCH.isoformat()),
+    Field("epoch_min", "str", "epoch range start (UTC, ISO 8601; default: the spacecraft file's epoch)", ""),
     Field("epoch_max", "str", "epoch range end (UTC, ISO 8601; default epoch_min)", ""),
-    Field("raan_min_deg", "float", "RAAN range start [deg]", 0.0),
+    Field("raan_min_deg", "float", "RAAN range start [deg] (default: the spacecraft file's raan)", None),
     Field("raan_max_deg", "float", "RAAN range end [deg] (default raan_min_deg)", None),
     Field("mag_noise_std", "float", "magnetometer white noise std [T]", 0.0, nonnegative=True),
     Field("mag_bias_std", "float", "magnetometer bias 1-sigma per axis [T]", 0.0, nonnegative=True),
@@ -240,10 +240,18 @@ def load_spec(path) -> CampaignSpec:
 
     if c["field"] != "igrf" and c["field"] not in FIELD_MODELS:
         raise ConfigError(path, "campaign.field", f"expected igrf or one of {', '.join(FIELD_MODELS)}, got {c['field']!r}")
-    e0 = _epoch(d["epoch_min"], path, "dispersions.epoch_min")
+    sc = _resolve(c["spacecraft"], path)
+    if not sc.is_file():
+        raise ConfigError(path, "campaign.spacecraft", f"file not found: {c['spacecraft']}")
+    p = load_spacecraft(sc)
+    e0 = _epoch(d["epoch_min"], path, "dispersions.epoch_min") if d["epoch_min"] else p.epoch
     e1 = _epoch(d["epoch_max"], path, "dispersions.epoch_max") if d["epoch_max"] else e0
     if e1 < e0:
         raise ConfigError(path, "dispersions.epoch_max", f"must not precede epoch_min ({e0.isoformat()})")
+    if c["arg_lat_deg"] is None:
+        c["arg_lat_deg"] = float(p.arg_lat_deg)
+    if d["raan_min_deg"] is None:
+        d["raan_min_deg"] = float(p.raan_deg)
     if d["raan_max_deg"] is None:
         d["raan_max_deg"] = d["raan_min_deg"]
     if d["raan_max_deg"] < d["raan_min_deg"]:
@@ -256,10 +264,6 @@ def load_spec(path) -> CampaignSpec:
         raise ConfigError(path, "dispersions.attitude_max_deg", f"expected at most 180, got {d['attitude_max_deg']:g}")
     if np.any(3.0 * d["inertia_rel_std"] >= 1.0):
         raise ConfigError(path, "dispersions.inertia_rel_std", "expected < 1/3 (3-sigma inertia must stay positive)")
-    sc = _resolve(c["spacecraft"], path)
-    if not sc.is_file():
-        raise ConfigError(path, "campaign.spacecraft", f"file not found: {c['spacecraft']}")
-    p = load_spacecraft(sc)
     Ks, files = [], []
     for g in c["gains"]:
         gp = _resolve(g, path)
