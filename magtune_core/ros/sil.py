@@ -35,6 +35,7 @@ from ..base.ament import ROOT
 from ..base.errors import ConfigError
 from ..base.paramfile import check_ros_params
 from ..base.topics import topic_specs
+from ..design.fitfield import field_for_spacecraft
 from ..design.gains import CONTROLLER_NODE, Gains
 from ..design.params import SpacecraftParams
 from ..sim.fullenv import FullEnvironmentOptions, full_params
@@ -272,7 +273,7 @@ def run_fleet(satellites: dict, *, orbits: float = 5.0, steps: int | None = None
               timeout: float | None = None, domain_id: int | None = None, log_dir=None, results=None,
               simulator_params: dict | None = None, sensor_params: dict | None = None,
               controller_params: dict | None = None, on_start=None, environment: str = "paper",
-              env_options=None, progress=None) -> dict[str, SilRun]:
+              env_options=None, field=None, progress=None) -> dict[str, SilRun]:
     """Satellites side by side in one ROS domain, one namespace each (``{"/sat1": gains_a,
     "/sat2": gains_b}``; ``""`` is the root namespace), optionally recorded in one bag.
 
@@ -289,8 +290,11 @@ def run_fleet(satellites: dict, *, orbits: float = 5.0, steps: int | None = None
     last log lines. ``environment`` "paper" (default) or "full" with ``env_options`` a
     ``fullenv.FullEnvironmentOptions``: the simulator builds the full environment and every node
     gets the actual orbit's nominal period (``fullenv.full_params``), as the offline
-    ``simulate(..., environment="full")``. ``progress(k, n)`` is called with each "step k/n"
-    line the simulators log (every tenth of the run; summed over satellites) and once with
+    ``simulate(..., environment="full")``. The orbit (altitude, inclination, RAAN, argument of
+    latitude, epoch) is the spacecraft file's. ``field``: a field file (``magtune fit-field``) the
+    simulators use as b(t) in the paper environment instead of the spacecraft's ``field_model``
+    (the full environment keeps IGRF along the actual orbit).
+    ``progress(k, n)`` is called with each "step k/n" line the simulators log (every tenth of the run; summed over satellites) and once with
     ``(n, n)`` at the end. ``results``: the trajectory ``.npz`` (``<stem>_<ns><suffix>`` per
     satellite when there are several).
 
@@ -308,6 +312,11 @@ def run_fleet(satellites: dict, *, orbits: float = 5.0, steps: int | None = None
     # (one read per file: the rcl-compatibility check returns the parameters the schema validates)
     gains_params = {ns: Gains.from_mapping(check_ros_params(g, CONTROLLER_NODE), g) for ns, g in sats.items()}
     sc_params = SpacecraftParams.from_mapping(check_ros_params(spacecraft), spacecraft)
+    if field is not None:
+        if environment == "full":
+            raise ConfigError("--field", None, "the full environment uses IGRF along the actual orbit; give --field "
+                              "with --environment paper")
+        field_for_spacecraft(field, sc_params)  # validated here: one line before any process starts
     prefix = package_prefix()
     exes = {n: resolve_executable(n) for n in NODES}
     rec_exe = None
@@ -344,12 +353,16 @@ def run_fleet(satellites: dict, *, orbits: float = 5.0, steps: int | None = None
     env_sim: dict = {}
     if environment == "full":
         opts = env_options or FullEnvironmentOptions()
-        if opts.epoch != FullEnvironmentOptions().epoch or opts.raan_deg or opts.arg_lat_deg or opts.zonal_degree != 2:
-            raise SilError("the simulator node takes the default epoch/RAAN/argument of latitude/zonal degree")
+        if opts.epoch is not None or opts.raan_deg is not None or opts.arg_lat_deg is not None \
+                or opts.zonal_degree != 2:
+            raise SilError("the simulator node flies the spacecraft file's orbit: set epoch, raan, arg_latitude "
+                           "there (zonal degree 2)")
         common["orbit_period"] = float(full_params(sc_params, opts).orbit_period)
         env_sim = dict(environment="full", env_gravity_gradient=bool(opts.gravity_gradient), env_drag=bool(opts.drag),
                        env_srp=bool(opts.srp), env_field=str(opts.field), igrf_degree=int(opts.igrf_degree))
         sim["orbit_period"] = common["orbit_period"]
+    elif environment == "paper" and field is not None:
+        env_sim = dict(field_file=str(Path(field).resolve()))
     elif environment != "paper":
         raise SilError(f"unknown environment {environment!r} (expected 'paper' or 'full')")
     pfiles, common_ts = {}, {}
