@@ -48,7 +48,7 @@ from ..env.atmosphere import harris_priester, relative_wind_eci
 from ..env.earth import GM_EARTH
 from ..env.environment import Environment, EnvironmentConfig
 from ..env.geometry import BoxGeometry
-from ..env.orbit import DEFAULT_EPOCH, OrbitConfig, eci_to_orbital, orbital_rate
+from ..env.orbit import eci_to_orbital, mean_frame_period, orbital_rate
 from ..env.sun import AU, SOLAR_PRESSURE_1AU, shadow_cylindrical
 from .dynamics import AttitudeDynamics
 
@@ -75,18 +75,20 @@ class FullEnvironmentOptions:
     srp: bool = True
     field: str = "igrf"  #: "igrf" or a periodic model of magtune_core.design.field (e.g. "eq26")
     igrf_degree: int = 10
-    epoch: datetime = DEFAULT_EPOCH
-    raan_deg: float = 0.0
-    arg_lat_deg: float = 0.0
+    #: orbit overrides for studies; None (default) = the spacecraft parameters' orbit (SpacecraftParams)
+    epoch: datetime | None = None
+    raan_deg: float | None = None
+    arg_lat_deg: float | None = None
     zonal_degree: int = 2
 
     def environment_config(self, p: SpacecraftParams) -> EnvironmentConfig:
-        orbit = OrbitConfig(altitude=float(p.altitude), inclination_deg=float(p.inclination_deg),
-                            raan_deg=self.raan_deg, arg_lat_deg=self.arg_lat_deg, epoch=self.epoch,
-                            zonal_degree=self.zonal_degree)
+        orbit = p.orbit_config(raan_deg=self.raan_deg, arg_lat_deg=self.arg_lat_deg, epoch=self.epoch,
+                               zonal_degree=self.zonal_degree)
         # residual dipole is the dynamics' built-in term; the others are computed here
         return EnvironmentConfig(gravity_gradient=self.gravity_gradient, residual_dipole=False, drag=self.drag,
                                  srp=self.srp, inertia=tuple(float(v) for v in np.asarray(p.inertia).reshape(-1)),
+                                 geometry=BoxGeometry(dims=tuple(float(x) for x in p.box_dims),
+                                                      cp_offset=tuple(float(x) for x in p.cp_offset)),
                                  igrf_degree=self.igrf_degree, orbit=orbit)
 
 
@@ -98,13 +100,54 @@ def _environment(cfg: EnvironmentConfig) -> Environment:
 def nominal_orbit_period(p: SpacecraftParams, opts: FullEnvironmentOptions | None = None, orbits: int = 5) -> float:
     """2 pi / (mean of -w_oi,z over ``orbits`` Keplerian periods, 10 s samples) [s].
 
-    The nominal rate W0 of the controller's linear state in the full environment (module doc).
+    The nominal rate W0 of the controller's linear state in the full environment (module doc);
+    :func:`magtune_core.env.orbit.mean_frame_period` of the spacecraft's orbit.
     """
-    env = _environment((opts or FullEnvironmentOptions()).environment_config(p))
-    t = np.arange(0.0, orbits * env.config.orbit.keplerian_period, 10.0)
+    return mean_frame_period((opts or FullEnvironmentOptions()).environment_config(p).orbit, orbits)
+
+
+def environment_table(env: Environment, t: np.ndarray, field_fn=None) -> np.ndarray:
+    """Attitude-independent environment at the times ``t`` [s], one row of 15 per time.
+
+    Columns, all in orbital axes: w_oi (3) [rad/s], b_orb (3) [T], k_gg = 3 GM/|r|^3 [1/s^2],
+    rho [kg/m^3], v_rel (3) [m/s], unit satellite->Sun (3), SRP pressure P (AU/d)^2 nu [N/m^2]
+    (zeros for switched-off models). ``field_fn`` (t -> b_orb) replaces IGRF when given. The one
+    implementation behind :class:`_TimeGrid` (single runs) and :mod:`magtune_core.sim.batch`.
+
+    Returns
+    -------
+    numpy.ndarray
+        (len(t), 15) float array.
+    """
+    t = np.asarray(t, dtype=float)
+    cfg = env.config
     r, v = env.orbit.state(t)
-    wz = orbital_rate(r, v, zonal_degree=env.config.orbit.zonal_degree)[:, 2]
-    return float(2.0 * np.pi / np.mean(-wz))
+    R_oi = eci_to_orbital(r, v)
+    w_oi = orbital_rate(r, v, zonal_degree=cfg.orbit.zonal_degree)
+    if field_fn is None:
+        b = np.einsum("nij,nj->ni", R_oi, env.magnetic_field_eci(t, r))
+    else:
+        b = np.stack([np.asarray(field_fn(float(x)), dtype=float).reshape(3) for x in t])
+    rn = np.linalg.norm(r, axis=-1)
+    kgg = 3.0 * GM_EARTH / rn**3
+    cols = [w_oi, b, kgg[:, None]]
+    if cfg.drag or cfg.srp:
+        sun = env.sun_eci(t)
+    if cfg.drag:
+        rho = harris_priester(r, sun, cfg.hp_exponent)
+        wind = np.einsum("nij,nj->ni", R_oi, relative_wind_eci(r, v))
+        cols += [rho[:, None], wind]  # density, v_rel in orbital axes
+    else:
+        cols += [np.zeros((t.size, 1)), np.zeros((t.size, 3))]
+    if cfg.srp:
+        d = sun - r
+        dist = np.linalg.norm(d, axis=-1)
+        s = np.einsum("nij,nj->ni", R_oi, d / dist[:, None])
+        P = SOLAR_PRESSURE_1AU * (AU / dist) ** 2 * shadow_cylindrical(r, sun)
+        cols += [s, P[:, None]]
+    else:
+        cols += [np.zeros((t.size, 3)), np.zeros((t.size, 1))]
+    return np.hstack(cols)
 
 
 class _TimeGrid:
@@ -124,34 +167,7 @@ class _TimeGrid:
         self.single: dict = {}
 
     def _compute(self, t: np.ndarray) -> list:
-        env, cfg = self.env, self.env.config
-        r, v = env.orbit.state(t)
-        R_oi = eci_to_orbital(r, v)
-        w_oi = orbital_rate(r, v, zonal_degree=cfg.orbit.zonal_degree)
-        if self.field_fn is None:
-            b = np.einsum("nij,nj->ni", R_oi, env.magnetic_field_eci(t, r))
-        else:
-            b = np.stack([np.asarray(self.field_fn(float(x)), dtype=float).reshape(3) for x in t])
-        rn = np.linalg.norm(r, axis=-1)
-        kgg = 3.0 * GM_EARTH / rn**3
-        cols = [w_oi, b, kgg[:, None]]
-        if cfg.drag or cfg.srp:
-            sun = env.sun_eci(t)
-        if cfg.drag:
-            rho = harris_priester(r, sun, cfg.hp_exponent)
-            wind = np.einsum("nij,nj->ni", R_oi, relative_wind_eci(r, v))
-            cols += [rho[:, None], wind]  # density, v_rel in orbital axes
-        else:
-            cols += [np.zeros((t.size, 1)), np.zeros((t.size, 3))]
-        if cfg.srp:
-            d = sun - r
-            dist = np.linalg.norm(d, axis=-1)
-            s = np.einsum("nij,nj->ni", R_oi, d / dist[:, None])
-            P = SOLAR_PRESSURE_1AU * (AU / dist) ** 2 * shadow_cylindrical(r, sun)
-            cols += [s, P[:, None]]
-        else:
-            cols += [np.zeros((t.size, 3)), np.zeros((t.size, 1))]
-        return [tuple(row) for row in np.hstack(cols).tolist()]
+        return [tuple(row) for row in environment_table(self.env, t, self.field_fn).tolist()]
 
     def row(self, t: float) -> tuple:
         j = round(t / self.dt)
