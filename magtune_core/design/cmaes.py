@@ -63,10 +63,11 @@ def gain_scale(K0: np.ndarray) -> np.ndarray:
 
 
 def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: CmaSettings = CmaSettings(),
-             progress=None) -> TuneResult:
+             progress=None, on_best=None) -> TuneResult:
     """Minimize ``objective`` (batched J, e.g. :class:`~magtune_core.design.objective.HinfObjective`) from K0.
 
-    ``progress(evaluations, J_best, generation, step, restart)`` is called after each generation.
+    ``progress(evaluations, J_best, generation, step, restart)`` is called after each generation and
+    ``on_best(K, J)`` whenever the best gain improves (e.g. to checkpoint a long run).
 
     Returns
     -------
@@ -116,6 +117,8 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
                     last_gain = gen
                     run_best = J[i]
                 best_x, best_J = X[i].copy(), float(J[i])
+                if on_best is not None:
+                    on_best(K0 + S * best_x.reshape(3, 6), best_J)
             if fin.any():
                 guess = float(np.median(J[fin]))
                 spread = float(np.clip(J[fin].max() / J[fin].min(), 1.02, 1.5))
