@@ -1,12 +1,15 @@
 """Reading bags: messages in time order, topics, summary (damaged files through :mod:`.scan`)."""
 from __future__ import annotations
 
+import heapq
+from datetime import datetime, timezone
+from pathlib import Path
 from typing import Iterator
 
 import yaml
 from mcap.reader import make_reader
 
-from .layout import BagMessage, TopicInfo, has_summary, resolve_mcap
+from .layout import STORAGE_ID, BagMessage, TopicInfo, has_summary, read_metadata, resolve_mcap, resolve_mcaps
 from .scan import scan
 
 
@@ -25,6 +28,17 @@ def iter_messages(bag, topics=None, start_ns: int | None = None, report: dict | 
         return
     if order != "log":
         raise ValueError(f"order must be 'log' or 'publish', not {order!r}")
+    files = resolve_mcaps(bag)
+    if len(files) > 1:   # split bag: the files' streams merged by log time (stable: file order on ties)
+        reports = [{} for _ in files]
+        yield from heapq.merge(*(iter_messages(f, topics, start_ns, r) for f, r in zip(files, reports)),
+                               key=lambda m: m.log_time)
+        if report is not None:
+            report.update({"complete": all(r.get("complete", True) for r in reports)})
+            bad = [r for r in reports if not r.get("complete", True)]
+            if bad:
+                report.update({k: v for k, v in bad[0].items() if k != "complete"})
+        return
     path = resolve_mcap(bag)
     wanted = set(topics) if topics is not None else None
     if wanted is not None and not wanted:
@@ -50,6 +64,16 @@ def iter_messages(bag, topics=None, start_ns: int | None = None, report: dict | 
 
 def topics_of(bag) -> dict[str, TopicInfo]:
     """Topics (name -> :class:`TopicInfo` with counts) from the MCAP itself."""
+    files = resolve_mcaps(bag)
+    if len(files) > 1:   # split bag: counts summed over the files
+        out: dict[str, TopicInfo] = {}
+        for f in files:
+            for name, t in topics_of(f).items():
+                if name in out:
+                    out[name].message_count += t.message_count
+                else:
+                    out[name] = t
+        return out
     path = resolve_mcap(bag)
     if has_summary(path):
         with open(path, "rb") as f:
@@ -67,7 +91,43 @@ def topics_of(bag) -> dict[str, TopicInfo]:
 
 
 def info(bag) -> dict:
-    """Summary of a bag for ``magtune bag info``: counts, times, topics, integrity."""
+    """Summary of a bag for ``magtune bag info``: counts, times, topics, integrity, and as
+    ``ros2 bag info``: start/end as UTC dates, storage id, ROS distro, every file of a split bag."""
+    files = resolve_mcaps(bag)
+    parts = [_file_info(f) for f in files]
+    count = sum(p["message_count"] for p in parts)
+    used = [p for p in parts if p["message_count"]]
+    start = min((p["start_ns"] for p in used), default=0)
+    end = max((p["end_ns"] for p in used), default=0)
+    meta = {}
+    if Path(bag).is_dir():
+        try:
+            meta = read_metadata(Path(bag))
+        except (OSError, KeyError, TypeError, ValueError):
+            meta = {}
+    out = dict(parts[0]) if len(parts) == 1 else {
+        "path": str(Path(bag)), "complete": all(p["complete"] for p in parts),
+        "size_bytes": sum(p["size_bytes"] for p in parts), "message_count": count, "start_ns": start,
+        "end_ns": end, "duration_s": (end - start) / 1e9 if count else 0.0,
+        "chunks": sum(p["chunks"] for p in parts),
+        "topics": {n: {"type": t.type, "count": t.message_count} for n, t in sorted(topics_of(bag).items())}}
+    out.update({"storage_identifier": meta.get("storage_identifier", STORAGE_ID),
+                "ros_distro": meta.get("ros_distro", ""),
+                "start_utc": _utc(out["start_ns"]) if out["message_count"] else "",
+                "end_utc": _utc(out["end_ns"]) if out["message_count"] else "",
+                "files": [{"path": p["path"], "size_bytes": p["size_bytes"], "complete": p["complete"],
+                           "message_count": p["message_count"], "start_ns": p["start_ns"], "end_ns": p["end_ns"]}
+                          for p in parts]})
+    return out
+
+
+def _utc(ns: int) -> str:
+    """ns since 1970 as an ISO 8601 UTC date (a sim-time bag starts at 1970-01-01)."""
+    return datetime.fromtimestamp(ns / 1e9, tz=timezone.utc).isoformat(timespec="milliseconds")
+
+
+def _file_info(bag) -> dict:
+    """:func:`info` of one MCAP file."""
     path = resolve_mcap(bag)
     complete = has_summary(path)
     if complete:

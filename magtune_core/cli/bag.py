@@ -39,6 +39,13 @@ def run_info(args) -> int:
           f"{'complete' if inf['complete'] else 'UNFINISHED/DAMAGED: run magtune bag recover'})")
     print(f"messages: {inf['message_count']} in {inf['chunks']} chunks, "
           f"{inf['duration_s']:.3f} s from {inf['start_ns'] * 1e-9:.3f} s")
+    print(f"start:    {inf['start_utc'] or '-'} ({inf['start_ns'] * 1e-9:.9f} s)")
+    print(f"end:      {inf['end_utc'] or '-'} ({inf['end_ns'] * 1e-9:.9f} s)")
+    print(f"storage:  {inf['storage_identifier']}   ROS distro: {inf['ros_distro'] or '-'}")
+    print(f"files:    {len(inf['files'])}")
+    for f in inf["files"]:
+        print(f"  {f['path']}  {f['size_bytes']} bytes  {f['message_count']} messages"
+              + ("" if f["complete"] else "  UNFINISHED/DAMAGED"))
     for name, t in inf["topics"].items():
         print(f"  {name:32s} {t['type']:40s} {t['count']:8d}")
     return 0
