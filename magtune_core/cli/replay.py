@@ -5,10 +5,8 @@ executable of magtune_ros (see :mod:`magtune_core.ros.replay`) and returns its e
 """
 from __future__ import annotations
 
-from pathlib import Path
-
+from ..bags.scan import check_file
 from ..ros.replay import ReplayOptions, run_player
-from .common import CommandError
 
 
 def register(sub) -> None:
@@ -25,7 +23,6 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    if not Path(args.bag).exists():
-        raise CommandError(f"{args.bag}: no such bag")
+    check_file(args.bag)  # missing, empty, no .mcap, not MCAP: one line, exit 2, nothing started
     return run_player(args.bag, ReplayOptions(rate=args.rate, topics=args.topics, start=args.start, loop=args.loop,
                                               no_clock=args.no_clock, wait_subscribers=args.wait_subscribers))

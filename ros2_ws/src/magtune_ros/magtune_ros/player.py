@@ -178,7 +178,8 @@ def main(argv=None):
                "wall_s": round(elapsed, 3), "complete": bool(report.get("complete", True))}
         if not out["complete"]:
             out["unreadable"] = {k: report.get(k) for k in (
-                "chunks_bad", "unreadable_tail_bytes", "problem", "messages_recovered")}
+                "chunks_bad", "unreadable_tail_bytes", "problem", "messages_recovered",
+                "messages_expected", "messages_in_damaged_chunks")}
             node.get_logger().warning(f"bag is damaged; replayed what was readable: {out['unreadable']}")
         print(json.dumps(out), flush=True)
         node.destroy_node()
