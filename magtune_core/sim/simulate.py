@@ -62,7 +62,7 @@ class SimResult:
 #: comes back from it; the paper's runs stay below 2e-3 rad/s).
 DIVERGED_RATE = 100.0
 #: Exit status of the simulator node when the run diverged (the runner reports the step).
-DIVERGED_EXIT = 3
+DIVERGED_EXIT = 4
 
 
 def divergence(y) -> str | None:
