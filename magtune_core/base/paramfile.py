@@ -1,6 +1,7 @@
 """ROS 2 parameter files (``node: {ros__parameters: {...}}``) read without rclpy.
 
-``read_ros_params`` merges the ``/**`` and per-node sections the way rcl does;
+``read_ros_params`` merges the sections that apply to a node (``/**``, ``/**/controller``,
+``controller``: rcl's wildcard rules, :func:`node_matches`) the way rcl does;
 ``check_ros_params`` also rejects what rcl's parser (rcl_yaml_param_parser) rejects although
 PyYAML loads it: lists mixing types (``[1, 2.5]``: write ``[1.0, 2.5]``), lists of lists or of
 mappings, lists holding null, and strings that YAML 1.1 reads as booleans inside string lists
@@ -9,6 +10,7 @@ parser message; this check names the offending parameter instead.
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import yaml
@@ -35,17 +37,42 @@ def _load(path) -> dict:
     return doc
 
 
+def _section_regex(key: str) -> re.Pattern:
+    """The node-name pattern of a section key, as rcl/rclpy match it against a node's fully
+    qualified name: a key without a leading ``/`` is absolute (``controller`` == ``/controller``,
+    the root namespace only), ``*`` matches within one name token and ``/**`` any number of
+    namespace tokens, none included (``/**/controller`` matches ``/controller`` and
+    ``/sat1/controller``; ``/**`` matches every node)."""
+    key = "/" + str(key).lstrip("/")
+    out = []
+    for tok in key.split("/")[1:]:
+        if tok == "**":
+            out.append("(?:/[^/]+)*")
+        else:
+            out.append("/" + "[^/]*".join(re.escape(part) for part in tok.split("*")))
+    return re.compile("".join(out) + "$")
+
+
+def node_matches(key: str, node: str) -> bool:
+    """Whether the parameter-file section ``key`` applies to the node ``node`` (a name such as
+    ``controller``, taken as ``/controller``, or a fully qualified ``/sat1/controller``), with
+    rcl's wildcard rules (checked against rclpy in tests/base/test_paramfile.py)."""
+    return bool(_section_regex(key).match("/" + node.lstrip("/")))
+
+
 def _merge(doc: dict, node: str | None) -> dict:
-    """The ``ros__parameters`` of ``/**`` and of ``node`` (of every node if None), later ones win."""
+    """The ``ros__parameters`` of every section that applies to ``node`` (of every section if
+    None), in file order, later ones winning, as rcl merges them."""
     merged: dict = {}
     for name, body in doc.items():
-        if node is None or name in ("/**", node, "/" + node.lstrip("/")):
+        if node is None or node_matches(name, node):
             merged.update(body["ros__parameters"])
     return merged
 
 
 def read_ros_params(path, node: str | None = None) -> dict:
-    """Merge the ``ros__parameters`` of ``/**`` and of ``node`` (or of every node if None)."""
+    """Merge the ``ros__parameters`` of the sections that apply to ``node`` (``/**``,
+    ``/**/controller``, ``controller``, ... see :func:`node_matches`), or of every section if None."""
     return _merge(_load(path), node)
 
 

@@ -20,7 +20,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="magtune", description="H-infinity tuning of projection-based magnetorquer "
                                  "attitude controllers (Zanchettin & Lovera, IFAC 2011) and their ROS 2 SIL")
     ap.add_argument("--version", action="version", version=f"magtune {__version__}")
-    ap.add_argument("--config", default=DEFAULT_CONFIG, help="spacecraft/orbit parameter file (default %(default)s)")
+    ap.add_argument("--config", default=DEFAULT_CONFIG, help="spacecraft/orbit parameter file (default: config/spacecraft.yaml of the repository, "
+                                                     "from any working directory)")
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for mod in COMMANDS:
         mod.register(sub)

@@ -4,17 +4,29 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
+import tempfile
+from pathlib import Path
 
 import numpy as np
 
-from ..base.ament import AmentNotFound
+from ..base.ament import ROOT, AmentNotFound
 from ..base.errors import ConfigError
 from ..design.field import FIELD_MODELS
 from ..ros.sil import SilError
 from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions
 
-DEFAULT_CONFIG = "config/spacecraft.yaml"
+
+def repo_path(relative: str) -> str:
+    """A default input/output path of the project, resolved against the repository (not the
+    working directory), so every command finds ``config/`` and ``docs/`` from any directory.
+    Paths the user types stay relative to the working directory, as usual for a command line."""
+    return str(ROOT / relative)
+
+
+#: The spacecraft/orbit parameter file every command reads by default.
+DEFAULT_CONFIG = repo_path("config/spacecraft.yaml")
 #: Magnus intervals per period for reported figures (~1e-5 relative, see bench/).
 ANALYSIS_STEPS = 128
 
@@ -58,6 +70,14 @@ def run_command(args) -> int:
         return code
 
 
+def plain_summary(doc: str | None) -> str:
+    """The first paragraph of a module docstring as plain text for ``--help``: reST roles
+    (``:mod:`x```) and inline literals (double backticks) become their bare text."""
+    text = (doc or "").strip().split("\n\n")[0]
+    text = re.sub(r":[a-z]+:`~?([^`]+)`", r"\1", text)
+    return " ".join(text.replace("``", "").replace("`", "").split())
+
+
 def field_model_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument("--field-model", choices=tuple(FIELD_MODELS),
                    help="design field model (default: field_model of the spacecraft file)")
@@ -77,9 +97,8 @@ def positive_floats(text: str) -> list[float]:
 def add_environment_arguments(p: argparse.ArgumentParser, default: str = "paper") -> None:
     """--environment and the switches of the full environment (``sil`` and ``sampling``)."""
     p.add_argument("--environment", choices=ENVIRONMENTS, default=default,
-                   help=f"paper: eq. 26 field, circular orbit, GG + residual dipole; full: J2 orbit, "
-                        f"IGRF degree 10, GG with actual r, residual dipole, drag, SRP (docs/environment.md); "
-                        f"default {default}")
+                   help=f"default {default}. paper: eq. 26 field, circular orbit, GG + residual dipole; full: J2 orbit, "
+                        f"IGRF degree 10, GG with actual r, residual dipole, drag, SRP (docs/environment.md)")
     p.add_argument("--no-drag", action="store_true", help="full environment: switch drag off")
     p.add_argument("--no-srp", action="store_true", help="full environment: switch SRP off")
     p.add_argument("--no-gravity-gradient", action="store_true", help="full environment: switch gravity gradient off")
@@ -100,3 +119,94 @@ def load_model(args):
     from ..design.params import load_spacecraft
 
     return AttitudeLTP.from_params(load_spacecraft(args.config), getattr(args, "field_model", None))
+
+
+def add_force_argument(p: argparse.ArgumentParser) -> None:
+    """``--force``: the one switch that lets a command overwrite an existing output file."""
+    p.add_argument("--force", action="store_true",
+                   help="overwrite output files that already exist (without it the command refuses, "
+                        "before any work, so a tracked file is never replaced by accident)")
+
+
+def _nearest_existing(path: Path) -> Path:
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    return path
+
+
+def _check_writable_location(path: Path, option: str) -> None:
+    """``path`` (absent or not) can be created: its nearest existing ancestor is a writable directory."""
+    anc = _nearest_existing(path.parent)
+    if not anc.is_dir():
+        raise ConfigError(path, None, f"cannot create it: {anc} is not a directory (choose another {option})")
+    _probe_directory(anc, path, option)
+
+
+def _probe_directory(directory: Path, path: Path, option: str) -> None:
+    """Create and delete a temporary file in ``directory``: the only check that also holds for
+    root (``os.access`` says yes to everything) and for read-only or pseudo file systems."""
+    try:
+        with tempfile.TemporaryFile(dir=directory):
+            pass
+    except OSError as exc:
+        raise ConfigError(path, None, f"cannot write in directory {directory}: {exc.strerror or exc} "
+                                      f"(choose another {option})") from None
+
+
+def check_output(path, *, force: bool = False, option: str = "--out", directory: bool = False) -> Path:
+    """The one output-path check of every command, run before any work.
+
+    A file output (``directory=False``) that exists is refused unless ``force`` (the message
+    names ``--force`` and ``option``), a directory in its place is refused, and the place must be
+    writable: an existing file must be writable, an absent one must be creatable (its nearest
+    existing ancestor a writable directory). A directory output (``directory=True``, e.g. a log
+    or results directory that may hold earlier files) must be an existing writable directory or
+    creatable; use :func:`check_outputs` for the named files a command writes inside it.
+
+    Returns
+    -------
+    Path
+        ``path`` as a Path (not resolved: relative paths stay relative to the working directory).
+
+    Raises
+    ------
+    ConfigError
+        One line naming the path, what is wrong and the option to change (exit status 2).
+    """
+    path = Path(path)
+    if directory:
+        if path.exists() and not path.is_dir():
+            raise ConfigError(path, None, f"exists and is not a directory (choose another {option})")
+        if path.is_dir():
+            _probe_directory(path, path, option)
+        else:
+            _check_writable_location(path, option)
+        return path
+    if path.is_dir():
+        raise ConfigError(path, None, f"is a directory; {option} expects a file name")
+    if path.exists():
+        if not force:
+            raise ConfigError(path, None, f"exists; pass --force to overwrite it, or {option} to write elsewhere")
+        if not os.access(path, os.W_OK):
+            raise ConfigError(path, None, f"exists and is not writable (choose another {option})")
+        _probe_directory(path.parent, path, option)
+        return path
+    _check_writable_location(path, option)
+    return path
+
+
+def check_outputs(directory, names, *, force: bool = False, option: str = "--out") -> list[Path]:
+    """:func:`check_output` for the files ``names`` a command writes into ``directory``: the
+    directory must be usable and none of the files may exist unless ``force``.
+
+    Returns
+    -------
+    list of Path
+        ``directory / name`` for each name, in order.
+    """
+    d = check_output(directory, option=option, directory=True)
+    existing = [n for n in names if (d / n).exists()]
+    if existing and not force:
+        raise ConfigError(d, None, f"already holds {', '.join(existing)}; pass --force to overwrite, "
+                                   f"or {option} to write elsewhere")
+    return [check_output(d / n, force=force, option=option) for n in names]

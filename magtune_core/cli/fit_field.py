@@ -5,7 +5,7 @@ import argparse
 from datetime import datetime
 
 from ..design import fitfield
-from .common import CommandError
+from .common import CommandError, add_force_argument, check_output, plain_summary, repo_path
 
 
 def _parse_epoch(text: str) -> datetime:
@@ -17,7 +17,7 @@ def _parse_epoch(text: str) -> datetime:
 
 def register(sub) -> None:
     p = sub.add_parser("fit-field", help="fit a periodic b(t) in orbital axes to IGRF along the orbit",
-                              description=fitfield.__doc__.split("\n\n")[0])
+                              description=plain_summary(fitfield.__doc__))
     p.add_argument("--altitude", type=float, default=450.0, help="circular-orbit altitude [km] (default 450)")
     p.add_argument("--inclination", type=float, default=87.0, help="inclination [deg] (default 87)")
     p.add_argument("--harmonics", type=int, default=2, help="harmonics of the orbital rate (default 2)")
@@ -26,7 +26,10 @@ def register(sub) -> None:
     p.add_argument("--degree", type=int, default=10, help="IGRF degree/order (default 10, as in the paper)")
     p.add_argument("--raan", type=float, default=0.0, help="RAAN at epoch [deg] (default 0)")
     p.add_argument("--epoch", type=_parse_epoch, default=fitfield.DEFAULT_EPOCH, help="UTC epoch, ISO format (default 2026-03-20)")
-    p.add_argument("--out", default="config/field_model.yaml", help="output ROS 2 parameter file")
+    p.add_argument("--out", default=repo_path("config/field_model.yaml"),
+                   help="output ROS 2 parameter file (default: config/field_model.yaml of the repository; an "
+                        "existing file is kept unless --force)")
+    add_force_argument(p)
     p.set_defaults(func=run)
 
 
@@ -34,6 +37,7 @@ def run(args) -> int:
     """Handler of ``magtune fit-field``: fit, print the report, write the file. Returns an exit code."""
     if args.harmonics < 1 or args.days <= 0 or args.step <= 0 or not 1 <= args.degree <= 13:
         raise CommandError("need --harmonics >= 1, --days > 0, --step > 0, 1 <= --degree <= 13", code=2)
+    check_output(args.out, force=args.force)
     field, report = fitfield.fit_field(args.altitude * 1e3, args.inclination, args.harmonics, args.days, args.step,
                               args.degree, args.epoch, args.raan)
     meta = dict(altitude=args.altitude * 1e3, inclination=args.inclination, igrf_degree=args.degree,

@@ -5,12 +5,12 @@ from pathlib import Path
 
 from ..base.topics import DIPOLE, TRUTH
 from ..studies import report
-from .common import CommandError
+from .common import CommandError, plain_summary
 
 
 def register(sub) -> None:
     p = sub.add_parser("report", help="paper Figs. 2-5 and figures of merit from recorded bags",
-                       description=report.__doc__.split("\n\n")[0])
+                       description=plain_summary(report.__doc__))
     p.add_argument("bags", nargs="+", help="bag directories (bags/NAME)")
     p.add_argument("--out", required=True, help="output directory (reports/NAME/)")
     p.add_argument("--run", default=None, help="bag name for Figs. 4-5 (default: largest sigma)")

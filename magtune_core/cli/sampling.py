@@ -2,29 +2,42 @@
 from __future__ import annotations
 
 import json
+import sys
 import time
 from pathlib import Path
 
 from ..base.ament import ROOT
 from ..studies import sampling
-from .common import CommandError, add_environment_arguments, environment_options, positive_floats
+from .common import CommandError, add_environment_arguments, add_force_argument, check_outputs, environment_options, plain_summary, positive_floats
 
 
 def register(sub) -> None:
     p = sub.add_parser("sampling", help="sampling-period study: sigma x Ts grid, table and plot in docs/",
-                              description=sampling.__doc__.split("\n\n")[0])
+                              description=plain_summary(sampling.__doc__))
     p.add_argument("--sigmas", type=positive_floats, default=list(sampling.DEFAULT_SIGMAS), help="default 60,120,240")
     p.add_argument("--ts", type=positive_floats, default=list(sampling.DEFAULT_TS), help="sample periods [s], default 1,2,5,10,20,30")
     p.add_argument("--orbits", type=float, default=5.0, help="run length [orbits] (default 5)")
     p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
     p.add_argument("--backend", choices=("offline", "sil"), default="offline",
                    help="offline simulate() (default) or the SIL nodes over DDS (identical trajectories, slower)")
-    p.add_argument("--gains-dir", default=str(ROOT / "config" / "gains"), help="holds sigma_<sigma>.yaml")
-    p.add_argument("--spacecraft", default=str(ROOT / "config" / "spacecraft.yaml"))
-    p.add_argument("--out-dir", default=str(ROOT / "docs"), help="writes sampling.md/.png/.json here")
+    p.add_argument("--gains-dir", default=str(ROOT / "config" / "gains"),
+                   help="holds sigma_<sigma>.yaml (default: config/gains of the repository)")
+    p.add_argument("--spacecraft", default=str(ROOT / "config" / "spacecraft.yaml"),
+                   help="spacecraft/orbit parameter file (default: config/spacecraft.yaml of the repository)")
+    p.add_argument("--out-dir", default=str(ROOT / "docs"),
+                   help="writes sampling.md/.png/.json here (default: docs/ of the repository; existing files "
+                        "are kept unless --force)")
+    add_force_argument(p)
     p.add_argument("--conclusion", default="", help="paragraph appended to the verdict (text, or @FILE)")
     add_environment_arguments(p, default="full")
     p.set_defaults(func=run)
+
+
+def _progress(t0: float):
+    def show(i, n, row):
+        print(f"magtune sampling: run {i}/{n} done (sigma={row['sigma']:g}, Ts={row['ts']:g} s) "
+              f"after {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    return show
 
 
 def run(args) -> int:
@@ -35,11 +48,12 @@ def run(args) -> int:
     env_opts = dict(gravity_gradient=opts.gravity_gradient, drag=opts.drag, srp=opts.srp, field=opts.field,
                     igrf_degree=opts.igrf_degree)
     out = Path(args.out_dir)
+    check_outputs(out, ("sampling.md", "sampling.png", "sampling.json"), force=args.force, option="--out-dir")
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     try:
         rows = sampling.run_study(args.sigmas, args.ts, args.orbits, args.environment, env_opts, max(1, args.workers),
-                         args.gains_dir, args.spacecraft, args.backend)
+                                  args.gains_dir, args.spacecraft, args.backend, progress=_progress(t0))
     except FileNotFoundError as exc:  # missing gains file: one line
         raise CommandError(str(exc)) from None
     wall = time.perf_counter() - t0

@@ -4,12 +4,12 @@ from __future__ import annotations
 import json
 
 from ..ros import sil
-from .common import add_environment_arguments, environment_options
+from .common import add_environment_arguments, environment_options, plain_summary
 
 
 def register(sub) -> None:
     p = sub.add_parser("sil", help="software-in-the-loop run of the ROS 2 nodes (lockstep, sim time)",
-                       description=sil.__doc__.split("\n\n")[0])
+                       description=plain_summary(sil.__doc__))
     p.add_argument("--gains", required=True, help="controller gains parameter file (config/gains/sigma_*.yaml)")
     p.add_argument("--orbits", type=float, default=5.0, help="run length in orbits (default 5)")
     p.add_argument("--steps", type=int, default=None, help="run length in controller steps (overrides --orbits)")
@@ -23,15 +23,24 @@ def register(sub) -> None:
     p.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: a free one)")
     p.add_argument("--timeout", type=float, default=None, help="abort after this many wall seconds")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     add_environment_arguments(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    import sys
+
+    def progress(k, n):  # one line per tenth of the run (the simulator's own step log)
+        if not args.quiet:
+            print(f"magtune sil: step {k}/{n} ({100 * k // max(n, 1)} %)", file=sys.stderr, flush=True)
+
+    if not args.quiet:
+        print("magtune sil: starting the nodes (discovery takes a few seconds)", file=sys.stderr, flush=True)
     res = sil.run_sil(args.gains, orbits=args.orbits, steps=args.steps, ts=args.ts, substeps=args.substeps,
                       spacecraft=args.spacecraft, real_time_factor=args.rtf, bag=args.bag, results=args.results,
                       log_dir=args.log_dir, domain_id=args.domain_id, timeout=args.timeout,
-                      environment=args.environment, env_options=environment_options(args))
+                      environment=args.environment, env_options=environment_options(args), progress=progress)
     if args.json:
         print(json.dumps(dict(res.figures, **{"missed_steps": res.counters.get("missed_steps", 0),
                                               "wall_time": res.wall_time, "real_time_factor": res.real_time_factor,

@@ -5,15 +5,19 @@ from pathlib import Path
 
 from ..design.gains import load_gains
 from ..design.problem import figures
-from .common import ANALYSIS_STEPS, field_model_argument, load_model
+from .common import ANALYSIS_STEPS, add_force_argument, check_output, field_model_argument, load_model, repo_path
 
 PAPER_TABLE1 = {60: (239.19, 12072.45, 0.00283), 120: (283.96, 11039.75, 0.00345), 240: (399.32, 9348.98, 0.00598)}
 
 
 def register(sub) -> None:
     tb = sub.add_parser("table1", help="the paper's Table 1 next to ours; writes docs/table1.md")
-    tb.add_argument("--gains-dir", default="config/gains", help="holds sigma_60/120/240.yaml")
-    tb.add_argument("--out", default="docs/table1.md", help="markdown output (notes below the marker are kept)")
+    tb.add_argument("--gains-dir", default=repo_path("config/gains"),
+                    help="holds sigma_60/120/240.yaml (default: config/gains of the repository)")
+    tb.add_argument("--out", default=repo_path("docs/table1.md"),
+                    help="markdown output (default: docs/table1.md of the repository; an existing file is kept "
+                         "unless --force, and then its notes below the marker are kept)")
+    add_force_argument(tb)
     field_model_argument(tb)
     tb.set_defaults(func=run)
 
@@ -22,6 +26,7 @@ TABLE1_MARKER = "<!-- notes below are kept by `magtune table1` -->"
 
 
 def run(args) -> int:
+    out = check_output(args.out, force=args.force)
     model = load_model(args)
     rows = []
     for sigma, (pc1, pc2, prho) in PAPER_TABLE1.items():
@@ -37,7 +42,6 @@ def run(args) -> int:
                      f"{d(f.c2, pc2)} | {prho:.5f} | {f.rho:.5f} | {d(f.rho, prho)} |")
     table = "\n".join(lines)
     print(table)
-    out = Path(args.out)
     notes = ""
     if out.exists() and TABLE1_MARKER in out.read_text():
         notes = out.read_text().split(TABLE1_MARKER, 1)[1]

@@ -2,12 +2,11 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 from ..design.gains import Gains, save_gains
 from ..design.problem import figures
 from ..design.tuner import TunerSettings, tune
-from .common import ANALYSIS_STEPS, field_model_argument, load_model
+from .common import ANALYSIS_STEPS, add_force_argument, check_output, field_model_argument, load_model, repo_path
 
 
 def register(sub) -> None:
@@ -23,7 +22,9 @@ def register(sub) -> None:
     t.add_argument("--workers", type=int, default=1, help="processes evaluating candidates")
     t.add_argument("--ts", type=float, default=1.0, help="controller sampling period written to the file [s]")
     field_model_argument(t)
-    t.add_argument("--out", help="gains file (default config/gains/sigma_<sigma>.yaml)")
+    t.add_argument("--out", help="gains file to write (default config/gains/sigma_<sigma>.yaml of the "
+                                 "repository; an existing file is kept unless --force)")
+    add_force_argument(t)
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=run)
 
@@ -31,6 +32,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from tqdm import tqdm
 
+    out = check_output(args.out or repo_path(f"config/gains/sigma_{args.sigma:g}.yaml"), force=args.force)
     model = load_model(args)
     settings = TunerSettings(samples=args.samples, r_max=args.r_max, mu=args.mu, workers=args.workers,
                              max_iter=args.max_iter, patience=args.patience)
@@ -43,7 +45,6 @@ def run(args) -> int:
     res = tune(model, args.sigma, seed=args.seed, settings=settings, progress=progress)
     bar.close()
     fig = figures(model, res.K, args.sigma, steps=ANALYSIS_STEPS)
-    out = Path(args.out or f"config/gains/sigma_{args.sigma:g}.yaml")
     prov = {**fig.as_dict(), **res.provenance(), "field_model": model.field.name,
             "analysis_steps": ANALYSIS_STEPS, "tune_seconds": round(res.seconds, 1)}
     prov.pop("stable", None)

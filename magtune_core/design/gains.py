@@ -1,6 +1,8 @@
 """Controller gains as ROS 2 parameter files (``config/gains/sigma_*.yaml``): the gains schema.
 
-Layout: ``controller: ros__parameters: {gain: [18 doubles, row-major 3x6], sigma, ts, ...}``
+Layout: ``/**: ros__parameters: {gain: [18 doubles, row-major 3x6], sigma, ts, ...}`` (the
+wildcard section applies to the controller whatever its namespace or node name; older files
+keyed ``controller:`` are still read)
 plus read-only provenance (figures of merit, seed, tuner settings, field model) that
 ``magtune analyze`` recomputes and compares. The controller node declares the same
 :attr:`Gains.FIELDS` and validates them with :meth:`Gains.from_mapping`.
@@ -18,7 +20,12 @@ from ..base.paramfile import read_ros_params
 from ..base.schema import Field, parse
 from .law import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD
 
+#: The controller's default node name: what a gains file is read for (``load_gains``).
 CONTROLLER_NODE = "controller"
+#: Section key of written gains files: ``/**`` applies them to the node they are given to,
+#: whatever its namespace or name (``-r __ns:=/sat1``, ``-r __node:=ctl``); files keyed
+#: ``controller:`` (before 0.3) or ``/**/controller:`` are read too.
+GAINS_SECTION = "/**"
 
 
 @dataclass
@@ -82,7 +89,8 @@ def _spacecraft_names() -> tuple:
 
 
 def load_gains(path) -> Gains:
-    """Read a gains parameter file (section ``controller`` and ``/**``), validated by the schema."""
+    """Read a gains parameter file (the sections that apply to node ``/controller``: ``/**``,
+    ``/**/controller``, ``controller``), validated by the schema."""
     return Gains.from_mapping(read_ros_params(path, CONTROLLER_NODE), path)
 
 
@@ -98,7 +106,7 @@ def save_gains(path, gains: Gains, header: str = "") -> None:
             raise ValueError(f"provenance key {k!r} is not in Gains.PROVENANCE; add it there")
         params[k] = _plain(v)
     params.setdefault("written", _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"))
-    text = yaml.safe_dump({CONTROLLER_NODE: {"ros__parameters": params}}, sort_keys=False, width=120)
+    text = yaml.safe_dump({GAINS_SECTION: {"ros__parameters": params}}, sort_keys=False, width=120)
     lines = ["# Projection-based magnetorquer controller gains (magtune). u = K x, m = S(b)^T u / |b|^2.",
              "# gain: 3x6 K, row-major; rows = torque axes (x yaw, y roll, z pitch), columns = [dq; dw]."]
     lines += [f"# {h}" for h in header.splitlines() if h]

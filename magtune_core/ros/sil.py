@@ -24,6 +24,7 @@ import fcntl
 import json
 import math
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -272,6 +273,38 @@ def check_writable(path, flag: str, *, directory: bool = False, empty: bool = Fa
         raise ConfigError(flag, None, f"cannot write {p}: {exc.strerror or exc}") from None
 
 
+class LogProgress:
+    """Follows the simulator's log for its ``step k/n`` lines (logged every tenth of the run)
+    and hands them to ``callback(k, n)``: progress without another topic or subscriber."""
+
+    PATTERN = re.compile(rb"step (\d+)/(\d+)")
+
+    def __init__(self, log: Path, callback=None):
+        self.log, self.callback, self.offset, self.n, self.last = log, callback, 0, 0, -1
+
+    def poll(self) -> None:
+        if self.callback is None:
+            return
+        try:
+            with open(self.log, "rb") as fh:
+                fh.seek(self.offset)
+                data = fh.read()
+        except OSError:
+            return
+        end = data.rfind(b"\n") + 1  # whole lines only
+        self.offset += end
+        for m in self.PATTERN.finditer(data[:end]):
+            k, self.n = int(m.group(1)), int(m.group(2))
+            if k > self.last:
+                self.last = k
+                self.callback(k, self.n)
+
+    def finish(self) -> None:
+        self.poll()
+        if self.callback is not None and self.n and self.last < self.n:
+            self.callback(self.n, self.n)
+
+
 # ------------------------------------------------------------------ run
 def _raise_interrupt(signum, frame):
     raise KeyboardInterrupt(f"signal {signum}")
@@ -341,7 +374,7 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
             timeout: float | None = None, domain_id: int | None = None, log_dir=None, results=None,
             simulator_params: dict | None = None, sensor_params: dict | None = None,
             controller_params: dict | None = None, on_start=None, environment: str = "paper",
-            env_options=None) -> SilRun:
+            env_options=None, progress=None) -> SilRun:
     """Start controller, attitude_sensors and simulator (+ recorder with ``bag``), wait, clean up.
 
     ``timeout`` (wall s, default generous) bounds the whole run; parameters dicts are extra
@@ -349,7 +382,8 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
     ``environment`` "paper" (default) or "full" with ``env_options`` a
     ``fullenv.FullEnvironmentOptions``: the simulator builds the full environment and every node
     gets the actual orbit's nominal period (``fullenv.full_params``), as the offline
-    ``simulate(..., environment="full")``.
+    ``simulate(..., environment="full")``. ``progress(k, n)`` is called with each "step k/n"
+    line the simulator logs (every tenth of the run) and once with ``(n, n)`` at the end.
     """
     gains = Path(gains)
     # every input is validated before any process starts (ConfigError: one line, exit 2 in the CLI)
@@ -410,7 +444,9 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
         "controller": {**common, **common_ts, **(controller_params or {})},
     }
     pfile = log_dir / "sil_params.yaml"
-    pfile.write_text(yaml.safe_dump({k: {"ros__parameters": v} for k, v in params.items()}))
+    # keyed /**/<node>: applies whatever the namespace (see base.paramfile.node_matches); given
+    # last on each command line so its values win over the spacecraft and gains files
+    pfile.write_text(yaml.safe_dump({f"/**/{k}": {"ros__parameters": v} for k, v in params.items()}))
     sc = ["--params-file", str(Path(spacecraft).resolve())]
 
     procs: list[NodeProcess] = []
@@ -435,8 +471,10 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
         sim_p = procs[-1]
         n_steps = steps or orbits * sc_params.orbit_period / common_ts["ts"]
         deadline = time.monotonic() + (timeout if timeout else startup_timeout + 60.0 + 0.05 * n_steps)
+        watch = LogProgress(sim_p.log, progress)
         while True:
             rc = sim_p.popen.poll()
+            watch.poll()
             if rc is not None:
                 break
             for p in procs[:-1]:
@@ -451,6 +489,7 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
                            + (line.split("] ", 1)[-1] if line else "see the simulator log"))
         if rc != 0 or not results.is_file():
             raise SilError(f"simulator exited with status {rc}:\n{sim_p.tail()}")
+        watch.finish()
     except SilError as exc:
         raise SilError(f"{exc}\n(node logs in {log_dir})") from None
     finally:

@@ -29,6 +29,7 @@ nodes over DDS, lockstep); the trajectories, hence the table, are identical. Out
 """
 from __future__ import annotations
 
+import contextlib
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -82,8 +83,9 @@ def _run_one(job: dict) -> dict:
 
 def run_study(sigmas=DEFAULT_SIGMAS, ts_list=DEFAULT_TS, orbits: float = 5.0, environment: str = "full",
               env_options: dict | None = None, workers: int = 2, gains_dir=None, spacecraft=None,
-              backend: str = "offline") -> list[dict]:
-    """All (sigma, Ts) runs, with settling times; sorted by sigma then Ts."""
+              backend: str = "offline", progress=None) -> list[dict]:
+    """All (sigma, Ts) runs, with settling times; sorted by sigma then Ts. ``progress(i, n, row)``
+    is called as each run finishes (in job order)."""
     gains_dir = Path(gains_dir or ROOT / "config" / "gains")
     spacecraft = str(spacecraft or ROOT / "config" / "spacecraft.yaml")
     jobs = [dict(sigma=float(s), ts=float(ts), orbits=float(orbits), environment=environment,
@@ -92,11 +94,12 @@ def run_study(sigmas=DEFAULT_SIGMAS, ts_list=DEFAULT_TS, orbits: float = 5.0, en
     for j in jobs:
         if not Path(j["gains"]).is_file():
             raise FileNotFoundError(f"gains file not found: {j['gains']}")
-    if workers > 1:
-        with ProcessPoolExecutor(max_workers=workers) as ex:
-            rows = list(ex.map(_run_one, jobs))
-    else:
-        rows = [_run_one(j) for j in jobs]
+    rows = []
+    with ProcessPoolExecutor(max_workers=workers) if workers > 1 else contextlib.nullcontext() as ex:
+        for row in (ex.map(_run_one, jobs) if ex else map(_run_one, jobs)):
+            rows.append(row)
+            if progress:
+                progress(len(rows), len(jobs), row)
     for s in sigmas:
         mine = [r for r in rows if r["sigma"] == float(s)]
         ref = min(mine, key=lambda r: r["ts"])

@@ -106,7 +106,7 @@ def test_sample_period_must_resolve_nutation():
 def test_sil_rejects_bad_arguments_before_starting(tmp_path, capsys, extra, words):
     """Why #5/#6: --orbits -1 'timed out after 0 s'; an unwritable --results/--log-dir was
     discovered after the whole run. Now: exit 2 at once, nothing created."""
-    err = _one_line_exit2(capsys, ["sil", "--gains", str(GAINS), "--log-dir", str(tmp_path / "logs"), *extra])
+    err = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--log-dir", str(tmp_path / "logs"), *extra])
     assert words in err
     if "--log-dir" not in extra:
         assert not (tmp_path / "logs").exists()  # rejected before any work
@@ -114,9 +114,9 @@ def test_sil_rejects_bad_arguments_before_starting(tmp_path, capsys, extra, word
 
 def test_sil_bad_gains_file_exits_2(tmp_path, capsys):
     """Why #7: sil exited 1 on a bad gains file where the README promises 2."""
-    err = _one_line_exit2(capsys, ["sil", "--gains", str(_edit(tmp_path, GAINS, "g.yaml", sigma=-60.0))])
+    err = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(_edit(tmp_path, GAINS, "g.yaml", sigma=-60.0))])
     assert "field 'sigma'" in err
-    err = _one_line_exit2(capsys, ["sil", "--gains", str(tmp_path / "missing.yaml")])
+    err = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(tmp_path / "missing.yaml")])
     assert "file not found" in err
 
 
@@ -133,7 +133,7 @@ def test_huge_gain_analyzes_as_unstable(tmp_path, capsys):
 def test_same_error_same_exit_code_everywhere(tmp_path, capsys):
     """A missing input file is exit 2 in every command that reads one."""
     missing = str(tmp_path / "nope")
-    for argv in (["analyze", missing], ["sil", "--gains", missing], ["bag", "info", missing],
+    for argv in (["analyze", missing], ["sil", "--quiet", "--gains", missing], ["bag", "info", missing],
                  ["bag", "recover", missing], ["replay", missing]):
         err = _one_line_exit2(capsys, argv)
         assert re.search(r"nope", err), err

@@ -1,0 +1,136 @@
+"""The shared output-path check (``magtune_core.cli.common.check_output``) and the commands that
+regenerate tracked files: they refuse, before any work, to overwrite without ``--force``, and
+find their default inputs from any working directory."""
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from magtune_core.base.ament import ROOT
+from magtune_core.base.errors import ConfigError
+from magtune_core.cli import main as cli_main
+from magtune_core.cli.common import check_output, check_outputs
+
+
+def test_check_output_new_file_in_new_directory(tmp_path):
+    out = tmp_path / "a" / "b" / "gains.yaml"
+    assert check_output(out) == out
+    assert not (tmp_path / "a").exists()  # the check creates nothing
+
+
+def test_check_output_refuses_existing_file_without_force(tmp_path):
+    out = tmp_path / "g.yaml"
+    out.write_text("keep me\n")
+    with pytest.raises(ConfigError, match=r"exists; pass --force to overwrite it, or --out to write elsewhere"):
+        check_output(out)
+    assert check_output(out, force=True) == out
+    assert out.read_text() == "keep me\n"
+
+
+def test_check_output_rejects_directory_and_file_ancestor(tmp_path):
+    with pytest.raises(ConfigError, match="is a directory"):
+        check_output(tmp_path)
+    blocker = tmp_path / "plain_file"
+    blocker.write_text("")
+    with pytest.raises(ConfigError, match="is not a directory"):
+        check_output(blocker / "sub" / "x.yaml")
+    with pytest.raises(ConfigError, match="exists and is not a directory"):
+        check_output(blocker, directory=True, option="--log-dir")
+
+
+def test_check_output_unwritable_location():
+    # /proc refuses new files even to root, where os.access would say yes: the probe catches it.
+    with pytest.raises(ConfigError, match=r"cannot write in directory /proc.*--results"):
+        check_output("/proc/magtune_results.npz", option="--results")
+
+
+def test_check_outputs_names_existing_files(tmp_path):
+    (tmp_path / "sampling.md").write_text("")
+    with pytest.raises(ConfigError, match=r"already holds sampling.md; pass --force.*--out-dir"):
+        check_outputs(tmp_path, ("sampling.md", "sampling.png"), option="--out-dir")
+    assert check_outputs(tmp_path, ("sampling.md", "sampling.png"), force=True) == [
+        tmp_path / "sampling.md", tmp_path / "sampling.png"]
+
+
+def _git_status(path: Path) -> str:
+    r = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--", str(path)],
+                       capture_output=True, text=True)
+    return r.stdout if r.returncode == 0 else "<no git>"
+
+
+def test_tune_refuses_to_overwrite_shipped_gains(capsys):
+    """``magtune tune --sigma 60 --samples 50`` leaves the shipped gains alone: exit 2 at once."""
+    shipped = ROOT / "config" / "gains" / "sigma_60.yaml"
+    before, status = shipped.read_bytes(), _git_status(shipped)
+    t0 = time.perf_counter()
+    assert cli_main(["tune", "--sigma", "60", "--samples", "50"]) == 2
+    assert time.perf_counter() - t0 < 5.0  # refused before the tuner started (a tune takes ~20 s)
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "sigma_60.yaml: exists; pass --force" in err, err
+    assert shipped.read_bytes() == before and _git_status(shipped) == status
+
+
+@pytest.mark.parametrize("argv, name", [
+    (["table1"], "docs/table1.md"),
+    (["fit-field"], "config/field_model.yaml"),
+    (["sampling"], "docs"),
+])
+def test_regenerating_commands_refuse_tracked_defaults(argv, name, capsys):
+    target = ROOT / name
+    assert cli_main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--force" in err and str(target) in err, err
+
+
+def test_defaults_found_from_any_directory(tmp_path):
+    """``analyze`` run from a foreign directory reads config/spacecraft.yaml of the repository."""
+    gains = ROOT / "config" / "gains" / "sigma_60.yaml"
+    r = subprocess.run([sys.executable, "-m", "magtune_core", "analyze", str(gains), "--json", "--steps", "16"],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert '"rho"' in r.stdout
+
+
+def test_version_and_plain_help(capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli_main(["--version"])
+    assert exc.value.code == 0
+    from magtune_core import __version__
+    assert capsys.readouterr().out.strip() == f"magtune {__version__}"
+
+
+def _parsers():
+    import argparse
+
+    from magtune_core.cli import build_parser
+
+    todo = [("magtune", build_parser())]
+    while todo:
+        name, p = todo.pop()
+        yield name, p
+        for a in p._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                todo += [(f"{name} {n}", sp) for n, sp in a.choices.items()]
+
+
+def test_every_option_has_plain_help():
+    """Every option and positional argument of every subcommand has help; help text and
+    descriptions carry no reStructuredText markup (double backticks, :mod:, :func: roles)."""
+    import argparse
+
+    missing, markup = [], []
+    for name, p in _parsers():
+        for a in p._actions:
+            if isinstance(a, (argparse._HelpAction, argparse._SubParsersAction)):
+                continue
+            if not a.help:
+                missing.append(f"{name} {'/'.join(a.option_strings) or a.dest}")
+        text = p.format_help()
+        if "``" in text or ":mod:" in text or ":func:" in text or "`" in text:
+            markup.append(name)
+    assert not missing, missing
+    assert not markup, markup
