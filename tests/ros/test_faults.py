@@ -31,6 +31,7 @@ import yaml
 
 from magtune_core import bags as bag
 from magtune_core.bags import recover as bag_recover
+from magtune_core.bags import scan as bag_scan
 from magtune_core.bags.decode import Decoder
 from magtune_core.design.gains import load_gains, save_gains
 from magtune_core.design.lq import lq_gains
@@ -94,8 +95,8 @@ class Rig:
             simp["min_truth_subscribers"] = 2
         self.pfile = tmp_path / "params.yaml"
         self.pfile.write_text(yaml.safe_dump({"simulator": {"ros__parameters": simp},
-                                              "attitude_sensors": {"ros__parameters": common},
-                                              "controller": {"ros__parameters": common}}))
+                                              "attitude_sensors": {"ros__parameters": dict(common)},
+                                              "controller": {"ros__parameters": dict(common)}}))
         self.sc = ["--params-file", str(SPACECRAFT)]
 
     def start_controller(self, name="controller"):
@@ -232,8 +233,9 @@ def test_controller_killed_and_restarted(tmp_path, gains60, offline):
 
 def test_nan_bursts_in_sensor_stream(tmp_path, gains60, offline):
     """Bursts of 3 NaN attitude samples every 20 steps: each poisoned sample is rejected and
-    counted (rejected_nonfinite), the simulator counts exactly those steps as missed, the
-    attitude stays bounded, and the bag holds the poisoned samples as they were sent."""
+    counted (rejected_nonfinite), the simulator counts those steps as missed (less those the
+    stale-data guard answered), the attitude stays bounded, and the bag holds the poisoned
+    samples as they were sent."""
     rig = Rig(tmp_path, gains60, relay_args=["--nan-every", 20, "--nan-burst", 3]).start()
     try:
         res = rig.finish()
@@ -241,11 +243,16 @@ def test_nan_bursts_in_sensor_stream(tmp_path, gains60, offline):
         rig.stop()
     rep = rig.relay_report()
     poisoned = sorted(set(rep["poisoned"]))
-    assert len(poisoned) == 16  # k % 20 < 3, 0 < k <= 120: 20,21,22, ..., 100,101,102, 120
+    assert len(poisoned) == 18  # k % 20 < 3, 0 < k <= 120: 1, 2, 20, 21, 22, ..., 100, 101, 102, 120
     counters = json.loads(str(res.info["counters"]))
-    assert counters["missed_steps"] == len(poisoned)
-    assert _diag(rig.bag, "controller")["rejected_nonfinite"] == len(poisoned)
-    assert _diag(rig.bag, "simulator")["missed_steps"] == len(poisoned)
+    ctl = _diag(rig.bag, "controller")
+    assert ctl["rejected_nonfinite"] == len(poisoned)      # every poisoned sample, no other
+    # a poisoned step gets no command, except where the controller's stale-data guard (no valid
+    # input for > 2 ts: zero dipole, published at once) answered it first: at most once per
+    # 3-sample burst, depending on wall timing
+    missed = counters["missed_steps"]
+    assert len(poisoned) - ctl["stale_data"] <= missed <= len(poisoned), (missed, ctl)
+    assert _diag(rig.bag, "simulator")["missed_steps"] == missed
     dev = np.max(np.abs(_dq(res) - _dq(offline)))
     print(f"NaN bursts: missed {counters['missed_steps']}, max |dq - dq_nominal| {dev:.3e}")
     assert np.all(np.isfinite(res.x)) and dev < 1e-2
@@ -257,8 +264,9 @@ def test_nan_bursts_in_sensor_stream(tmp_path, gains60, offline):
 
 
 def test_relay_drops_ten_percent(tmp_path, gains60, offline):
-    """A relay drops 10 % of the sensor messages (seeded): every step with a dropped input has
-    no command and is counted missed, no other step is; the attitude stays bounded."""
+    """A relay drops 10 % of the sensor messages (seeded): a step with a dropped input has no
+    command and is counted missed, no other step is; the attitude stays bounded; the bag holds
+    exactly what the relay passed on."""
     rig = Rig(tmp_path, gains60, relay_args=["--drop", 0.1, "--seed", 7]).start()
     try:
         res = rig.finish()
@@ -268,14 +276,16 @@ def test_relay_drops_ten_percent(tmp_path, gains60, offline):
     lost = set(rep["dropped"]["mag"]) | set(rep["dropped"]["att"])
     assert 0.1 * (N + 1) <= len(lost) <= 0.35 * (N + 1)  # 1 - 0.9^2 = 19 % expected, seed 7
     counters = json.loads(str(res.info["counters"]))
-    assert counters["missed_steps"] == len(lost)
-    assert _diag(rig.bag, "simulator")["missed_steps"] == len(lost)
+    missed = counters["missed_steps"]
+    # as for NaN bursts: 3+ consecutive lost steps may be answered by the stale-data guard
+    assert len(lost) - _diag(rig.bag, "controller").get("stale_data", 0) <= missed <= len(lost)
+    assert _diag(rig.bag, "simulator")["missed_steps"] == missed
     c = _counts(rig.bag)
     assert c["/sensors/attitude"] == N + 1 - len(rep["dropped"]["att"])
     assert c["/sensors/magnetic_field"] == N + 1 - len(rep["dropped"]["mag"])
-    assert c["/controller/dipole_command"] == N + 1 - len(lost)
+    assert c["/controller/dipole_command"] >= N + 1 - len(lost)
     dev = np.max(np.abs(_dq(res) - _dq(offline)))
-    print(f"10 % drop: missed {len(lost)}, max |dq - dq_nominal| {dev:.3e}")
+    print(f"10 % drop: lost {len(lost)}, missed {missed}, max |dq - dq_nominal| {dev:.3e}")
     assert np.all(np.isfinite(res.x)) and dev < 1e-2
 
 
@@ -332,3 +342,53 @@ def test_log_time_equals_stamp_under_cpu_load(tmp_path, gains60):
     clock = t["clock"]
     assert clock["samples"] + clock.get("missing_samples", 0) == N + 1
     assert not [w for w in t["warnings"] if not w.startswith("/clock")]
+
+
+def test_diverging_simulation_stops_with_the_step(tmp_path, gains60):
+    """Why #6: with ts = 100 s (beyond the nutation period 76.6 s; RK4 at 2 sub-steps is
+    unstable there: |omega_n h| = 0.082 * 50 = 4.1 > 2.8) the simulator kept stepping a NaN state
+    and sil exited 0. The runner's own check refuses --ts 100 (test_bad_input); here the nodes
+    are handed ts = 100 directly, and the simulator stops at the first diverged step."""
+    slow = {"ts": 100.0}
+    with pytest.raises(sil.SilError, match=r"diverged .*at step (\d+) \(t=\d+\.\d+ s\)") as err:
+        sil.run_sil(gains60, steps=2000, log_dir=tmp_path, timeout=120, simulator_params=slow,
+                    sensor_params=slow, controller_params=slow)
+    k = int(re.search(r"at step (\d+)", str(err.value)).group(1))
+    assert 1 <= k < 2000  # stopped early, not after 2000 steps of garbage
+    assert not (tmp_path / "results.npz").exists()
+
+
+def test_recorder_disk_full_ends_with_one_line(tmp_path):
+    """Why #5: disk full in the recorder ended in a traceback. The recorder runs with a file
+    size limit of 64 KiB (RLIMIT_FSIZE: writes beyond fail with EFBIG, as ENOSPC would); it
+    stops with one line naming the bag, exit 1, and the chunks written before are readable."""
+    import resource
+
+    sys.path.insert(0, str(SUPPORT))
+    import bag_fixture_pub as fx
+    from bagproc import Procs, executable, ros_env
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, 64 * 1024))
+
+    procs = Procs(ros_env(), tmp_path / "logs")
+    out = tmp_path / "full"
+    try:
+        log = open(tmp_path / "recorder.out", "w+")
+        rec = subprocess.Popen(executable("recorder") + [
+            "-o", str(out), "--topics", *[f"{t}:{ty}" for t, ty in fx.TOPICS.items()], "--chunk-size", "8192",
+            "--flush-period", "0.1"], env=procs.env, stdout=log, stderr=subprocess.STDOUT, preexec_fn=limit,
+            start_new_session=True)
+        procs.procs.append(rec)
+        rec.log_path = tmp_path / "recorder.out"
+        procs.wait_for_line(rec, "magtune-recorder ready")
+        procs.python("publisher", "bag_fixture_pub.py", 3000, "--rate", 1000)
+        assert rec.wait(120) == 1
+    finally:
+        procs.stop_all()
+    text = (tmp_path / "recorder.out").read_text()
+    assert "Traceback" not in text
+    line = [ln for ln in text.splitlines() if "failed" in ln]
+    assert len(line) == 1 and "File too large" in line[0] and "magtune bag recover" in line[0], text
+    res = bag_scan.scan(bag.resolve_mcap(out))
+    assert res.message_count > 0 and not res.chunks_bad

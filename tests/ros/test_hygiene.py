@@ -73,7 +73,10 @@ def _start(tmp_path):
         time.sleep(0.1)
     assert len(_node_pids(did)) == 4, "nodes did not start"
     assert not _domain_free(did)
-    time.sleep(1.0)
+    log = tmp_path / "logs" / "recorder.log"
+    while time.monotonic() < end and "matched all" not in (log.read_text() if log.exists() else ""):
+        time.sleep(0.1)  # the run is under way: the recorder has its bag open and every topic matched
+    time.sleep(0.5)
     return proc, did
 
 

@@ -6,8 +6,8 @@ Subscribes ``sensors/magnetic_field_raw`` and ``sensors/attitude_raw`` (the sens
 there) and republishes on ``sensors/magnetic_field`` / ``sensors/attitude`` with the project's
 lockstep QoS, after:
 
-* ``--drop P``: each message dropped with probability P (numpy default_rng(seed), one draw per
-  message in arrival order, both topics);
+* ``--drop P``: each message dropped with probability P (one draw of
+  ``default_rng([seed, topic, step])`` per message: reproducible whatever the arrival order);
 * ``--nan-every N --nan-burst B``: the attitude samples whose step index k (stamp / ts) satisfies
   ``k % N < B`` (k > 0) get NaN in orientation.x: bursts of B consecutive bad samples every N steps.
 
@@ -43,7 +43,6 @@ def main(argv=None):
     a = ap.parse_args(remove_ros_args(argv)[1:])
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = Node("fault_relay")
-    rng = np.random.default_rng(a.seed)
     log = {"dropped": {"mag": [], "att": []}, "poisoned": [], "relayed": {"mag": 0, "att": 0}}
     stop = {"flag": False}
 
@@ -58,7 +57,10 @@ def main(argv=None):
     def relay(kind):
         def cb(msg):
             ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-            if a.drop > 0 and rng.random() < a.drop:
+            # one draw per (seed, topic, step): the same messages are dropped whatever the
+            # order in which the two topics arrive
+            k_draw = round(ns * 1e-9 / a.ts)
+            if a.drop > 0 and np.random.default_rng([a.seed, kind == "att", k_draw]).random() < a.drop:
                 log["dropped"][kind].append(ns)
                 return
             k = round(ns * 1e-9 / a.ts)
