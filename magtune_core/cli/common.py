@@ -79,8 +79,20 @@ def plain_summary(doc: str | None) -> str:
 
 
 def field_model_argument(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--field-model", choices=tuple(FIELD_MODELS),
+    """--field-model NAME | --field FILE (the design field) and --config (the spacecraft file)."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--field-model", choices=tuple(FIELD_MODELS),
                    help="design field model (default: field_model of the spacecraft file)")
+    g.add_argument("--field", metavar="FILE", default=None,
+                   help="design field: a periodic fit of IGRF along the orbit (magtune fit-field output, "
+                        "any number of harmonics); must be fit for the spacecraft file's orbit")
+    config_argument(p)
+
+
+def config_argument(p: argparse.ArgumentParser) -> None:
+    """--config after the subcommand too (same destination as the global option, which it overrides)."""
+    p.add_argument("--config", default=argparse.SUPPRESS,
+                   help="spacecraft/orbit parameter file (default: config/spacecraft.yaml of the repository)")
 
 
 def positive_floats(text: str) -> list[float]:
@@ -114,11 +126,15 @@ def environment_options(args) -> FullEnvironmentOptions:
 
 
 def load_model(args):
-    """The LTP design model of ``--config`` (and ``--field-model`` if given)."""
+    """The LTP design model of ``--config`` and ``--field FILE`` or ``--field-model`` (if given)."""
+    from ..design.fitfield import field_for_spacecraft
     from ..design.model import AttitudeLTP
     from ..design.params import load_spacecraft
 
-    return AttitudeLTP.from_params(load_spacecraft(args.config), getattr(args, "field_model", None))
+    p = load_spacecraft(args.config)
+    if getattr(args, "field", None):
+        return AttitudeLTP(p, field_for_spacecraft(args.field, p))
+    return AttitudeLTP.from_params(p, getattr(args, "field_model", None))
 
 
 def add_force_argument(p: argparse.ArgumentParser) -> None:

@@ -5,6 +5,7 @@ import argparse
 from datetime import datetime
 
 from ..design import fitfield
+from ..design.params import check_orbit
 from .common import CommandError, add_force_argument, check_output, plain_summary, repo_path
 
 
@@ -37,6 +38,7 @@ def run(args) -> int:
     """Handler of ``magtune fit-field``: fit, print the report, write the file. Returns an exit code."""
     if args.harmonics < 1 or args.days <= 0 or args.step <= 0 or not 1 <= args.degree <= 13:
         raise CommandError("need --harmonics >= 1, --days > 0, --step > 0, 1 <= --degree <= 13", code=2)
+    check_orbit(args.altitude * 1e3, args.inclination, "command line")
     check_output(args.out, force=args.force)
     field, report = fitfield.fit_field(args.altitude * 1e3, args.inclination, args.harmonics, args.days, args.step,
                               args.degree, args.epoch, args.raan)

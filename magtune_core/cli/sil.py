@@ -15,7 +15,11 @@ def register(sub) -> None:
     p.add_argument("--steps", type=int, default=None, help="run length in controller steps (overrides --orbits)")
     p.add_argument("--ts", type=float, default=None, help="controller sample period [s] (default: gains file ts)")
     p.add_argument("--substeps", type=int, default=2, help="RK4 sub-steps per sample period (default 2)")
-    p.add_argument("--spacecraft", default=str(sil.DEFAULT_SPACECRAFT), help="spacecraft parameter file")
+    p.add_argument("--spacecraft", "--config", dest="spacecraft", default=None,
+                   help="spacecraft/orbit parameter file (default: the global --config, config/spacecraft.yaml)")
+    p.add_argument("--field", metavar="FILE", default=None,
+                   help="paper environment: simulate this field file (magtune fit-field output) instead of the "
+                        "spacecraft's field_model (the full environment keeps IGRF along the orbit)")
     p.add_argument("--rtf", type=float, default=0.0, help="pace at this real-time factor (default 0: max speed)")
     p.add_argument("--bag", default=None, help="record the run to this MCAP bag (needs the recorder node)")
     p.add_argument("--results", default=None, help="keep the trajectory .npz here")
@@ -28,6 +32,11 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def _spacecraft(args) -> str:
+    """--spacecraft/--config of the subcommand, else the global --config (the repository's by default)."""
+    return args.spacecraft or args.config
+
+
 def run(args) -> int:
     import sys
 
@@ -38,9 +47,10 @@ def run(args) -> int:
     if not args.quiet:
         print("magtune sil: starting the nodes (discovery takes a few seconds)", file=sys.stderr, flush=True)
     res = sil.run_sil(args.gains, orbits=args.orbits, steps=args.steps, ts=args.ts, substeps=args.substeps,
-                      spacecraft=args.spacecraft, real_time_factor=args.rtf, bag=args.bag, results=args.results,
+                      spacecraft=_spacecraft(args), real_time_factor=args.rtf, bag=args.bag, results=args.results,
                       log_dir=args.log_dir, domain_id=args.domain_id, timeout=args.timeout,
-                      environment=args.environment, env_options=environment_options(args), progress=progress)
+                      environment=args.environment, env_options=environment_options(args), field=args.field,
+                      progress=progress)
     if args.json:
         print(json.dumps(dict(res.figures, **{"missed_steps": res.counters.get("missed_steps", 0),
                                               "wall_time": res.wall_time, "real_time_factor": res.real_time_factor,

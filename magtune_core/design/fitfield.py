@@ -37,11 +37,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..base.errors import ConfigError
 from ..base.paramfile import read_ros_params
 from ..base.schema import Field, parse
 from ..env.igrf import IGRF
 from ..env.orbit import DEFAULT_EPOCH, Orbit, OrbitConfig, argument_of_latitude, eci_to_orbital
 from .field import FourierField
+from .params import PERIOD_TOLERANCE
 
 
 @dataclass(frozen=True)
@@ -140,12 +142,60 @@ FIELD_MODEL_FIELDS = (
 )
 
 
-def load_field_model(path) -> FourierField:
-    """Read a file written by :func:`write_field_model` back into a FourierField."""
+def load_field_model(path, with_meta: bool = False):
+    """Read a file written by :func:`write_field_model` back into a FourierField.
+
+    Any number of harmonics; the coefficients must be finite, no axis may be identically zero
+    (zero mean and zero amplitude: a fit that failed or a hand-edited file) and |b(t)| must stay
+    > 1 nT over the period (the projection law divides by |b|^2). ConfigError otherwise, naming
+    the field. ``with_meta``: also return the ``field_fit_*`` provenance as a dict (keys without prefix).
+    """
     p = read_ros_params(path)
     v = parse(p, FIELD_MODEL_FIELDS, path)
     H = v["field_fourier_harmonics"]  # the coefficient lists' size depends on it
     c = parse(p, [Field(name, "float[]", f"{3 * H} coefficients [T], row-major (harmonic, axis)", size=3 * H)
                   for name in ("field_fourier_cos", "field_fourier_sin")], path)
-    return FourierField(v["field_fourier_omega"], mean=v["field_fourier_mean"], cos=c["field_fourier_cos"].reshape(H, 3),
-                        sin=c["field_fourier_sin"].reshape(H, 3), name=f"file:{Path(path).name}")
+    field = FourierField(v["field_fourier_omega"], mean=v["field_fourier_mean"],
+                         cos=c["field_fourier_cos"].reshape(H, 3), sin=c["field_fourier_sin"].reshape(H, 3),
+                         name=f"file:{Path(path).name}")
+    check_field(field, path)
+    if with_meta:
+        return field, {k[len("field_fit_"):]: val for k, val in p.items() if k.startswith("field_fit_")}
+    return field
+
+
+def check_field(field: FourierField, where) -> None:
+    """ConfigError if an axis of ``field`` is identically zero or |b(t)| gets below 1 nT (see load_field_model)."""
+    for i, axis in enumerate("xyz"):
+        if field.mean[i] == 0.0 and not np.any(field.cos[:, i]) and not np.any(field.sin[:, i]):
+            raise ConfigError(where, "field_fourier_mean", f"the {axis} component is identically zero (zero mean and "
+                                                           "zero amplitude): refit with magtune fit-field")
+    t = np.arange(4096) * field.period / 4096
+    bmin = float(np.min(np.linalg.norm(field(t), axis=-1)))
+    if not bmin > 1e-9:
+        raise ConfigError(where, "field_fourier_mean", f"|b(t)| falls to {bmin:.3g} T (< 1 nT): the projection law "
+                                                       "divides by |b|^2; refit with magtune fit-field")
+
+
+def field_for_spacecraft(path, params, where=None) -> FourierField:
+    """The field file ``path`` as the design field of spacecraft ``params`` (a SpacecraftParams).
+
+    The fit must be for this orbit: fundamental rate within ``PERIOD_TOLERANCE`` (0.5 %) of
+    2 pi / orbit_period, and, when the file records them, altitude within 1 km and inclination
+    within 0.5 deg of the spacecraft's. ConfigError naming the field otherwise.
+    """
+    field, meta = load_field_model(path, with_meta=True)
+    where = where or path
+    w0 = 2.0 * np.pi / params.orbit_period
+    if abs(field.omega - w0) > PERIOD_TOLERANCE * w0:
+        raise ConfigError(where, "field_fourier_omega", f"field period {field.period:.1f} s does not match the orbit "
+                                                        f"period {params.orbit_period:.1f} s of the spacecraft file: "
+                                                        "fit the field for this orbit (magtune fit-field --altitude ...)")
+    alt, inc = meta.get("altitude"), meta.get("inclination")
+    if isinstance(alt, (int, float)) and abs(alt - params.altitude) > 1e3:
+        raise ConfigError(where, "field_fit_altitude", f"fit for {alt / 1e3:g} km, the spacecraft flies at "
+                                                       f"{params.altitude / 1e3:g} km: refit with magtune fit-field")
+    if isinstance(inc, (int, float)) and abs(inc - params.inclination_deg) > 0.5:
+        raise ConfigError(where, "field_fit_inclination", f"fit for {inc:g} deg, the spacecraft's inclination is "
+                                                          f"{params.inclination_deg:g} deg: refit with magtune fit-field")
+    return field

@@ -3,17 +3,68 @@
 Parameter files use the standard ROS 2 layout ``node_name: {ros__parameters: {...}}``;
 ``/**`` applies to every node. Every loader error names the file, the field and what was
 expected, so a user can fix the file without reading code.
+
+The orbit is a first-class parameter set: a **circular** orbit (eccentricity 0; magtune's LTP
+model of paper section 3 assumes a constant orbital rate) given by ``altitude`` (above the
+JGM-3 equatorial radius; 150 km .. 2000 km), ``inclination`` (0 .. 180 deg), ``raan`` and
+``arg_latitude`` at ``epoch`` (UTC, ISO 8601). The nominal period T (W0 = 2 pi/T of the design
+model and of the controller's state) is *derived* from them, so no two parameters can disagree:
+
+* ``period_model: keplerian`` (default): T = 2 pi sqrt(a^3/GM), the paper's choice (its
+  5614.8 s at 450 km is the Keplerian period, to 0.4 s);
+* ``period_model: j2_mean``: 2 pi / (mean orbital-frame rate of the J2-propagated orbit), the
+  nominal period the full environment uses (:func:`magtune_core.env.orbit.mean_frame_period`;
+  5611.2 s at 450 km/87 deg). Choose it when flying on IGRF along the real orbit: the
+  fitted field's rate (``magtune fit-field``) is the same mean rate.
+
+``orbit_period`` may still be given (older files, the paper's 5614.8 s): it is then used as T
+but must lie within :data:`PERIOD_TOLERANCE` (0.5 %) of the Keplerian period of ``altitude``
+- wider than the J2 mean-rate offset anywhere in 150-2000 km (0.05 % .. 0.31 %, largest for
+equatorial orbits at 150 km) plus rounding, narrower than an altitude off by 23 km
+(dT/T = 1.5 da/a = 0.022 % per km).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from datetime import datetime
 
 import numpy as np
 
 from ..base.errors import ConfigError
 from ..base.paramfile import read_ros_params
 from ..base.schema import Field, parse
+from ..env.orbit import DEFAULT_EPOCH, OrbitConfig, keplerian_period, mean_frame_period
 from .field import FIELD_MODELS, FourierField, paper_field
+
+#: Altitudes [m] the circular-orbit model accepts: below 150 km the orbit decays within hours,
+#: above 2000 km is outside LEO (field too weak for magnetic control, IGRF fit of degree 10 only).
+ALTITUDE_RANGE = (150e3, 2000e3)
+#: How the nominal period is derived from the orbit (module docstring).
+PERIOD_MODELS = ("keplerian", "j2_mean")
+#: Largest relative difference between an explicit ``orbit_period`` and the Keplerian period.
+PERIOD_TOLERANCE = 5e-3
+
+
+def parse_epoch(text: str, where="spacecraft parameters", name="epoch") -> datetime:
+    """ISO 8601 UTC date/time -> naive datetime (UTC); ConfigError naming ``name`` otherwise."""
+    try:
+        d = datetime.fromisoformat(str(text).replace("Z", "+00:00"))
+    except ValueError:
+        raise ConfigError(where, name, f"expected an ISO 8601 UTC date/time like 2027-01-01T00:00:00, got {text!r}") \
+            from None
+    if d.tzinfo is not None:  # express in UTC, drop the offset (the orbit code takes naive UTC)
+        d = (d - d.utcoffset()).replace(tzinfo=None)
+    return d
+
+
+def check_orbit(altitude: float, inclination_deg: float, where="spacecraft parameters") -> None:
+    """ConfigError unless 150 km <= altitude <= 2000 km and 0 <= inclination <= 180 deg."""
+    lo, hi = ALTITUDE_RANGE
+    if not lo <= altitude <= hi:
+        raise ConfigError(where, "altitude", f"expected {lo:g} .. {hi:g} m (150 .. 2000 km, circular LEO), "
+                                             f"got {altitude:g}")
+    if not 0.0 <= inclination_deg <= 180.0:
+        raise ConfigError(where, "inclination", f"expected 0 .. 180 deg, got {inclination_deg:g}")
 
 
 @dataclass(frozen=True)
@@ -26,24 +77,44 @@ class SpacecraftParams:
     orbit_period: float = 5614.8
     altitude: float = 450e3
     inclination_deg: float = 87.0
+    raan_deg: float = 0.0
+    arg_lat_deg: float = 0.0
+    epoch: datetime = DEFAULT_EPOCH
+    period_model: str = "keplerian"
+    box_dims: np.ndarray = field(default_factory=lambda: np.array([0.6, 1.0, 0.8]))
+    cp_offset: np.ndarray = field(default_factory=lambda: np.full(3, 0.05 / np.sqrt(3.0)))
     field_model: str = "eq26"
     constant_field: np.ndarray = field(default_factory=lambda: np.array([2e-5, 0.0, 1e-5]))
 
     #: The schema of ``config/spacecraft.yaml``: CLI and nodes (magtune_ros.common) declare and
-    #: validate exactly these parameters. The physical data are required; the orbit geometry
-    #: and field model default to the paper's section 5.
+    #: validate exactly these parameters. The physical data are required; the orbit (circular)
+    #: and field model default to the paper's section 5; the period is derived (module docstring).
     FIELDS = (
         # bounds: physically possible values (a typo or a unit error falls outside): a 1 g cubesat
-        # to a space station; wheels up to 1e4 rad/s; orbits from grazing LEO (~5000 s) to beyond
-        # GEO; |b| at most 1e-3 T per axis (the geomagnetic field is below 7e-5 T)
+        # to a space station; wheels up to 1e4 rad/s; |b| at most 1e-3 T per axis (the geomagnetic
+        # field is below 7e-5 T); altitude and inclination: check_orbit
         Field("inertia", "float[]", "principal moments Ixx, Iyy, Izz [kg m^2]", size=3, positive=True,
               bounds=(1e-6, 1e8), unit="kg m^2"),
         Field("wheel_inertia", "float", "pitch wheel inertia J [kg m^2]", positive=True, bounds=(1e-9, 1e4),
               unit="kg m^2"),
         Field("wheel_speed", "float", "nominal wheel speed Wwheel [rad/s]", bounds=(-1e4, 1e4), unit="rad/s"),
-        Field("orbit_period", "float", "circular orbit period T [s]", positive=True, bounds=(1e3, 1e7), unit="s"),
-        Field("altitude", "float", "orbit altitude [m]", 450e3, positive=True, bounds=(1e4, 1e9), unit="m"),
-        Field("inclination", "float", "orbit inclination [deg]", 87.0, bounds=(-180.0, 180.0), unit="deg"),
+        Field("altitude", "float", "circular-orbit altitude above the equatorial radius [m], 150 km .. 2000 km",
+              450e3, positive=True),
+        Field("inclination", "float", "orbit inclination [deg], 0 .. 180", 87.0),
+        Field("raan", "float", "right ascension of the ascending node at epoch [deg]", 0.0, bounds=(-360.0, 360.0),
+              unit="deg"),
+        Field("arg_latitude", "float", "argument of latitude at epoch [deg] (angle from the ascending node)", 0.0,
+              bounds=(-360.0, 360.0), unit="deg"),
+        Field("epoch", "str", "UTC epoch of the orbit and of IGRF, ISO 8601", DEFAULT_EPOCH.isoformat()),
+        Field("period_model", "str", "nominal period: keplerian (paper) or j2_mean (mean rate of the J2 orbit)",
+              "keplerian", choices=PERIOD_MODELS),
+        Field("orbit_period", "float", "nominal period T [s]; optional: derived from the orbit by period_model, "
+              "if given it must agree with the Keplerian period within 0.5 %", None, positive=True,
+              bounds=(1e3, 1e7), unit="s"),
+        Field("box_dims", "float[]", "full environment: edge lengths of the drag/SRP box along body X, Y, Z [m]",
+              (0.6, 1.0, 0.8), size=3, positive=True, bounds=(1e-3, 100.0), unit="m"),
+        Field("cp_offset", "float[]", "full environment: centre of pressure minus centre of mass, body axes [m]",
+              (0.05 / 3.0 ** 0.5,) * 3, size=3, bounds=(-10.0, 10.0), unit="m"),
         Field("field_model", "str", "geomagnetic field model in orbital axes", "eq26", choices=FIELD_MODELS),
         Field("constant_field", "float[]", "field [T] in orbital axes for field_model = constant",
               (2e-5, 0.0, 1e-5), size=3, bounds=(-1e-3, 1e-3), unit="T"),
@@ -57,9 +128,29 @@ class SpacecraftParams:
         ``config/spacecraft.yaml``). Raises ConfigError naming ``where``, the field and what was expected.
         """
         v = parse(params, cls.FIELDS, where, allowed=() if strict else None)
-        return cls(inertia=v["inertia"], wheel_inertia=v["wheel_inertia"], wheel_speed=v["wheel_speed"],
-                   orbit_period=v["orbit_period"], altitude=v["altitude"], inclination_deg=v["inclination"],
-                   field_model=v["field_model"], constant_field=v["constant_field"])
+        check_orbit(v["altitude"], v["inclination"], where)
+        epoch = parse_epoch(v["epoch"], where)
+        p = cls(inertia=v["inertia"], wheel_inertia=v["wheel_inertia"], wheel_speed=v["wheel_speed"],
+                altitude=v["altitude"], inclination_deg=v["inclination"], raan_deg=v["raan"],
+                arg_lat_deg=v["arg_latitude"], epoch=epoch, period_model=v["period_model"],
+                box_dims=v["box_dims"], cp_offset=v["cp_offset"],
+                field_model=v["field_model"], constant_field=v["constant_field"])
+        kep = keplerian_period(p.altitude)
+        T = v["orbit_period"]
+        if T is None:
+            T = kep if p.period_model == "keplerian" else mean_frame_period(p.orbit_config())
+        elif abs(T - kep) > PERIOD_TOLERANCE * kep:
+            raise ConfigError(where, "orbit_period", f"{T:g} s contradicts altitude {p.altitude / 1e3:g} km "
+                                                     f"(Keplerian period {kep:.1f} s, tolerance 0.5 %): remove "
+                                                     "orbit_period (it is derived) or fix altitude")
+        return replace(p, orbit_period=float(T))
+
+    def orbit_config(self, **overrides) -> OrbitConfig:
+        """The circular orbit as :class:`magtune_core.env.orbit.OrbitConfig` (``overrides``: its fields)."""
+        kw = dict(altitude=float(self.altitude), inclination_deg=float(self.inclination_deg),
+                  raan_deg=float(self.raan_deg), arg_lat_deg=float(self.arg_lat_deg), epoch=self.epoch)
+        kw.update({k: v for k, v in overrides.items() if v is not None})
+        return OrbitConfig(**kw)
 
     @property
     def orbit_rate(self) -> float:

@@ -39,6 +39,7 @@ from ..base import ament
 from ..base.ament import ROOT
 from ..base.errors import ConfigError
 from ..base.paramfile import check_ros_params
+from ..design.fitfield import field_for_spacecraft
 from ..design.gains import CONTROLLER_NODE, Gains
 from ..design.params import SpacecraftParams, check_sample_period
 from ..sim.fullenv import FullEnvironmentOptions, full_params
@@ -374,7 +375,7 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
             timeout: float | None = None, domain_id: int | None = None, log_dir=None, results=None,
             simulator_params: dict | None = None, sensor_params: dict | None = None,
             controller_params: dict | None = None, on_start=None, environment: str = "paper",
-            env_options=None, progress=None) -> SilRun:
+            env_options=None, field=None, progress=None) -> SilRun:
     """Start controller, attitude_sensors and simulator (+ recorder with ``bag``), wait, clean up.
 
     ``timeout`` (wall s, default generous) bounds the whole run; parameters dicts are extra
@@ -382,7 +383,11 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
     ``environment`` "paper" (default) or "full" with ``env_options`` a
     ``fullenv.FullEnvironmentOptions``: the simulator builds the full environment and every node
     gets the actual orbit's nominal period (``fullenv.full_params``), as the offline
-    ``simulate(..., environment="full")``. ``progress(k, n)`` is called with each "step k/n"
+    ``simulate(..., environment="full")``. The orbit (altitude, inclination, RAAN, argument of
+    latitude, epoch) is the spacecraft file's. ``field``: a field file (``magtune fit-field``) the
+    simulator uses as b(t) in the paper environment instead of the spacecraft's ``field_model``
+    (the full environment keeps IGRF along the actual orbit).
+    ``progress(k, n)`` is called with each "step k/n"
     line the simulator logs (every tenth of the run) and once with ``(n, n)`` at the end.
     """
     gains = Path(gains)
@@ -399,6 +404,11 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
             check_writable(path, flag, directory=flag == "--log-dir")
     if bag:
         check_writable(bag, "--bag", directory=True, empty=True)
+    if field is not None:
+        if environment == "full":
+            raise ConfigError("--field", None, "the full environment uses IGRF along the actual orbit; give --field "
+                              "with --environment paper")
+        field_for_spacecraft(field, sc_params)  # validated here: one line before any process starts
     prefix = package_prefix()
     exes = {n: resolve_executable(n) for n in NODES}
     rec_exe = None
@@ -430,12 +440,16 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
     env_sim: dict = {}
     if environment == "full":
         opts = env_options or FullEnvironmentOptions()
-        if opts.epoch != FullEnvironmentOptions().epoch or opts.raan_deg or opts.arg_lat_deg or opts.zonal_degree != 2:
-            raise SilError("the simulator node takes the default epoch/RAAN/argument of latitude/zonal degree")
+        if opts.epoch is not None or opts.raan_deg is not None or opts.arg_lat_deg is not None \
+                or opts.zonal_degree != 2:
+            raise SilError("the simulator node flies the spacecraft file's orbit: set epoch, raan, arg_latitude "
+                           "there (zonal degree 2)")
         common["orbit_period"] = float(full_params(sc_params, opts).orbit_period)
         env_sim = dict(environment="full", env_gravity_gradient=bool(opts.gravity_gradient), env_drag=bool(opts.drag),
                        env_srp=bool(opts.srp), env_field=str(opts.field), igrf_degree=int(opts.igrf_degree))
         sim["orbit_period"] = common["orbit_period"]
+    elif environment == "paper" and field is not None:
+        env_sim = dict(field_file=str(Path(field).resolve()))
     elif environment != "paper":
         raise SilError(f"unknown environment {environment!r} (expected 'paper' or 'full')")
     params = {

@@ -48,7 +48,7 @@ from ..env.atmosphere import harris_priester, relative_wind_eci
 from ..env.earth import GM_EARTH
 from ..env.environment import Environment, EnvironmentConfig
 from ..env.geometry import BoxGeometry
-from ..env.orbit import DEFAULT_EPOCH, OrbitConfig, eci_to_orbital, orbital_rate
+from ..env.orbit import eci_to_orbital, mean_frame_period, orbital_rate
 from ..env.sun import AU, SOLAR_PRESSURE_1AU, shadow_cylindrical
 from .dynamics import AttitudeDynamics
 
@@ -75,18 +75,20 @@ class FullEnvironmentOptions:
     srp: bool = True
     field: str = "igrf"  #: "igrf" or a periodic model of magtune_core.design.field (e.g. "eq26")
     igrf_degree: int = 10
-    epoch: datetime = DEFAULT_EPOCH
-    raan_deg: float = 0.0
-    arg_lat_deg: float = 0.0
+    #: orbit overrides for studies; None (default) = the spacecraft parameters' orbit (SpacecraftParams)
+    epoch: datetime | None = None
+    raan_deg: float | None = None
+    arg_lat_deg: float | None = None
     zonal_degree: int = 2
 
     def environment_config(self, p: SpacecraftParams) -> EnvironmentConfig:
-        orbit = OrbitConfig(altitude=float(p.altitude), inclination_deg=float(p.inclination_deg),
-                            raan_deg=self.raan_deg, arg_lat_deg=self.arg_lat_deg, epoch=self.epoch,
-                            zonal_degree=self.zonal_degree)
+        orbit = p.orbit_config(raan_deg=self.raan_deg, arg_lat_deg=self.arg_lat_deg, epoch=self.epoch,
+                               zonal_degree=self.zonal_degree)
         # residual dipole is the dynamics' built-in term; the others are computed here
         return EnvironmentConfig(gravity_gradient=self.gravity_gradient, residual_dipole=False, drag=self.drag,
                                  srp=self.srp, inertia=tuple(float(v) for v in np.asarray(p.inertia).reshape(-1)),
+                                 geometry=BoxGeometry(dims=tuple(float(x) for x in p.box_dims),
+                                                      cp_offset=tuple(float(x) for x in p.cp_offset)),
                                  igrf_degree=self.igrf_degree, orbit=orbit)
 
 
@@ -98,13 +100,10 @@ def _environment(cfg: EnvironmentConfig) -> Environment:
 def nominal_orbit_period(p: SpacecraftParams, opts: FullEnvironmentOptions | None = None, orbits: int = 5) -> float:
     """2 pi / (mean of -w_oi,z over ``orbits`` Keplerian periods, 10 s samples) [s].
 
-    The nominal rate W0 of the controller's linear state in the full environment (module doc).
+    The nominal rate W0 of the controller's linear state in the full environment (module doc);
+    :func:`magtune_core.env.orbit.mean_frame_period` of the spacecraft's orbit.
     """
-    env = _environment((opts or FullEnvironmentOptions()).environment_config(p))
-    t = np.arange(0.0, orbits * env.config.orbit.keplerian_period, 10.0)
-    r, v = env.orbit.state(t)
-    wz = orbital_rate(r, v, zonal_degree=env.config.orbit.zonal_degree)[:, 2]
-    return float(2.0 * np.pi / np.mean(-wz))
+    return mean_frame_period((opts or FullEnvironmentOptions()).environment_config(p).orbit, orbits)
 
 
 class _TimeGrid:

@@ -48,9 +48,12 @@ def test_spacecraft_schema_requires_physical_data_and_defaults_the_orbit():
     p = SpacecraftParams.from_mapping(base)
     assert np.array_equal(p.inertia, [35.0, 17.0, 25.0]) and p.orbit_period == 5614.8
     assert p.altitude == 450e3 and p.inclination_deg == 87.0 and p.field_model == "eq26"
-    for key in base:
+    for key in ("inertia", "wheel_inertia", "wheel_speed"):
         with pytest.raises(ConfigError, match=f"field '{key}': missing"):
             SpacecraftParams.from_mapping({k: v for k, v in base.items() if k != key})
+    # orbit_period is optional: derived from the orbit (Keplerian period of 450 km by default)
+    p = SpacecraftParams.from_mapping({k: v for k, v in base.items() if k != "orbit_period"})
+    assert p.orbit_period == pytest.approx(5615.19, abs=0.01)
 
 
 def test_gains_schema_keeps_provenance():

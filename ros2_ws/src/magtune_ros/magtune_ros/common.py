@@ -161,6 +161,8 @@ def declare_schema(node: Node, fields, where: str | None = None) -> dict:
         default = None if f.required else (list(f.default) if isinstance(f.default, tuple) else f.default)
         # only the ROS type is checked here; values are validated by the schema (same errors as the CLI)
         v = declare(node, f.name, default, f.description, _SCHEMA_PTYPES[f.kind], required=False)
+        if f.default is None and (v is None or (isinstance(v, list) and not v)):
+            continue  # optional without default (e.g. orbit_period, derived by the schema when absent)
         if not (f.required and (v is None or (isinstance(v, list) and not v))):
             values[f.name] = list(v) if f.kind == "float[]" else v
     return values

@@ -2,7 +2,7 @@
 
 Physics: ``magtune_core.sim.dynamics.AttitudeDynamics`` (rigid body, pitch wheel, gravity gradient,
 residual dipole, eq. 26 field; other field models and disturbance torques plug in through the
-``field_plugin`` / ``disturbance_plugins`` parameters) with ``environment: paper`` (default), or
+``field_plugin`` / ``field_file`` (a ``magtune fit-field`` output) / ``disturbance_plugins`` parameters) with ``environment: paper`` (default), or
 ``magtune_core.sim.fullenv.FullDynamics`` with ``environment: full`` (J2 orbit, IGRF degree
 ``igrf_degree``, gravity gradient with the actual radius, drag, SRP; switches ``env_*``; the
 nominal orbit period becomes the actual orbit's, which the controller must be given too), integrated with the same RK4 step as the offline
@@ -115,6 +115,9 @@ class Simulator(Node):
         field_plugin = c.declare(self, "field_plugin", "",
                                  "'module:function' returning b_orb(t) [T, orbital axes] from SpacecraftParams; "
                                  "'' = field_model of the spacecraft parameters")
+        field_file = c.declare(self, "field_file", "",
+                               "paper environment: periodic field file (magtune fit-field output) as b_orb(t); "
+                               "'' = field_model of the spacecraft parameters")
         plugins = c.declare(self, "disturbance_plugins", [], "'module:function' factories (SpacecraftParams -> "
                             "torque(t, q, w, b) [N m]) added to gravity gradient and residual dipole",
                             "str[]", required=False)
@@ -124,10 +127,19 @@ class Simulator(Node):
             # nominal W0 / T of the actual orbit (the controller gets the same orbit_period from `magtune sil`)
             p = self.p = full_params(p, opts)
             self.n = int(steps) if steps > 0 else int(round(orbits * p.orbit_period / self.ts))
+        if field_file and (field_plugin or environment == "full"):
+            raise c.ParamError("field_file", "only with environment 'paper' and without field_plugin")
         try:
             field = load_plugin(field_plugin)(p) if field_plugin else None
         except Exception as exc:  # noqa: BLE001 - any failure is a parameter error
             raise c.ParamError("field_plugin", f"cannot load {field_plugin!r}: {exc}") from None
+        if field_file:
+            from magtune_core.base.errors import ConfigError
+            from magtune_core.design.fitfield import field_for_spacecraft
+            try:
+                field = field_for_spacecraft(field_file, p)
+            except ConfigError as exc:
+                raise c.ParamError("field_file", str(exc)) from None
         dist = []
         for spec in plugins:
             try:
@@ -181,7 +193,7 @@ class Simulator(Node):
         self.get_logger().info(
             f"{self.n} steps of {self.ts} s ({self.n * self.ts / p.orbit_period:.3f} orbits), "
             f"lockstep={self.lockstep}, real_time_factor={self.rtf or 'max'}, environment={self.environment}, "
-            f"field={p.field_model if self.environment == 'paper' else opts.field}, T={p.orbit_period:.3f} s")
+            f"field={(field_file or p.field_model) if self.environment == 'paper' else opts.field}, T={p.orbit_period:.3f} s")
 
     # ---------------------------------------------------------------- stepping
     def peers_ready(self) -> bool:

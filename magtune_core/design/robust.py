@@ -1,0 +1,212 @@
+"""Robust (multi-model) design: the model set of a robust spec and worst-case figures of a gain.
+
+A robust spec (``magtune tune|analyze --robust SPEC.yaml``) is a ROS 2-layout parameter file
+(``/**: ros__parameters: {...}``, schema :data:`ROBUST_FIELDS`) describing a *finite* set of
+LTP design models around the nominal one (the spacecraft file + ``--field``/``--field-model``):
+
+* ``inertia_scale: [0.9, 1.1]``: multipliers of the principal moments; ``inertia_corners: true``
+  takes every corner (2^3 combinations for two multipliers), else one moment at a time;
+* ``wheel_speed_scale: [0.9, 1.1]``: multipliers of the nominal wheel speed;
+* ``field_raan: [deg...]`` x ``field_epoch_offsets: [days...]``: IGRF fits
+  (:func:`magtune_core.design.fitfield.fit_field`, ``field_harmonics`` harmonics, ``field_fit_days`` of
+  orbit each) of the spacecraft's orbit with the RAAN and epoch (spacecraft epoch + offset)
+  changed. A short fit (default 0.25 d, 4 orbits) sees only some longitudes: the spread of such
+  fits is the orbit-to-orbit variation of the field that one periodic model cannot represent;
+* ``combination: one_at_a_time`` (default): each variation alone, the others nominal
+  (1 + corners + wheel + fields models); ``product``: every combination (grows fast).
+
+The nominal model is always in the set (``include_nominal: false`` drops it; then the spec
+must still yield at least one model). Physically impossible inertia corners (a principal moment
+larger than the sum of the other two: not a rigid body) are left out and reported (the paper's
+satellite, 35/17/25 kg m^2, loses the corner [1.1, 0.9, 0.9] of +-10 %).
+
+Robust J = max over the models of J_k(K) (paper eq. 21 per model; inf if any closed loop is
+unstable). The optimizer minimizes it (:mod:`magtune_core.design.objective`); this module builds
+the set and reports per-model and worst-case figures (:func:`robust_figures`).
+"""
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, replace
+from datetime import timedelta
+
+import numpy as np
+
+from ..base.errors import ConfigError
+from ..base.paramfile import read_ros_params
+from ..base.schema import Field, parse
+from ..ltp import DEFAULT_STEPS
+from .fitfield import check_field, fit_field
+from .model import AttitudeLTP
+from .problem import Figures, figures
+
+COMBINATIONS = ("one_at_a_time", "product")
+
+#: The schema of a robust spec file.
+ROBUST_FIELDS = (
+    Field("inertia_scale", "float[]", "multipliers of each principal moment (e.g. [0.9, 1.1])", (), positive=True),
+    Field("inertia_corners", "bool", "every combination of the multipliers over the 3 axes (else one axis at a time)",
+          True),
+    Field("wheel_speed_scale", "float[]", "multipliers of the nominal wheel speed (e.g. [0.9, 1.1])", (),
+          positive=True),
+    Field("field_raan", "float[]", "RAANs at epoch [deg] of the IGRF fits (empty: the spacecraft's, if epochs given)",
+          ()),
+    Field("field_epoch_offsets", "float[]", "epochs of the IGRF fits, days after the spacecraft epoch", (),
+          nonnegative=True),
+    Field("field_harmonics", "int", "harmonics of each IGRF fit", 2, positive=True),
+    Field("field_fit_days", "float", "days of orbit each IGRF fit averages over", 0.25, positive=True),
+    Field("combination", "str", "one_at_a_time (each variation alone) or product (every combination)",
+          "one_at_a_time", choices=COMBINATIONS),
+    Field("include_nominal", "bool", "keep the nominal model in the set", True),
+)
+
+
+@dataclass(frozen=True)
+class RobustSpec:
+    """A validated robust spec (see module docstring)."""
+
+    inertia_scale: tuple = ()
+    inertia_corners: bool = True
+    wheel_speed_scale: tuple = ()
+    field_raan: tuple = ()
+    field_epoch_offsets: tuple = ()
+    field_harmonics: int = 2
+    field_fit_days: float = 0.25
+    combination: str = "one_at_a_time"
+    include_nominal: bool = True
+
+    @classmethod
+    def from_mapping(cls, params: dict, where="robust spec") -> "RobustSpec":
+        v = parse(params, ROBUST_FIELDS, where)
+        spec = cls(**{k: (tuple(float(x) for x in val) if isinstance(val, np.ndarray) else val)
+                      for k, val in v.items()})
+        if not (spec.inertia_scale or spec.wheel_speed_scale or spec.field_raan or spec.field_epoch_offsets):
+            raise ConfigError(where, "inertia_scale", "the spec defines no models: give at least one of "
+                                                      "inertia_scale, wheel_speed_scale, field_raan, field_epoch_offsets")
+        return spec
+
+
+def load_robust_spec(path) -> RobustSpec:
+    """Read and validate a robust spec file (ConfigError naming the file and field)."""
+    return RobustSpec.from_mapping(read_ros_params(path), path)
+
+
+@dataclass(frozen=True)
+class NamedModel:
+    """One model of the set and the variation it carries (``name`` as printed in reports)."""
+
+    name: str
+    model: AttitudeLTP
+
+
+def _inertia_variants(spec: RobustSpec, inertia, skipped: list):
+    if not spec.inertia_scale:
+        return []
+    scales = spec.inertia_scale
+    if spec.inertia_corners:
+        combos = list(itertools.product(scales, repeat=3))
+    else:
+        combos = [tuple(s if j == i else 1.0 for j in range(3)) for i in range(3) for s in scales]
+    out = []
+    for c in combos:
+        inertia_k = np.asarray(inertia) * np.asarray(c)
+        label = "inertia x[" + ", ".join(f"{x:g}" for x in c) + "]"
+        if any(inertia_k[i] > inertia_k[(i + 1) % 3] + inertia_k[(i + 2) % 3] for i in range(3)):
+            skipped.append(f"{label} (not a rigid body: {inertia_k.round(6).tolist()})")
+            continue
+        out.append((label, dict(inertia=inertia_k)))
+    return out
+
+
+def _field_variants(spec: RobustSpec, p):
+    raans = spec.field_raan or ((p.raan_deg,) if spec.field_epoch_offsets else ())
+    offsets = spec.field_epoch_offsets or ((0.0,) if spec.field_raan else ())
+    return [(raan, off) for raan in raans for off in offsets]
+
+
+def model_set(nominal: AttitudeLTP, spec: RobustSpec, where="robust spec", skipped: list | None = None) \
+        -> list[NamedModel]:
+    """The finite model set of ``spec`` around ``nominal`` (nominal first, if included).
+
+    ``skipped``: if given, receives the names of the non-physical inertia corners left out.
+
+    Returns
+    -------
+    list of NamedModel
+        Each variation of the spec applied to the nominal spacecraft parameters and field
+        (``one_at_a_time`` or ``product`` combination). IGRF fits run here (~1 s each).
+    """
+    p = nominal.params
+    skipped = [] if skipped is None else skipped
+    inertia = _inertia_variants(spec, p.inertia, skipped)
+    wheel = [(f"wheel_speed x{s:g}", dict(wheel_speed=p.wheel_speed * s)) for s in spec.wheel_speed_scale]
+    fields = []
+    for raan, off in _field_variants(spec, p):
+        f, _ = fit_field(p.altitude, p.inclination_deg, spec.field_harmonics, spec.field_fit_days,
+                         epoch=p.epoch + timedelta(days=off), raan_deg=raan)
+        check_field(f, f"{where}: fit raan={raan:g} epoch+{off:g} d")
+        fields.append((f"IGRF fit raan {raan:g} deg, epoch+{off:g} d", f))
+    models: list[NamedModel] = []
+    if spec.include_nominal:
+        models.append(NamedModel("nominal", nominal))
+
+    def build(label, changes, fld):
+        return NamedModel(label, AttitudeLTP(replace(p, **changes) if changes else p, fld or nominal.field))
+
+    if spec.combination == "one_at_a_time":
+        for label, ch in inertia + wheel:
+            models.append(build(label, ch, None))
+        for label, f in fields:
+            models.append(build(label, {}, f))
+    else:
+        groups = [g for g in (inertia, wheel, [(lbl, f) for lbl, f in fields]) if g]
+        for combo in itertools.product(*groups):
+            changes, fld, labels = {}, None, []
+            for label, item in combo:
+                labels.append(label)
+                if isinstance(item, dict):
+                    changes.update(item)
+                else:
+                    fld = item
+            models.append(build("; ".join(labels), changes, fld))
+    if not models:
+        raise ConfigError(where, "include_nominal", "the spec yields no models"
+                          + (f" ({len(skipped)} non-physical inertia corners left out)" if skipped else ""))
+    return models
+
+
+@dataclass
+class RobustFigures:
+    """Per-model figures of one gain and the worst case over the set."""
+
+    names: list
+    figures: list  #: Figures per model, in ``names`` order
+
+    @property
+    def worst_index(self) -> int:
+        """The model with the largest J (an unstable one first: J = inf, then the largest rho)."""
+        J = np.array([f.J for f in self.figures])
+        rho = np.array([f.rho for f in self.figures])
+        return int(np.argmax(rho)) if not np.all(np.isfinite(J)) else int(np.argmax(J))
+
+    @property
+    def worst_name(self) -> str:
+        return self.names[self.worst_index]
+
+    def worst(self) -> dict:
+        """Worst case of each figure over the set: max J, c1, c2, rho (each may come from a different model)."""
+        return {k: float(max(getattr(f, k) for f in self.figures)) for k in ("J", "c1", "c2", "rho")}
+
+    def nominal(self) -> Figures | None:
+        return self.figures[self.names.index("nominal")] if "nominal" in self.names else None
+
+
+def robust_figures(models, K, sigma: float, steps: int = DEFAULT_STEPS) -> RobustFigures:
+    """J, c1, c2, rho (paper eqs. 21, 28-30) of gain K on every model of the set.
+
+    Returns
+    -------
+    RobustFigures
+        Figures per model (``figures(model, K, sigma, steps)``), the worst case and the worst model.
+    """
+    return RobustFigures([m.name for m in models], [figures(m.model, K, sigma, steps=steps) for m in models])
