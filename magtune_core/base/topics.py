@@ -44,6 +44,28 @@ PROJECT_TOPICS: dict[str, tuple[str, str]] = {
 }
 
 
-def topic_specs() -> list[str]:
-    """``/name:pkg/msg/Type`` list for the recorder's ``--topics``."""
-    return [f"{n}:{t}" for n, (t, _) in PROJECT_TOPICS.items()]
+def topic_specs(namespaces=("",)) -> list[str]:
+    """``/name:pkg/msg/Type`` list for the recorder's ``--topics``: the project's topics of each
+    namespace (``/sat1/sim/truth``, ...). With namespaces other than the root, each satellite's
+    clock is ``<ns>/clock`` (the SIL remaps ``/clock`` per satellite) and ``/diagnostics`` stays
+    global."""
+    out: list[str] = []
+    for ns in namespaces:
+        ns = ("/" + ns.strip("/")) if ns.strip("/") else ""
+        for n, (t, _) in PROJECT_TOPICS.items():
+            if n == TOPIC_DIAGNOSTICS:
+                continue
+            out.append(f"{ns}{n}:{t}")
+    return out + [f"{TOPIC_DIAGNOSTICS}:{PROJECT_TOPICS[TOPIC_DIAGNOSTICS][0]}"]
+
+
+def project_topic(name: str) -> tuple[str, str] | None:
+    """(type, durability) of a project topic under any namespace (``/sat1/sim/truth`` is the
+    project's ``/sim/truth``), else None. ``/diagnostics`` only at the root."""
+    name = "/" + name.lstrip("/")
+    if name in PROJECT_TOPICS:
+        return PROJECT_TOPICS[name]
+    for n, spec in PROJECT_TOPICS.items():
+        if n != TOPIC_DIAGNOSTICS and name.endswith(n):
+            return spec
+    return None
