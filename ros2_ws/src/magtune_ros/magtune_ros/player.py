@@ -241,8 +241,8 @@ class Player(Node):
                 t = m.log_time if a.order == "log" else m.publish_time
                 if t > sel.end_ns:
                     break
-                if anchor_bag is None:
-                    anchor_bag = t
+                if anchor_bag is None:  # timing starts at the first message (reading and the
+                    anchor_bag, anchor_wall = t, time.monotonic()  # integrity check come before it)
                 stepped = False
                 with st.cond:
                     while True:
