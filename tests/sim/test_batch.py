@@ -55,7 +55,9 @@ def test_each_run_equals_single_run_simulate(setup, environment):
         r = simulate(s["K"], replace(s["p"], inertia=s["inertia"][i]), ts=1.0, steps=STEPS, dw0=s["dw0"][i], q0=s["q0"][i],
                      dipole_limit=s["lim"][i], residual_dipole=s["mres"][i], environment=environment,
                      env_options=opts[i] if opts else None)
-        assert res.orbit_period[i] == r.orbit_period
+        # nominal period from the batched ephemeris (full: three orbits integrated as one system, each
+        # within its single-run tolerance, positions agree to ~1e-5 m of 6.8e6 m)
+        assert res.orbit_period[i] == pytest.approx(r.orbit_period, rel=1e-10)
         _assert_close(res.t, r.t)
         _assert_close(res.q[i], r.q)
         _assert_close(res.w[i], r.w)
@@ -113,5 +115,5 @@ def test_divergence_is_flagged_per_run(setup):
     np.testing.assert_array_equal(res.x[[0, 2]], ref.x[[0, 2]])
     # full series: the true pointing error and |m| at every instant, consistent with the histories
     ang = np.degrees(2 * np.arctan2(np.linalg.norm(ref.q[..., 1:], axis=-1), np.abs(ref.q[..., 0])))
-    np.testing.assert_allclose(ref.pointing_deg, ang, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(ref.pointing_deg, ang, rtol=1e-9, atol=1e-9)  # asin vs atan2 form
     np.testing.assert_allclose(ref.m_norm, np.linalg.norm(ref.m, axis=-1), rtol=1e-12)
