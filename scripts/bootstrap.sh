@@ -31,7 +31,10 @@ if [ -d "$root/ros2_ws/src" ] && [ -n "$(ls -A "$root/ros2_ws/src" 2>/dev/null)"
   wwant=$(cd "$root/ros2_ws/src" && find . -type f -not -path '*/__pycache__/*' -print0 | sort -z | xargs -0 sha1sum | sha1sum | cut -d' ' -f1)
   if [ "$(cat "$wstamp" 2>/dev/null)" != "$wwant" ]; then
     echo "bootstrap: colcon build of ros2_ws" >&2
-    (cd "$root/ros2_ws" && PATH="$venv/bin:$PATH" "$venv/bin/colcon" build \
+    # ament_cmake packages (the interface packages tf2_msgs, rosbag2_interfaces) find the
+    # wheels' CMake configs through AMENT_PREFIX_PATH/CMAKE_PREFIX_PATH = the venv
+    (cd "$root/ros2_ws" && PATH="$venv/bin:$PATH" AMENT_PREFIX_PATH="$venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}" \
+        CMAKE_PREFIX_PATH="$venv${CMAKE_PREFIX_PATH:+:$CMAKE_PREFIX_PATH}" "$venv/bin/colcon" build \
         --event-handlers console_cohesion- summary- console_stderr- >/dev/null) \
       || { echo "bootstrap: colcon build failed; see ros2_ws/log/latest_build" >&2; exit 1; }
     echo "$wwant" > "$wstamp"

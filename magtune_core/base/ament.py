@@ -57,13 +57,21 @@ def python_site(prefix: Path) -> Path:
 
 
 def child_env(*package_prefixes: Path) -> dict:
-    """Environment for a node process: ``package_prefixes`` first on AMENT_PREFIX_PATH and their
-    Python packages (and the repository, for magtune_core) first on PYTHONPATH."""
+    """Environment for a node process: ``package_prefixes``, then the workspace's packages
+    (``ros2_ws/install/*``: the nodes, the interface packages), first on AMENT_PREFIX_PATH and
+    their Python packages (and the repository, for magtune_core) first on PYTHONPATH."""
     env = dict(os.environ)
+    # then every package of the project's workspace (interface packages such as tf2_msgs)
+    ws = sorted(p for p in WORKSPACE_INSTALL.iterdir() if p.is_dir()) if WORKSPACE_INSTALL.is_dir() else []
+    package_prefixes = tuple(package_prefixes) + tuple(p for p in ws if p not in package_prefixes)
     mine = [str(x) for x in package_prefixes]
     amp = mine + [p for p in env.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p and p not in mine]
     env["AMENT_PREFIX_PATH"] = os.pathsep.join(amp)
     sites = [str(python_site(x)) for x in package_prefixes]
     pp = sites + [str(ROOT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p]
     env["PYTHONPATH"] = os.pathsep.join(pp)
+    # the interface packages' typesupport libraries (<prefix>/lib), as colcon's local_setup does
+    libs = [str(Path(x) / "lib") for x in package_prefixes if (Path(x) / "lib").is_dir()]
+    ld = libs + [p for p in env.get("LD_LIBRARY_PATH", "").split(os.pathsep) if p and p not in libs]
+    env["LD_LIBRARY_PATH"] = os.pathsep.join(ld)
     return env

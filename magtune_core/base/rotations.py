@@ -67,3 +67,29 @@ def cross(a, b) -> np.ndarray:
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     return np.stack(np.broadcast_arrays(a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
+
+
+def matrix_to_quat(R) -> np.ndarray:
+    """Scalar-first unit quaternion q with ``rotation_matrix(q) == R`` (R proper orthogonal, (3, 3)).
+
+    Shepperd's method: the largest of 1 + trace, 1 + 2 R_ii - trace chooses the pivot, so the
+    division is always by a number >= 1/2 (no loss of precision near 180 deg). Sign: q0 >= 0.
+    """
+    R = np.asarray(R, dtype=float)
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    d = np.array([tr, R[0, 0], R[1, 1], R[2, 2]])
+    i = int(np.argmax(d))
+    if i == 0:
+        s = 2.0 * np.sqrt(1.0 + tr)
+        q = np.array([s / 4, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s])
+    elif i == 1:
+        s = 2.0 * np.sqrt(1.0 + 2 * R[0, 0] - tr)
+        q = np.array([(R[2, 1] - R[1, 2]) / s, s / 4, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s])
+    elif i == 2:
+        s = 2.0 * np.sqrt(1.0 + 2 * R[1, 1] - tr)
+        q = np.array([(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, s / 4, (R[1, 2] + R[2, 1]) / s])
+    else:
+        s = 2.0 * np.sqrt(1.0 + 2 * R[2, 2] - tr)
+        q = np.array([(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, s / 4])
+    q /= np.linalg.norm(q)
+    return -q if q[0] < 0 else q

@@ -16,11 +16,16 @@ TOPIC_ATTITUDE = "sensors/attitude"           # sensor_msgs/Imu: measured attitu
 TOPIC_DIPOLE = "controller/dipole_command"    # geometry_msgs/Vector3Stamped: m [A m^2]
 TOPIC_CLOCK = "/clock"                        # rosgraph_msgs/Clock (absolute, as ROS requires)
 TOPIC_DIAGNOSTICS = "/diagnostics"            # diagnostic_msgs/DiagnosticArray (absolute, by convention)
+TOPIC_TF = "tf"                               # tf2_msgs/TFMessage: orbital -> body (+ eci -> orbital, full env.); /tf un-namespaced
+TOPIC_MARKERS = "sim/markers"                 # visualization_msgs/MarkerArray: body box, field and dipole arrows
 
 #: Frames (REP-103): orbital = LVLH with X nadir (yaw), Y along-track (roll), Z = -orbit
 #: normal (pitch) as in the paper's section 3; body = spacecraft principal axes.
 FRAME_ORBITAL = "orbital"
 FRAME_BODY = "body"
+#: Earth-centred inertial frame of the full environment (``magtune_core.env.orbit``: the
+#: orbit's ECI axes, position in metres); parent of ``orbital`` on /tf.
+FRAME_ECI = "eci"
 
 # Names as recorded in bags of an un-namespaced run (absolute).
 TRUTH = "/" + TOPIC_TRUTH
@@ -28,6 +33,8 @@ TRUE_FIELD = "/" + TOPIC_TRUE_FIELD
 MAG = "/" + TOPIC_MAG
 ATTITUDE = "/" + TOPIC_ATTITUDE
 DIPOLE = "/" + TOPIC_DIPOLE
+TF = "/" + TOPIC_TF
+MARKERS = "/" + TOPIC_MARKERS
 CONTROLLER_INPUTS = (MAG, ATTITUDE)
 
 #: name -> (type, durability offered by the publisher: lockstep topics are transient-local)
@@ -41,9 +48,33 @@ PROJECT_TOPICS: dict[str, tuple[str, str]] = {
     ATTITUDE: ("sensor_msgs/msg/Imu", "transient_local"),
     DIPOLE: ("geometry_msgs/msg/Vector3Stamped", "transient_local"),
     TOPIC_DIAGNOSTICS: ("diagnostic_msgs/msg/DiagnosticArray", "volatile"),
+    TF: ("tf2_msgs/msg/TFMessage", "transient_local"),
+    MARKERS: ("visualization_msgs/msg/MarkerArray", "transient_local"),
 }
 
 
-def topic_specs() -> list[str]:
-    """``/name:pkg/msg/Type`` list for the recorder's ``--topics``."""
-    return [f"{n}:{t}" for n, (t, _) in PROJECT_TOPICS.items()]
+def topic_specs(namespaces=("",)) -> list[str]:
+    """``/name:pkg/msg/Type`` list for the recorder's ``--topics``: the project's topics of each
+    namespace (``/sat1/sim/truth``, ...). With namespaces other than the root, each satellite's
+    clock is ``<ns>/clock`` (the SIL remaps ``/clock`` per satellite) and ``/diagnostics`` stays
+    global."""
+    out: list[str] = []
+    for ns in namespaces:
+        ns = ("/" + ns.strip("/")) if ns.strip("/") else ""
+        for n, (t, _) in PROJECT_TOPICS.items():
+            if n == TOPIC_DIAGNOSTICS:
+                continue
+            out.append(f"{ns}{n}:{t}")
+    return out + [f"{TOPIC_DIAGNOSTICS}:{PROJECT_TOPICS[TOPIC_DIAGNOSTICS][0]}"]
+
+
+def project_topic(name: str) -> tuple[str, str] | None:
+    """(type, durability) of a project topic under any namespace (``/sat1/sim/truth`` is the
+    project's ``/sim/truth``), else None. ``/diagnostics`` only at the root."""
+    name = "/" + name.lstrip("/")
+    if name in PROJECT_TOPICS:
+        return PROJECT_TOPICS[name]
+    for n, spec in PROJECT_TOPICS.items():
+        if n != TOPIC_DIAGNOSTICS and name.endswith(n):
+            return spec
+    return None

@@ -55,6 +55,9 @@ def run_command(args) -> int:
     except CommandError as exc:
         print(f"{name}: {exc}", file=sys.stderr)
         return exc.code
+    except BrokenPipeError:  # output piped into head & co.: stop quietly, as POSIX tools do
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except KeyboardInterrupt:
         print(f"{name}: interrupted" + ("; all nodes stopped" if args.command == "sil" else ""), file=sys.stderr)
         return 130

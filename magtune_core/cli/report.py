@@ -4,16 +4,24 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..base.topics import DIPOLE, TRUTH
+from ..design.law import DEFAULT_DIPOLE_LIMIT
 from ..studies import report
-from .common import CommandError, plain_summary
+from .common import CommandError, check_output, plain_summary
 
 
 def register(sub) -> None:
     p = sub.add_parser("report", help="paper Figs. 2-5 and figures of merit from recorded bags",
                        description=plain_summary(report.__doc__))
     p.add_argument("bags", nargs="+", help="bag directories (bags/NAME)")
-    p.add_argument("--out", required=True, help="output directory (reports/NAME/)")
-    p.add_argument("--run", default=None, help="bag name for Figs. 4-5 (default: largest sigma)")
+    p.add_argument("--out", required=True,
+                   help="output directory (reports/NAME/); its figures, summary.md/.json and report.html are "
+                        "rewritten")
+    p.add_argument("--run", default=None,
+                   help="only this run in Figs. 4-5 (bag name, or bag/NS for a namespaced satellite; default: "
+                        "every run, one panel each)")
+    p.add_argument("--dipole-limit", type=float, default=DEFAULT_DIPOLE_LIMIT,
+                   help=f"per-axis dipole limit drawn in Fig. 5 [A m^2] (default {DEFAULT_DIPOLE_LIMIT:g}, the "
+                        "simulator's dipole_limit)")
     p.add_argument("--labels", nargs="+", default=None,
                    help="legend labels, one per bag (default: custom_data sigma or bag name)")
     p.add_argument("--truth-topic", default=TRUTH, help=f"nav_msgs/Odometry truth topic (default {TRUTH})")
@@ -23,9 +31,13 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    check_output(args.out, option="--out", directory=True)
+    if not args.dipole_limit > 0:
+        raise CommandError("--dipole-limit must be positive", code=2)
     try:
         s = report.make_report(args.bags, args.out, run=args.run, truth=args.truth_topic,
-                               dipole=args.dipole_topic, orbit_period=args.orbit_period, labels=args.labels)
+                               dipole=args.dipole_topic, orbit_period=args.orbit_period, labels=args.labels,
+                               dipole_limit=args.dipole_limit)
     except (OSError, ValueError) as exc:
         raise CommandError(str(exc)) from None
     print(Path(args.out, "summary.md").read_text())

@@ -4,13 +4,16 @@ from __future__ import annotations
 import json
 
 from ..ros import sil
-from .common import add_environment_arguments, environment_options, plain_summary
+from .common import CommandError, add_environment_arguments, environment_options, plain_summary
 
 
 def register(sub) -> None:
     p = sub.add_parser("sil", help="software-in-the-loop run of the ROS 2 nodes (lockstep, sim time)",
                        description=plain_summary(sil.__doc__))
-    p.add_argument("--gains", required=True, help="controller gains parameter file (config/gains/sigma_*.yaml)")
+    p.add_argument("--gains", required=True, nargs="+", metavar="[NS=]FILE",
+                   help="controller gains parameter file (config/gains/sigma_*.yaml); several satellites side by "
+                        "side in one domain as NS=FILE each, e.g. sat1=config/gains/sigma_60.yaml "
+                        "sat2=config/gains/sigma_240.yaml (each in namespace /NS with its own clock /NS/clock)")
     p.add_argument("--orbits", type=float, default=5.0, help="run length in orbits (default 5)")
     p.add_argument("--steps", type=int, default=None, help="run length in controller steps (overrides --orbits)")
     p.add_argument("--ts", type=float, default=None, help="controller sample period [s] (default: gains file ts)")
@@ -44,18 +47,38 @@ def run(args) -> int:
         if not args.quiet:
             print(f"magtune sil: step {k}/{n} ({100 * k // max(n, 1)} %)", file=sys.stderr, flush=True)
 
+    sats = satellites(args.gains)
     if not args.quiet:
         print("magtune sil: starting the nodes (discovery takes a few seconds)", file=sys.stderr, flush=True)
-    res = sil.run_sil(args.gains, orbits=args.orbits, steps=args.steps, ts=args.ts, substeps=args.substeps,
+    runs = sil.run_fleet(sats, orbits=args.orbits, steps=args.steps, ts=args.ts, substeps=args.substeps,
                       spacecraft=_spacecraft(args), real_time_factor=args.rtf, bag=args.bag, results=args.results,
                       log_dir=args.log_dir, domain_id=args.domain_id, timeout=args.timeout,
                       environment=args.environment, env_options=environment_options(args), field=args.field,
                       progress=progress)
-    if args.json:
-        print(json.dumps(dict(res.figures, **{"missed_steps": res.counters.get("missed_steps", 0),
-                                              "wall_time": res.wall_time, "real_time_factor": res.real_time_factor,
-                                              "counters": res.counters,
-                                              "log_dir": str(res.log_dir) if res.log_dir else None})))
+    def as_json(res):
+        return dict(res.figures, **{"missed_steps": res.counters.get("missed_steps", 0),
+                                    "wall_time": res.wall_time, "real_time_factor": res.real_time_factor,
+                                    "counters": res.counters, "log_dir": str(res.log_dir) if res.log_dir else None})
+
+    if list(runs) == [""]:  # one satellite, root namespace: the summary as before
+        print(json.dumps(as_json(runs[""])) if args.json else runs[""].summary())
+    elif args.json:
+        print(json.dumps({ns or "/": as_json(r) for ns, r in runs.items()}))
     else:
-        print(res.summary())
+        for ns, r in runs.items():
+            print(f"== {ns or '/'} ({sats[ns]})\n{r.summary()}")
     return 0
+
+
+def satellites(values: list[str]) -> dict:
+    """``--gains`` values -> {namespace: gains file}: ``FILE`` is the root namespace, ``NS=FILE``
+    the namespace /NS (normalized and checked by :func:`magtune_core.ros.sil.normalize_namespace`)."""
+    out: dict = {}
+    for v in values:
+        ns, sep, path = v.partition("=")
+        ns, path = (ns, path) if sep else ("", v)
+        ns = sil.normalize_namespace(ns)
+        if ns in out:
+            raise CommandError(f"--gains: namespace {ns or '/'} given twice", code=2)
+        out[ns] = path
+    return out

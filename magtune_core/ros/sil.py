@@ -34,6 +34,7 @@ from ..base import ament
 from ..base.ament import ROOT
 from ..base.errors import ConfigError
 from ..base.paramfile import check_ros_params
+from ..base.topics import topic_specs
 from ..design.fitfield import field_for_spacecraft
 from ..design.gains import CONTROLLER_NODE, Gains
 from ..design.params import SpacecraftParams
@@ -204,6 +205,7 @@ class LogProgress:
     def finish(self) -> None:
         self.poll()
         if self.callback is not None and self.n and self.last < self.n:
+            self.last = self.n
             self.callback(self.n, self.n)
 
 
@@ -236,31 +238,79 @@ class SilRun:
                 f"real-time factor {self.real_time_factor:.0f}x")
 
 
-def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float | None = None,
-            spacecraft=DEFAULT_SPACECRAFT, substeps: int = 2, bag=None, real_time_factor: float = 0.0,
-            lockstep: bool = True, lockstep_timeout: float = 2.0, startup_timeout: float = 30.0,
-            timeout: float | None = None, domain_id: int | None = None, log_dir=None, results=None,
-            simulator_params: dict | None = None, sensor_params: dict | None = None,
-            controller_params: dict | None = None, on_start=None, environment: str = "paper",
-            env_options=None, field=None, progress=None) -> SilRun:
-    """Start controller, attitude_sensors and simulator (+ recorder with ``bag``), wait, clean up.
+#: A ROS namespace as ``magtune sil --gains NS=FILE`` takes it: tokens of letters, digits, _.
+NAMESPACE = re.compile(r"^(/[A-Za-z][A-Za-z0-9_]*)+$")
+
+
+def normalize_namespace(ns: str) -> str:
+    """``sat1`` / ``/sat1/`` -> ``/sat1``; ``""`` or ``/`` -> ``""`` (root). Raises ConfigError
+    for a name ROS would reject."""
+    ns = "/" + str(ns).strip().strip("/")
+    if ns == "/":
+        return ""
+    if not NAMESPACE.match(ns):
+        raise ConfigError(ns, None, "not a valid ROS namespace (tokens of letters, digits and '_', "
+                                    "each starting with a letter, e.g. /sat1)")
+    return ns
+
+
+def run_sil(gains, **kwargs) -> SilRun:
+    """One satellite in the root namespace: :func:`run_fleet` with ``{"": gains}``.
+
+    Start controller, attitude_sensors and simulator (+ recorder with ``bag``), wait, clean up.
+    Keyword arguments as :func:`run_fleet`.
+    """
+    return run_fleet({"": gains}, **kwargs)[""]
+
+
+def _tag(ns: str) -> str:
+    return ns.strip("/").replace("/", "_")
+
+
+def run_fleet(satellites: dict, *, orbits: float = 5.0, steps: int | None = None, ts: float | None = None,
+              spacecraft=DEFAULT_SPACECRAFT, substeps: int = 2, bag=None, real_time_factor: float = 0.0,
+              lockstep: bool = True, lockstep_timeout: float = 2.0, startup_timeout: float = 30.0,
+              timeout: float | None = None, domain_id: int | None = None, log_dir=None, results=None,
+              simulator_params: dict | None = None, sensor_params: dict | None = None,
+              controller_params: dict | None = None, on_start=None, environment: str = "paper",
+              env_options=None, field=None, progress=None) -> dict[str, SilRun]:
+    """Satellites side by side in one ROS domain, one namespace each (``{"/sat1": gains_a,
+    "/sat2": gains_b}``; ``""`` is the root namespace), optionally recorded in one bag.
+
+    Each satellite is its own lockstep simulation: its three nodes run with ``-r __ns:=NS``
+    (relative topics become ``NS/sim/truth``, ...) and ``-r /clock:=NS/clock`` (each simulator
+    is the time source of its own nodes only; with one satellite in the root namespace nothing
+    is remapped). The gains file goes to that satellite's controller only; the SIL's own
+    parameters are keyed ``/**/<node>`` so they apply under any namespace. The recorder (with
+    ``bag``) subscribes to every satellite's topics and clocks and follows the first satellite's
+    clock for log times; every message keeps its own satellite's sim time in its header stamp.
 
     ``timeout`` (wall s, default generous) bounds the whole run; parameters dicts are extra
-    ROS parameters per node. Raises SilError naming the failing node and its last log lines.
-    ``environment`` "paper" (default) or "full" with ``env_options`` a
+    ROS parameters per node (every satellite). Raises SilError naming the failing node and its
+    last log lines. ``environment`` "paper" (default) or "full" with ``env_options`` a
     ``fullenv.FullEnvironmentOptions``: the simulator builds the full environment and every node
     gets the actual orbit's nominal period (``fullenv.full_params``), as the offline
     ``simulate(..., environment="full")``. The orbit (altitude, inclination, RAAN, argument of
     latitude, epoch) is the spacecraft file's. ``field``: a field file (``magtune fit-field``) the
-    simulator uses as b(t) in the paper environment instead of the spacecraft's ``field_model``
+    simulators use as b(t) in the paper environment instead of the spacecraft's ``field_model``
     (the full environment keeps IGRF along the actual orbit).
-    ``progress(k, n)`` is called with each "step k/n"
-    line the simulator logs (every tenth of the run) and once with ``(n, n)`` at the end.
+    ``progress(k, n)`` is called with each "step k/n" line the simulators log (every tenth of the run; summed over satellites) and once with
+    ``(n, n)`` at the end. ``results``: the trajectory ``.npz`` (``<stem>_<ns><suffix>`` per
+    satellite when there are several).
+
+    Returns
+    -------
+    dict
+        namespace (as given, normalized: ``""`` or ``/sat1``) -> :class:`SilRun`.
     """
-    gains = Path(gains)
+    if not satellites:
+        raise ConfigError("--gains", None, "no satellite given")
+    sats = {normalize_namespace(ns): Path(g) for ns, g in satellites.items()}
+    if len(sats) != len(satellites):
+        raise ConfigError("--gains", None, "two satellites with the same namespace")
     # every input is validated before any process starts (ConfigError: one line, exit 2 in the CLI)
     # (one read per file: the rcl-compatibility check returns the parameters the schema validates)
-    gains_params = Gains.from_mapping(check_ros_params(gains, CONTROLLER_NODE), gains)
+    gains_params = {ns: Gains.from_mapping(check_ros_params(g, CONTROLLER_NODE), g) for ns, g in sats.items()}
     sc_params = SpacecraftParams.from_mapping(check_ros_params(spacecraft), spacecraft)
     if field is not None:
         if environment == "full":
@@ -280,21 +330,26 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
     own_dir = not log_dir  # a temporary log directory is removed after a successful run
     log_dir = Path(log_dir) if log_dir else Path(tempfile.mkdtemp(prefix="magtune_sil_"))
     log_dir.mkdir(parents=True, exist_ok=True)
-    results = Path(results) if results else log_dir / "results.npz"  # loaded into memory before cleanup
-    if results.exists():
-        results.unlink()
+    multi = len(sats) > 1 or "" not in sats
+    res_paths = {}
+    for ns in sats:
+        if results:
+            r = Path(results)
+            res_paths[ns] = r.with_name(f"{r.stem}_{_tag(ns)}{r.suffix}") if multi and ns else r
+        else:  # loaded into memory before cleanup
+            res_paths[ns] = log_dir / (f"results_{_tag(ns)}.npz" if ns else "results.npz")
+        if res_paths[ns].exists():
+            res_paths[ns].unlink()
 
     common = {"use_sim_time": True}
-    sim = dict(common, substeps=int(substeps), results_path=str(results.resolve()), lockstep=bool(lockstep),
-               lockstep_timeout=float(lockstep_timeout), startup_timeout=float(startup_timeout),
-               real_time_factor=float(real_time_factor))
+    sim = dict(common, substeps=int(substeps), lockstep=bool(lockstep), lockstep_timeout=float(lockstep_timeout),
+               startup_timeout=float(startup_timeout), real_time_factor=float(real_time_factor))
     if rec_exe:
         sim["min_truth_subscribers"] = 2  # the recorder must be listening before step 0
     if steps:
         sim["steps"] = int(steps)
     else:
         sim["orbits"] = float(orbits)
-    common_ts = {"ts": float(ts if ts is not None else gains_params.ts)}
     env_sim: dict = {}
     if environment == "full":
         opts = env_options or FullEnvironmentOptions()
@@ -310,18 +365,23 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
         env_sim = dict(field_file=str(Path(field).resolve()))
     elif environment != "paper":
         raise SilError(f"unknown environment {environment!r} (expected 'paper' or 'full')")
-    params = {
-        "simulator": {**sim, **env_sim, **common_ts, **(simulator_params or {})},
-        "attitude_sensors": {**common, **common_ts, **(sensor_params or {})},
-        "controller": {**common, **common_ts, **(controller_params or {})},
-    }
-    pfile = log_dir / "sil_params.yaml"
-    # keyed /**/<node>: applies whatever the namespace (see base.paramfile.node_matches); given
-    # last on each command line so its values win over the spacecraft and gains files
-    pfile.write_text(yaml.safe_dump({f"/**/{k}": {"ros__parameters": v} for k, v in params.items()}))
+    pfiles, common_ts = {}, {}
+    for ns in sats:
+        common_ts[ns] = {"ts": float(ts if ts is not None else gains_params[ns].ts)}
+        params = {
+            "simulator": {**sim, "results_path": str(res_paths[ns].resolve()), **env_sim, **common_ts[ns],
+                          **(simulator_params or {})},
+            "attitude_sensors": {**common, **common_ts[ns], **(sensor_params or {})},
+            "controller": {**common, **common_ts[ns], **(controller_params or {})},
+        }
+        pfiles[ns] = log_dir / (f"sil_params_{_tag(ns)}.yaml" if ns else "sil_params.yaml")
+        # keyed /**/<node>: applies whatever the namespace (see base.paramfile.node_matches); given
+        # last on each command line so its values win over the spacecraft and gains files
+        pfiles[ns].write_text(yaml.safe_dump({f"/**/{k}": {"ros__parameters": v} for k, v in params.items()}))
     sc = ["--params-file", str(Path(spacecraft).resolve())]
 
     procs: list[NodeProcess] = []
+    sims: dict[str, NodeProcess] = {}
     lock = DomainLock(domain_id)
     t0 = time.perf_counter()
     old_term = signal.getsignal(signal.SIGTERM)
@@ -330,33 +390,62 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
     try:
         env = child_env(lock.domain_id, prefix, *([rec_exe.parents[2]] if rec_exe else []))
         if rec_exe:
-            custom = {"gains": gains.name, **common_ts, "sigma": f"{gains_params.sigma:g}"}
-            procs.append(start_node("recorder", rec_exe, recorder_args(bag, custom), env, log_dir))
-        procs.append(start_node("controller", exes["controller"],
-                                sc + ["--params-file", str(gains.resolve()), "--params-file", str(pfile)], env, log_dir))
-        procs.append(start_node("attitude_sensors", exes["attitude_sensors"], sc + ["--params-file", str(pfile)],
-                                env, log_dir))
-        procs.append(start_node("simulator", exes["simulator"], sc + ["--params-file", str(pfile)], env, log_dir))
+            if multi:
+                custom = {"satellites": ",".join(sats), "ts": common_ts[next(iter(sats))]["ts"],
+                          **{f"{_tag(ns)}.gains": g.name for ns, g in sats.items()},
+                          **{f"{_tag(ns)}.sigma": f"{gains_params[ns].sigma:g}" for ns in sats}}
+                rargs = recorder_args(bag, custom) + ["-p", "topics:=[" + ", ".join(
+                    f"'{t}'" for t in topic_specs(tuple(sats))) + "]", "-r", f"/clock:={next(iter(sats))}/clock"]
+            else:
+                custom = {"gains": sats[""].name, **common_ts[""], "sigma": f"{gains_params[''].sigma:g}"}
+                rargs = recorder_args(bag, custom)
+            procs.append(start_node("recorder", rec_exe, rargs, env, log_dir))
+        for ns, g in sats.items():
+            remap = ["-r", f"__ns:={ns}", "-r", f"/clock:={ns}/clock"] if ns else []
+            tag = f"{_tag(ns)}_" if ns else ""
+            procs.append(start_node(f"{tag}controller", exes["controller"], sc + [
+                "--params-file", str(g.resolve()), "--params-file", str(pfiles[ns])] + remap, env, log_dir))
+            procs.append(start_node(f"{tag}attitude_sensors", exes["attitude_sensors"],
+                                    sc + ["--params-file", str(pfiles[ns])] + remap, env, log_dir))
+            sims[ns] = start_node(f"{tag}simulator", exes["simulator"], sc + ["--params-file", str(pfiles[ns])] + remap,
+                                  env, log_dir)
+            procs.append(sims[ns])
         if on_start:
             on_start(lock.domain_id, procs)
-        sim_p = procs[-1]
-        n_steps = steps or orbits * sc_params.orbit_period / common_ts["ts"]
-        deadline = time.monotonic() + (timeout if timeout else startup_timeout + 60.0 + 0.05 * n_steps)
-        watch = LogProgress(sim_p.log, progress)
-        while True:
-            rc = sim_p.popen.poll()
-            watch.poll()
-            if rc is not None:
-                break
-            for p in procs[:-1]:
-                if p.popen.poll() is not None:
+        n_steps = steps or orbits * sc_params.orbit_period / min(c["ts"] for c in common_ts.values())
+        deadline = time.monotonic() + (timeout if timeout else startup_timeout + 60.0 + 0.05 * n_steps * len(sats))
+        watches = {ns: LogProgress(p.log, (lambda k, n: None) if progress else None) for ns, p in sims.items()}
+        shown = [-1]
+
+        def report():
+            if progress and all(w.n for w in watches.values()):
+                k, n = sum(w.last for w in watches.values()), sum(w.n for w in watches.values())
+                if k > shown[0]:
+                    shown[0] = k
+                    progress(k, n)
+
+        rcs: dict[str, int] = {}
+        while len(rcs) < len(sims):
+            for ns, p in sims.items():
+                if ns not in rcs:
+                    rc = p.popen.poll()
+                    watches[ns].poll()
+                    if rc is not None:
+                        rcs[ns] = rc
+                        if rc != 0 or not res_paths[ns].is_file():
+                            raise SilError(f"simulator {p.name} exited with status {rc}:\n{p.tail()}")
+            report()
+            for p in procs:
+                if p not in sims.values() and p.popen.poll() is not None:
                     raise SilError(f"node '{p.name}' exited with status {p.popen.returncode}:\n{p.tail()}")
             if time.monotonic() > deadline:
-                raise SilError(f"SIL run timed out after {time.monotonic() - t0:.0f} s; simulator log:\n{sim_p.tail()}")
-            time.sleep(0.05)
-        if rc != 0 or not results.is_file():
-            raise SilError(f"simulator exited with status {rc}:\n{sim_p.tail()}")
-        watch.finish()
+                raise SilError(f"SIL run timed out after {time.monotonic() - t0:.0f} s; simulator log:\n"
+                               f"{next(iter(sims.values())).tail()}")
+            if len(rcs) < len(sims):
+                time.sleep(0.05)
+        for w in watches.values():
+            w.finish()
+        report()
     except SilError as exc:
         raise SilError(f"{exc}\n(node logs in {log_dir})") from None
     finally:
@@ -366,10 +455,12 @@ def run_sil(gains, *, orbits: float = 5.0, steps: int | None = None, ts: float |
         if old_term in (signal.SIG_DFL, None):
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
     total = time.perf_counter() - t0
-    res = SimResult.from_npz(results)
-    counters = json.loads(str(res.info.get("counters", "{}")))
+    out = {}
+    for ns in sats:
+        res = SimResult.from_npz(res_paths[ns])
+        counters = json.loads(str(res.info.get("counters", "{}")))
+        out[ns] = SilRun(res, res.figures_of_merit(), counters, float(res.info.get("wall_time", total)), total,
+                         lock.domain_id, None if own_dir else log_dir)
     if own_dir:
         shutil.rmtree(log_dir, ignore_errors=True)
-        log_dir = None
-    return SilRun(res, res.figures_of_merit(), counters, float(res.info.get("wall_time", total)), total,
-                  lock.domain_id, log_dir)
+    return out

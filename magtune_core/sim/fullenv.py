@@ -106,6 +106,50 @@ def nominal_orbit_period(p: SpacecraftParams, opts: FullEnvironmentOptions | Non
     return mean_frame_period((opts or FullEnvironmentOptions()).environment_config(p).orbit, orbits)
 
 
+def environment_table(env: Environment, t: np.ndarray, field_fn=None) -> np.ndarray:
+    """Attitude-independent environment at the times ``t`` [s], one row of 15 per time.
+
+    Columns, all in orbital axes: w_oi (3) [rad/s], b_orb (3) [T], k_gg = 3 GM/|r|^3 [1/s^2],
+    rho [kg/m^3], v_rel (3) [m/s], unit satellite->Sun (3), SRP pressure P (AU/d)^2 nu [N/m^2]
+    (zeros for switched-off models). ``field_fn`` (t -> b_orb) replaces IGRF when given. The one
+    implementation behind :class:`_TimeGrid` (single runs) and :mod:`magtune_core.sim.batch`.
+
+    Returns
+    -------
+    numpy.ndarray
+        (len(t), 15) float array.
+    """
+    t = np.asarray(t, dtype=float)
+    cfg = env.config
+    r, v = env.orbit.state(t)
+    R_oi = eci_to_orbital(r, v)
+    w_oi = orbital_rate(r, v, zonal_degree=cfg.orbit.zonal_degree)
+    if field_fn is None:
+        b = np.einsum("nij,nj->ni", R_oi, env.magnetic_field_eci(t, r))
+    else:
+        b = np.stack([np.asarray(field_fn(float(x)), dtype=float).reshape(3) for x in t])
+    rn = np.linalg.norm(r, axis=-1)
+    kgg = 3.0 * GM_EARTH / rn**3
+    cols = [w_oi, b, kgg[:, None]]
+    if cfg.drag or cfg.srp:
+        sun = env.sun_eci(t)
+    if cfg.drag:
+        rho = harris_priester(r, sun, cfg.hp_exponent)
+        wind = np.einsum("nij,nj->ni", R_oi, relative_wind_eci(r, v))
+        cols += [rho[:, None], wind]  # density, v_rel in orbital axes
+    else:
+        cols += [np.zeros((t.size, 1)), np.zeros((t.size, 3))]
+    if cfg.srp:
+        d = sun - r
+        dist = np.linalg.norm(d, axis=-1)
+        s = np.einsum("nij,nj->ni", R_oi, d / dist[:, None])
+        P = SOLAR_PRESSURE_1AU * (AU / dist) ** 2 * shadow_cylindrical(r, sun)
+        cols += [s, P[:, None]]
+    else:
+        cols += [np.zeros((t.size, 3)), np.zeros((t.size, 1))]
+    return np.hstack(cols)
+
+
 class _TimeGrid:
     """Attitude-independent environment on the time grid j * dt, computed in vectorized chunks.
 
@@ -123,34 +167,7 @@ class _TimeGrid:
         self.single: dict = {}
 
     def _compute(self, t: np.ndarray) -> list:
-        env, cfg = self.env, self.env.config
-        r, v = env.orbit.state(t)
-        R_oi = eci_to_orbital(r, v)
-        w_oi = orbital_rate(r, v, zonal_degree=cfg.orbit.zonal_degree)
-        if self.field_fn is None:
-            b = np.einsum("nij,nj->ni", R_oi, env.magnetic_field_eci(t, r))
-        else:
-            b = np.stack([np.asarray(self.field_fn(float(x)), dtype=float).reshape(3) for x in t])
-        rn = np.linalg.norm(r, axis=-1)
-        kgg = 3.0 * GM_EARTH / rn**3
-        cols = [w_oi, b, kgg[:, None]]
-        if cfg.drag or cfg.srp:
-            sun = env.sun_eci(t)
-        if cfg.drag:
-            rho = harris_priester(r, sun, cfg.hp_exponent)
-            wind = np.einsum("nij,nj->ni", R_oi, relative_wind_eci(r, v))
-            cols += [rho[:, None], wind]  # density, v_rel in orbital axes
-        else:
-            cols += [np.zeros((t.size, 1)), np.zeros((t.size, 3))]
-        if cfg.srp:
-            d = sun - r
-            dist = np.linalg.norm(d, axis=-1)
-            s = np.einsum("nij,nj->ni", R_oi, d / dist[:, None])
-            P = SOLAR_PRESSURE_1AU * (AU / dist) ** 2 * shadow_cylindrical(r, sun)
-            cols += [s, P[:, None]]
-        else:
-            cols += [np.zeros((t.size, 3)), np.zeros((t.size, 1))]
-        return [tuple(row) for row in np.hstack(cols).tolist()]
+        return [tuple(row) for row in environment_table(self.env, t, self.field_fn).tolist()]
 
     def row(self, t: float) -> tuple:
         j = round(t / self.dt)

@@ -2,22 +2,31 @@
 
 Everything comes from the bags (CDR decoded with rosbags; no rclpy, no simulator output):
 
-* ``fig2_first_orbit.png``   |dq_R| and |m| over the first orbit, every bag overlaid;
-* ``fig3_orbits_2_5.png``    the same over orbits 2-5;
-* ``fig4_quaternion.png``    attitude quaternion (body w.r.t. orbital) of one run;
-* ``fig5_rates_dipoles.png`` rate deviation dw and commanded dipole m of one run;
-* ``summary.md`` (+ ``summary.json``): figures of merit per bag (same definitions as
-  ``magtune_core.sim.metrics.figures_of_merit``: |dq_R| final and peak, RMS |dq_R| over orbits
-  2-5, peak |m|) plus the bag's integrity (complete / recovered).
+* ``fig2_first_orbit.png``   pointing error [deg] and |m| over the first orbit (the whole run
+  if shorter; the window is in the title), every run overlaid;
+* ``fig3_orbits_2_5.png``    the same over orbits 2-5 (up to the end of the longest run); not
+  drawn, and said so in the summary, when no run is longer than one orbit;
+* ``fig4_quaternion.png``    attitude quaternion (body w.r.t. orbital) of every run, one panel
+  per run (small multiples), components in ROS order and names x, y, z, w;
+* ``fig5_rates_dipoles.png`` rate deviation dw and commanded dipole m of every run, one row per
+  run, with the per-axis dipole limit drawn;
+* ``summary.md`` (+ ``summary.json``): figures of merit per run (same definitions as
+  ``magtune_core.sim.metrics.figures_of_merit``: pointing error and |dq_R| final, peak and RMS
+  over the stated window, peak and RMS |m|) plus the bag's integrity (complete / recovered);
+* ``report.html``: one self-contained file (figures embedded) with the summary table.
 
 Signals: truth attitude and rate from ``/sim/truth`` (nav_msgs/Odometry: pose.orientation,
-twist.angular = inertial body rate), ``x = linear_state(q, w, W0)``, |dq_R| = |x[0:3]|;
-dipole from ``/controller/dipole_command`` (geometry_msgs/Vector3Stamped). Time axis = the
-header stamps (sim time). Legends use the bag's ``custom_data`` ``sigma`` (recorder
-``--custom-data sigma=60``) or else the bag name. Topic names can be overridden.
+twist.angular = inertial body rate), ``x = linear_state(q, w, W0)``, |dq_R| = |x[0:3]|,
+pointing error = 2 asin |dq_R|; dipole from ``/controller/dipole_command``
+(geometry_msgs/Vector3Stamped). Time axis = the header stamps (sim time). A bag of several
+namespaced satellites (``magtune sil --gains sat1=... sat2=...``) gives one run per namespace.
+Legends use the bag's ``custom_data`` ``sigma`` (recorder ``--custom-data sigma=60``) or else
+the bag name. Topic names can be overridden.
 """
 from __future__ import annotations
 
+import base64
+import html
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,15 +35,19 @@ import numpy as np
 
 from .. import bags as baglib
 from ..bags.decode import Decoder, stamp_ns
-from ..base.topics import DIPOLE, TRUTH
-from ..design.law import linear_state
+from ..base.topics import DIPOLE, TOPIC_DIPOLE, TOPIC_TRUTH, TRUTH
+from ..design.law import DEFAULT_DIPOLE_LIMIT, linear_state
 from ..design.params import SpacecraftParams
-from ..sim.metrics import figures_of_merit
+from ..sim.metrics import figures_of_merit, pointing_error_deg
+
+#: ROS order and names of the quaternion components (geometry_msgs/Quaternion).
+QUAT_NAMES = ("x", "y", "z", "w")
+FIGURES = ("fig2_first_orbit.png", "fig3_orbits_2_5.png", "fig4_quaternion.png", "fig5_rates_dipoles.png")
 
 
 @dataclass
 class Run:
-    """Time series of one bag (sim time in s)."""
+    """Time series of one satellite of one bag (sim time in s)."""
 
     name: str
     label: str
@@ -50,11 +63,16 @@ class Run:
         return np.linalg.norm(self.x[:, :3], axis=1)
 
     @property
+    def pointing_deg(self):
+        return pointing_error_deg(self.dq_norm)
+
+    @property
     def m_norm(self):
         return np.linalg.norm(self.m, axis=1) if len(self.m) else np.zeros(0)
 
 
-def load_run(path, *, truth=TRUTH, dipole=DIPOLE, orbit_rate: float | None = None) -> Run:
+def load_run(path, *, truth=TRUTH, dipole=DIPOLE, orbit_rate: float | None = None, name: str | None = None,
+             label: str | None = None) -> Run:
     """Decode the truth and dipole topics of a bag (damaged bags: what is readable)."""
     path = Path(path)
     w0 = orbit_rate if orbit_rate is not None else SpacecraftParams().orbit_rate
@@ -78,17 +96,49 @@ def load_run(path, *, truth=TRUTH, dipole=DIPOLE, orbit_rate: float | None = Non
         raise ValueError(f"{path}: no messages on {truth} (topics: {sorted(baglib.topics_of(path))})")
     q_arr = np.array(q)
     x = np.array([linear_state(qi, wi, w0) for qi, wi in zip(q_arr, w)])
-    label = path.name
-    try:
-        sigma = (baglib.read_metadata(path).get("custom_data") or {}).get("sigma")
-        if sigma:
-            label = f"sigma = {sigma}"
-    except (OSError, KeyError, TypeError):
-        pass
+    if label is None:
+        label = path.name
+        try:
+            sigma = (baglib.read_metadata(path).get("custom_data") or {}).get("sigma")
+            if sigma:
+                label = f"sigma = {sigma}"
+        except (OSError, KeyError, TypeError):
+            pass
     integ = {"complete": bool(report.get("complete", True))}
     if not integ["complete"]:
         integ.update({k: report.get(k) for k in ("messages_recovered", "chunks_bad", "problem")})
-    return Run(path.name, label, np.array(t), q_arr, x, np.array(tm), np.array(m).reshape(-1, 3), integ)
+    return Run(name or path.name, label, np.array(t), q_arr, x, np.array(tm), np.array(m).reshape(-1, 3), integ)
+
+
+def bag_namespaces(path, truth=TRUTH) -> list[str]:
+    """Namespaces of the satellites recorded in a bag: ``[""]`` when ``truth`` itself is there,
+    else every ``NS`` with a ``NS/sim/truth`` topic (a ``magtune sil --gains sat1=... sat2=...``
+    bag), sorted; empty if none."""
+    topics = baglib.topics_of(path)
+    if truth in topics:
+        return [""]
+    suffix = "/" + TOPIC_TRUTH
+    return sorted(n[: -len(suffix)] for n in topics if n.endswith(suffix) and n != suffix)
+
+
+def load_runs(path, *, truth=TRUTH, dipole=DIPOLE, orbit_rate: float | None = None) -> list[Run]:
+    """Every satellite of a bag as a :class:`Run` (one for a single-satellite bag; one per
+    namespace, named ``<bag>/<ns>`` and labelled with that satellite's sigma, otherwise)."""
+    path = Path(path)
+    nss = bag_namespaces(path, truth) if truth == TRUTH and dipole == DIPOLE else [""]
+    if nss in ([""], []):
+        return [load_run(path, truth=truth, dipole=dipole, orbit_rate=orbit_rate)]
+    try:
+        custom = baglib.read_metadata(path).get("custom_data") or {}
+    except (OSError, KeyError, TypeError):
+        custom = {}
+    out = []
+    for ns in nss:
+        tag = ns.strip("/").replace("/", "_")
+        sigma = custom.get(f"{tag}.sigma")
+        out.append(load_run(path, truth=f"{ns}/{TOPIC_TRUTH}", dipole=f"{ns}/{TOPIC_DIPOLE}", orbit_rate=orbit_rate,
+                            name=f"{path.name}{ns}", label=f"{ns} sigma = {sigma}" if sigma else f"{path.name}{ns}"))
+    return out
 
 
 def run_figures(run: Run, orbit_period: float) -> dict:
@@ -101,57 +151,86 @@ def _window(t, lo, hi):
     return (t >= lo) & (t <= hi)
 
 
+def _legend_outside(fig, axes) -> None:
+    """One legend for the figure, right of the axes (never over the data)."""
+    handles, labels = axes[0].get_legend_handles_labels()
+    seen = dict(zip(labels, handles))
+    if seen:
+        fig.legend(list(seen.values()), list(seen.keys()), loc="outside right upper", fontsize=8)
+
+
 def plot_norms(runs: list[Run], T: float, lo_orbit: float, hi_orbit: float, title: str, out: Path):
+    """Pointing error [deg] and |m| of every run over [lo_orbit, hi_orbit] (paper Figs. 2-3)."""
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True, layout="constrained")
     for r in runs:
         s = _window(r.t, lo_orbit * T, hi_orbit * T)
-        ax[0].plot(r.t[s] / T, r.dq_norm[s], label=r.label, lw=1)
+        ax[0].plot(r.t[s] / T, r.pointing_deg[s], label=r.label, lw=1)
         if len(r.tm):
             sm = _window(r.tm, lo_orbit * T, hi_orbit * T)
             ax[1].plot(r.tm[sm] / T, r.m_norm[sm], label=r.label, lw=1)
-    ax[0].set_ylabel("|dq_R|")
+    ax[0].set_ylabel("pointing error [deg]")
     ax[1].set_ylabel("|m| [A m^2]")
     ax[1].set_xlabel("time [orbits]")
     ax[0].set_title(title)
     for a in ax:
         a.grid(True, alpha=0.3)
-        a.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
+    _legend_outside(fig, ax)
     fig.savefig(out, dpi=110)
     plt.close(fig)
 
 
-def plot_quaternion(run: Run, T: float, out: Path):
+def plot_quaternion(runs: list[Run], T: float, out: Path):
+    """Attitude quaternion of each run (small multiples, one row per run), components in ROS
+    order and names: vector part x, y, z on the left, scalar w (close to 1) on the right."""
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(4, 1, figsize=(8, 7), sharex=True)
-    q = run.q * np.where(run.q[:, :1] < 0, -1.0, 1.0)
-    for i, name in enumerate(("q1 (scalar)", "q2 (yaw)", "q3 (roll)", "q4 (pitch)")):
-        ax[i].plot(run.t / T, q[:, i], lw=1)
-        ax[i].set_ylabel(name)
-        ax[i].grid(True, alpha=0.3)
-    ax[0].set_title(f"Attitude quaternion, {run.label} ({run.name})")
-    ax[-1].set_xlabel("time [orbits]")
-    fig.tight_layout()
+    fig, ax = plt.subplots(len(runs), 2, figsize=(11, 1.2 + 2.0 * len(runs)), sharex=True, squeeze=False,
+                           layout="constrained", gridspec_kw={"width_ratios": (3, 1)})
+    for row, r in zip(ax, runs):
+        q = r.q * np.where(r.q[:, :1] < 0, -1.0, 1.0)  # hemisphere w >= 0, as dq_R
+        for name, col in zip(QUAT_NAMES[:3], (1, 2, 3)):
+            row[0].plot(r.t / T, q[:, col], lw=1, label=name)
+        row[1].plot(r.t / T, q[:, 0], lw=1, color="C3", label="w")
+        row[0].set_ylabel("q.x, q.y, q.z")
+        row[1].set_ylabel("q.w")
+        row[0].set_title(f"{r.label} ({r.name})", fontsize=9)
+        for a in row:
+            a.grid(True, alpha=0.3)
+    fig.suptitle("Attitude quaternion, body w.r.t. orbital axes (ROS order x, y, z, w)")
+    for a in ax[-1]:
+        a.set_xlabel("time [orbits]")
+    h0, l0 = ax[0, 0].get_legend_handles_labels()
+    h1, l1 = ax[0, 1].get_legend_handles_labels()
+    fig.legend(h0 + h1, l0 + l1, loc="outside right upper", fontsize=8)
     fig.savefig(out, dpi=110)
     plt.close(fig)
 
 
-def plot_rates_dipoles(run: Run, T: float, out: Path):
+def plot_rates_dipoles(runs: list[Run], T: float, out: Path, dipole_limit: float = DEFAULT_DIPOLE_LIMIT):
+    """Rate deviation dw and dipole m (per axis, with the +-limit) of each run, one row each."""
     import matplotlib.pyplot as plt
-    fig, ax = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
-    for i, c in enumerate("xyz"):
-        ax[0].plot(run.t / T, run.x[:, 3 + i], lw=1, label=f"dw_{c}")
-        if len(run.tm):
-            ax[1].plot(run.tm / T, run.m[:, i], lw=1, label=f"m_{c}")
-    ax[0].set_ylabel("dw [rad/s]")
-    ax[1].set_ylabel("m [A m^2]")
-    ax[1].set_xlabel("time [orbits]")
-    ax[0].set_title(f"Body rate deviation and dipole, {run.label} ({run.name})")
-    for a in ax:
-        a.grid(True, alpha=0.3)
-        a.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
+    fig, ax = plt.subplots(len(runs), 2, figsize=(12, 1.2 + 2.2 * len(runs)), sharex=True, squeeze=False,
+                           layout="constrained")
+    for row, r in zip(ax, runs):
+        for i, c in enumerate("xyz"):
+            row[0].plot(r.t / T, r.x[:, 3 + i], lw=1, label=c)
+            if len(r.tm):
+                row[1].plot(r.tm / T, r.m[:, i], lw=1, label=c)
+        for sgn in (1.0, -1.0):
+            row[1].axhline(sgn * dipole_limit, color="k", ls="--", lw=0.8,
+                           label=f"limit +-{dipole_limit:g} A m^2 per axis")
+        row[0].set_ylabel("dw [rad/s]")
+        row[1].set_ylabel("m [A m^2]")
+        row[0].set_title(f"{r.label} ({r.name}): rate deviation", fontsize=9)
+        row[1].set_title(f"{r.label} ({r.name}): commanded dipole", fontsize=9)
+        for a in row:
+            a.grid(True, alpha=0.3)
+    for a in ax[-1]:
+        a.set_xlabel("time [orbits]")
+    h0, l0 = ax[0, 0].get_legend_handles_labels()
+    h1, l1 = ax[0, 1].get_legend_handles_labels()
+    seen = dict(zip(l0 + l1, h0 + h1))
+    fig.legend(list(seen.values()), list(seen.keys()), loc="outside right upper", fontsize=8)
     fig.savefig(out, dpi=110)
     plt.close(fig)
 
@@ -164,48 +243,125 @@ def _sigma_key(run: Run):
         return -1.0
 
 
+def windows(runs: list[Run], T: float) -> dict:
+    """The time windows of Figs. 2 and 3 [orbits] and why, from the longest run.
+
+    Fig. 2 is the first orbit, or the whole run if it is shorter; Fig. 3 is orbits 2-5 (to the
+    end of the longest run if it ends before 5 orbits), or None when no run has two samples after
+    the first orbit (nothing to draw).
+    """
+    end = max(float(r.t[-1]) for r in runs) / T
+    fig2 = (0.0, min(1.0, end))
+    later = max(int(np.count_nonzero(r.t > T)) for r in runs)
+    fig3 = (1.0, min(5.0, end)) if later >= 2 else None
+    return {"fig2": fig2, "fig3": fig3, "longest_orbits": end}
+
+
 def make_report(bags, out, *, run: str | None = None, truth=TRUTH, dipole=DIPOLE,
-                orbit_period: float | None = None, labels: list[str] | None = None) -> dict:
-    """Write the figures and summary for ``bags`` into ``out``; returns the summary dict."""
+                orbit_period: float | None = None, labels: list[str] | None = None,
+                dipole_limit: float = DEFAULT_DIPOLE_LIMIT) -> dict:
+    """Write the figures, ``summary.md``/``.json`` and ``report.html`` for ``bags`` into ``out``.
+
+    ``run``: only this run in Figs. 4-5 (default: every run, small multiples).
+
+    Returns
+    -------
+    dict
+        run name -> label, figures of merit (:func:`run_figures`) and integrity.
+    """
     import matplotlib
     matplotlib.use("Agg")
     T = orbit_period or SpacecraftParams().orbit_period
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    runs = [load_run(b, truth=truth, dipole=dipole, orbit_rate=2 * np.pi / T) for b in bags]
+    runs = [r for b in bags for r in load_runs(b, truth=truth, dipole=dipole, orbit_rate=2 * np.pi / T)]
     if labels:
         if len(labels) != len(runs):
-            raise ValueError(f"{len(labels)} labels for {len(runs)} bags")
+            raise ValueError(f"{len(labels)} labels for {len(runs)} runs")
         for r, lab in zip(runs, labels):
             r.label = lab
-    one = next((r for r in runs if r.name == run), None) if run else max(runs, key=_sigma_key)
-    if one is None:
+    detail = [r for r in runs if r.name == run] if run else runs
+    if not detail:
         raise ValueError(f"--run {run!r} is not one of {[r.name for r in runs]}")
-    plot_norms(runs, T, 0.0, 1.0, "First orbit", out / "fig2_first_orbit.png")
-    plot_norms(runs, T, 1.0, 5.0, "Orbits 2-5", out / "fig3_orbits_2_5.png")
-    plot_quaternion(one, T, out / "fig4_quaternion.png")
-    plot_rates_dipoles(one, T, out / "fig5_rates_dipoles.png")
+    win = windows(runs, T)
+    a, b = win["fig2"]
+    plot_norms(runs, T, a, b, "First orbit" if b >= 1.0 else
+               f"Whole run: {b:.2f} orbits (shorter than one orbit)", out / FIGURES[0])
+    if win["fig3"]:
+        a, b = win["fig3"]
+        plot_norms(runs, T, a, b, "Orbits 2-5" if b >= 5.0 else f"Orbits 2-5: orbit 1 to {b:.2f} (end of the run)",
+                   out / FIGURES[1])
+    else:
+        (out / FIGURES[1]).unlink(missing_ok=True)  # no stale figure from an earlier report
+    plot_quaternion(detail, T, out / FIGURES[2])
+    plot_rates_dipoles(detail, T, out / FIGURES[3], dipole_limit)
     summary = {r.name: {"label": r.label, **run_figures(r, T), "integrity": r.integrity}
                for r in runs}
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
-    (out / "summary.md").write_text(_markdown(summary, one.name, T))
+    md = _markdown(summary, [r.name for r in detail], T, win, dipole_limit)
+    (out / "summary.md").write_text(md)
+    (out / "report.html").write_text(_html(summary, out, T, win, [r.name for r in detail], dipole_limit))
     return summary
 
 
-def _markdown(summary: dict, one: str, T: float) -> str:
-    lines = ["# magtune run report", "",
-             f"Orbit period T = {T} s. |dq_R| = norm of the quaternion vector part (truth, "
-             "body w.r.t. orbital axes); |m| = commanded dipole. RMS over orbits 2-5 "
-             "(or the whole run if it is shorter than 2 orbits).", "",
-             "| bag | label | orbits | final abs(dq_R) | peak abs(dq_R) | RMS abs(dq_R) | peak abs(m) [A m^2] "
-             "| RMS abs(m), orbits 2-5 | samples truth/dipole | bag integrity |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+def _rows(summary: dict) -> tuple[list[str], list[list[str]]]:
+    head = ["bag", "label", "orbits", "final pointing [deg]", "peak pointing [deg]", "RMS pointing [deg]",
+            "RMS window [s]", "final abs(dq_R)", "peak abs(dq_R)", "RMS abs(dq_R)", "peak abs(m) [A m^2]",
+            "RMS abs(m) [A m^2]", "samples truth/dipole", "bag integrity"]
+    rows = []
     for name, s in summary.items():
         integ = "complete" if s["integrity"]["complete"] else \
             f"damaged: {s['integrity'].get('messages_recovered')} msgs recovered"
-        lines.append(f"| {name} | {s['label']} | {s['orbits']:.3f} | {s['final_dq']:.4e} | "
-                     f"{s['peak_dq']:.4e} | {s['rms_dq']:.4e} | {s['peak_m']:.4g} | "
-                     f"{s['rms_m_orbits_2_5']:.4g} | {s['truth_samples']}/{s['dipole_samples']} | {integ} |")
-    lines += ["", "Figures: `fig2_first_orbit.png` (Fig. 2), `fig3_orbits_2_5.png` (Fig. 3), "
-              f"`fig4_quaternion.png` and `fig5_rates_dipoles.png` (Figs. 4-5, run `{one}`).", ""]
+        lo, hi = s["rms_window"]
+        rows.append([name, s["label"], f"{s['orbits']:.3f}", f"{s['final_deg']:.4f}", f"{s['peak_deg']:.4f}",
+                     f"{s['rms_deg']:.4f}", f"{lo:.0f}-{hi:.0f}", f"{s['final_dq']:.4e}", f"{s['peak_dq']:.4e}",
+                     f"{s['rms_dq']:.4e}", f"{s['peak_m']:.4g}", f"{s['rms_m']:.4g}",
+                     f"{s['truth_samples']}/{s['dipole_samples']}", integ])
+    return head, rows
+
+
+def _notes(T: float, win: dict, detail: list[str], dipole_limit: float) -> list[str]:
+    a, b = win["fig2"]
+    notes = [f"Orbit period T = {T} s. Pointing error = rotation angle of the body w.r.t. the orbital "
+             "axes, 2 asin(abs(dq_R)) [deg]; abs(dq_R) = norm of the quaternion vector part (truth); "
+             "abs(m) = commanded dipole. RMS over orbits 2-5 (t in [T, 5T]); a run not longer than one "
+             "orbit uses all of it: the RMS window of each run is in the table.",
+             f"Fig. 2: t = {a:.2f}-{b:.2f} orbits" + ("" if b >= 1.0 else " (every run is shorter than one orbit)")
+             + ". " + (f"Fig. 3: t = {win['fig3'][0]:.2f}-{win['fig3'][1]:.2f} orbits." if win["fig3"] else
+                       f"Fig. 3 not drawn: no run is longer than one orbit (longest {win['longest_orbits']:.2f})."),
+             f"Figs. 4-5: {', '.join(detail)}; dashed lines = per-axis dipole limit +-{dipole_limit:g} A m^2."]
+    return notes
+
+
+def _markdown(summary: dict, detail: list[str], T: float, win: dict, dipole_limit: float) -> str:
+    head, rows = _rows(summary)
+    lines = ["# magtune run report", "", *[n + "\n" for n in _notes(T, win, detail, dipole_limit)],
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    figs = ", ".join(f"`{f}`" for f in FIGURES if f != FIGURES[1] or win["fig3"])
+    lines += ["", f"Figures: {figs} (Figs. 2-5); all in one file: `report.html`.", ""]
     return "\n".join(lines)
+
+
+def _html(summary: dict, out: Path, T: float, win: dict, detail: list[str], dipole_limit: float) -> str:
+    """One self-contained HTML page: the notes, the summary table and the figures inlined as
+    base64 PNG (no external file, script or style sheet)."""
+    head, rows = _rows(summary)
+    esc = html.escape
+    table = ("<table><thead><tr>" + "".join(f"<th>{esc(h)}</th>" for h in head) + "</tr></thead><tbody>"
+             + "".join("<tr>" + "".join(f"<td>{esc(c)}</td>" for c in r) + "</tr>" for r in rows)
+             + "</tbody></table>")
+    figs = []
+    for f in FIGURES:
+        path = out / f
+        if path.is_file():
+            data = base64.b64encode(path.read_bytes()).decode("ascii")
+            figs.append(f'<figure><img alt="{esc(f)}" src="data:image/png;base64,{data}">'
+                        f"<figcaption>{esc(f)}</figcaption></figure>")
+    notes = "".join(f"<p>{esc(n)}</p>" for n in _notes(T, win, detail, dipole_limit))
+    style = ("body{font-family:sans-serif;margin:1.5em;max-width:1300px}table{border-collapse:collapse;"
+             "font-size:13px}th,td{border:1px solid #bbb;padding:3px 6px;text-align:right}"
+             "th{background:#eee}td:nth-child(-n+2){text-align:left}img{max-width:100%}")
+    return (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>magtune run report</title>"
+            f"<style>{style}</style></head><body><h1>magtune run report</h1>{notes}{table}{''.join(figs)}"
+            "</body></html>\n")

@@ -18,7 +18,7 @@ from bagproc import Procs, executable, ros_env
 
 from magtune_core import bags as bag
 from magtune_core.bags.decode import Decoder, stamp_ns
-from magtune_core.base.topics import ATTITUDE, DIPOLE, MAG
+from magtune_core.base.topics import ATTITUDE, DIPOLE, FRAME_BODY, FRAME_ORBITAL, MAG, MARKERS, TF, TRUTH
 from magtune_core.design.gains import save_gains
 from magtune_core.design.lq import lq_gains
 from magtune_core.design.model import AttitudeLTP
@@ -55,6 +55,7 @@ def test_replayed_sensors_reproduce_dipole_commands(tmp_path):
     assert rep["truth_samples"] == STEPS + 1
     for key in ("final_dq", "peak_dq", "rms_dq", "peak_m"):
         assert rep[key] == pytest.approx(run.figures[key], rel=1e-12), key
+    _check_tf_and_markers(rec1)
     original = _dipoles(rec1)
     assert len(original) >= 0.5 * STEPS, "SIL recording lacks dipole commands"
 
@@ -83,3 +84,38 @@ def test_replayed_sensors_reproduce_dipole_commands(tmp_path):
     b = np.array([replayed[s] for s in common])
     np.testing.assert_allclose(b, a, rtol=1e-12, atol=0.0)
     assert np.abs(a).max() > 0.1  # the comparison is about real commands, not zeros
+
+
+def _check_tf_and_markers(path):
+    """/tf: one tf2_msgs/TFMessage per step, orbital -> body with the rotation of sim/truth (the
+    same quaternion, bit for bit); its type hash is rosbags' own for ROS 2 Jazzy's tf2_msgs (so
+    the vendored package is wire-identical); sim/markers: field arrow along the true field."""
+    from rosbags.typesys import Stores, get_typestore
+
+    topics = bag.topics_of(path)
+    assert topics[TF].type == "tf2_msgs/msg/TFMessage" and topics[TF].message_count == STEPS + 1
+    assert topics[TF].type_description_hash == get_typestore(Stores.ROS2_JAZZY).hash_rihs01("tf2_msgs/msg/TFMessage")
+    d = Decoder()
+    truth, tf, field, arrow = {}, {}, {}, {}
+    for m in bag.iter_messages(path, topics=[TF, TRUTH, MARKERS, "/sim/magnetic_field"]):
+        o = d.decode(m.data, m.type)
+        if m.topic == TF:
+            (t,) = o.transforms
+            assert (t.header.frame_id, t.child_frame_id) == (FRAME_ORBITAL, FRAME_BODY)
+            r = t.transform.rotation
+            tf[stamp_ns(t)] = (r.w, r.x, r.y, r.z)
+        elif m.topic == TRUTH:
+            r = o.pose.pose.orientation
+            truth[stamp_ns(o)] = (r.w, r.x, r.y, r.z)
+        elif m.topic == MARKERS:
+            f = o.markers[1]
+            assert f.header.frame_id == FRAME_BODY and f.ns == "magnetic_field"
+            arrow[stamp_ns(f)] = np.array([f.points[1].x, f.points[1].y, f.points[1].z])
+        else:
+            b = o.magnetic_field
+            field[stamp_ns(o)] = np.array([b.x, b.y, b.z])
+    assert tf == truth
+    common = sorted(set(arrow) & set(field))
+    assert len(common) >= STEPS
+    for s in common:   # 0.05 m per uT (simulator.MARKER_FIELD_SCALE); 1e-12: one float multiply
+        np.testing.assert_allclose(arrow[s], field[s] * 0.05e6, rtol=1e-12)

@@ -79,7 +79,7 @@ def test_report_figures_and_summary(tmp_path):
         assert r["orbits"] == pytest.approx(5.0)
         assert r["integrity"] == {"complete": True}
     md = (out / "summary.md").read_text()
-    assert "| s60 | sigma = 60 |" in md and "Figs. 4-5, run `s240`" in md
+    assert "| s60 | sigma = 60 |" in md and "Figs. 4-5: s60, s120, s240" in md
 
 
 def test_report_on_damaged_bag_says_so(tmp_path):
@@ -100,3 +100,53 @@ def test_report_errors_are_one_line(tmp_path, capsys):
     w.close()
     assert cli_main(["report", str(empty), "--out", str(tmp_path / "r")]) == 1
     assert "no messages on /sim/truth" in capsys.readouterr().err
+
+
+def test_report_degrees_html_and_small_multiples(tmp_path):
+    """Pointing error in degrees (2 asin |dq_R|, checked against the bag's known signal), every
+    run in Figs. 4-5, and report.html: one file, figures inlined, the summary table inside."""
+    bags = [_make(tmp_path, f"s{s}", s, n=1301) for s in (60, 240)]
+    out = tmp_path / "rep"
+    s = report.make_report([b[0] for b in bags], out, orbit_period=T)
+    for path, t, dq, _ in bags:
+        r = s[path.name]
+        deg = np.degrees(2 * np.arcsin(dq))  # the angle the test bag's quaternion rotates by
+        assert r["final_deg"] == pytest.approx(deg[-1], rel=1e-9)
+        assert r["peak_deg"] == pytest.approx(deg.max(), rel=1e-9)
+        sel = (t >= T) & (t <= 5 * T)
+        assert r["rms_deg"] == pytest.approx(np.sqrt(np.mean(deg[sel] ** 2)), rel=1e-9)
+        assert r["peak_deg"] == pytest.approx(np.degrees(0.1), rel=1e-9)  # a(0) = 0.1 rad
+    page = (out / "report.html").read_text()
+    assert page.count('src="data:image/png;base64,') == 4  # Figs. 2-5, nothing external
+    assert "src=\"http" not in page and "<script" not in page
+    assert "<td>s60</td>" in page and "<td>sigma = 240</td>" in page
+    md = (out / "summary.md").read_text()
+    assert "Figs. 4-5: s60, s240" in md and "pointing [deg]" in md
+    # small multiples: Fig. 4 has one row per run, so the image grows with the number of runs
+    from matplotlib.image import imread
+    h2 = imread(out / "fig4_quaternion.png").shape[0]
+    report.make_report([bags[0][0]], tmp_path / "one", orbit_period=T)
+    assert h2 > 1.5 * imread(tmp_path / "one" / "fig4_quaternion.png").shape[0]
+
+
+@pytest.mark.parametrize("n, fig3", [(601, False), (301, False), (900, True)])
+def test_report_short_runs_state_their_windows(tmp_path, n, fig3):
+    """A run of one orbit or less: no (empty) Fig. 3, the windows are stated, the RMS is over the
+    whole run rather than one sample; 1.5 orbits: Fig. 3 covers orbit 1 to the end."""
+    path, t, dq, mn = _make(tmp_path, "short", 60, n=n)
+    out = tmp_path / "rep"
+    (out).mkdir()
+    (out / "fig3_orbits_2_5.png").write_bytes(b"stale")
+    s = report.make_report([path], out, orbit_period=T)["short"]
+    md = (out / "summary.md").read_text()
+    assert (out / "fig3_orbits_2_5.png").exists() is fig3
+    if fig3:
+        assert "Fig. 3: t = 1.00-1.50 orbits" in md
+        assert s["rms_window"] == (T, t[-1])
+    else:
+        assert "Fig. 3 not drawn: no run is longer than one orbit" in md
+        assert s["rms_window"] == (0.0, t[-1])  # whole run, stated
+        assert s["rms_dq"] == pytest.approx(np.sqrt(np.mean(dq ** 2)), rel=1e-12)
+        assert s["rms_m"] == pytest.approx(np.sqrt(np.mean(mn ** 2)), rel=1e-12)
+        assert np.isnan(s["rms_m_orbits_2_5"])  # not a one-sample RMS
+    assert f"| {s['rms_window'][0]:.0f}-{s['rms_window'][1]:.0f} |" in md

@@ -27,6 +27,7 @@ setup(
             "controller = magtune_ros.controller:main",
             "recorder = magtune_ros.recorder:main",
             "player = magtune_ros.player:main",
+            "live_bridge = magtune_ros.live_bridge:main",
         ],
     },
 )

@@ -36,6 +36,7 @@ DIAG_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=Rel
 # Topic names (relative: remappable and namespaceable) and frames: one table, magtune_core.base.topics.
 from magtune_core.base.topics import (  # noqa: E402,F401
     FRAME_BODY,
+    FRAME_ECI,
     FRAME_ORBITAL,
     TOPIC_ATTITUDE,
     TOPIC_DIAGNOSTICS,
@@ -43,6 +44,8 @@ from magtune_core.base.topics import (  # noqa: E402,F401
     TOPIC_DIST_TORQUE,
     TOPIC_MAG,
     TOPIC_MAG_TORQUE,
+    TOPIC_MARKERS,
+    TOPIC_TF,
     TOPIC_TRUE_FIELD,
     TOPIC_TRUTH,
 )

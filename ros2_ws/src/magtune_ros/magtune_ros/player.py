@@ -2,8 +2,13 @@
 
 Usage (``ros2 run magtune_ros player`` or ``install/magtune_ros/lib/magtune_ros/player``)::
 
-    player bags/NAME [--rate R] [--topics /a /b] [--start S] [--loop] [--no-clock]
-                     [--depth N] [--wait-subscribers S] [--ack-every N]
+    player bags/NAME [--rate R] [--topics /a /b] [--exclude REGEX] [--start S]
+                     [--playback-duration S] [--playback-until T] [--start-paused] [--loop]
+                     [--no-clock] [--depth N] [--wait-subscribers S] [--progress auto|on|off]
+                     [--foxglove PORT] [--ros-args -r /a:=/b ...]
+
+Options are validated against the bag first (:func:`magtune_core.ros.replay.validate`): a bad
+rate, a start past the end, an unknown topic, ... print one line and exit with status 2.
 
 * every message is published as its recorded CDR bytes (``Publisher.publish(bytes)`` ->
   ``publish_raw``; nothing is deserialized); publishers use the recorded offered QoS
@@ -12,15 +17,19 @@ Usage (``ros2 run magtune_ros player`` or ``install/magtune_ros/lib/magtune_ros/
   messages of that time, so nodes with ``use_sim_time`` follow the recording; if the bag has
   its own ``/clock`` and it is selected, that one is replayed instead;
 * ``--rate R``: R times the recorded speed (log time vs. wall time); ``--rate 0``: as fast as
-  DDS accepts. Publishers are then reliable KEEP_ALL, so the player never drops a sample
-  that a subscriber has not acknowledged; a subscriber loses nothing if its own history is
-  deep enough for the burst (KEEP_ALL, or KEEP_LAST depth >= messages per topic), otherwise
-  use a finite rate. (``--ack-every N`` additionally blocks on ``wait_for_all_acked`` every N
-  messages; with Fast DDS an ack waits for the writer's next heartbeat, about 3 s, so this is
-  a coarse throttle, off by default.) Before exiting the player waits for all acks;
-* ``--start S`` skips the first S seconds of the bag; ``--loop`` repeats until SIGINT;
-* ``--order publish`` replays on the publish-time timeline instead of the receive (log) time
-  (they differ only for samples a recorder received late, e.g. transient-local history);
+  DDS accepts (reliable KEEP_ALL publishers: nothing a subscriber has not acknowledged is
+  dropped). Before exiting the player waits for all acks;
+* ``--start S`` skips the first S seconds; ``--playback-duration S`` stops S bag seconds after
+  the start point; ``--playback-until T`` stops after log time T [s]; ``--loop`` repeats;
+* control services, the ``rosbag2_interfaces`` types of ``ros2 bag play`` (``ros2 service call
+  /magtune_player/resume rosbag2_interfaces/srv/Resume``): ``pause``, ``resume``,
+  ``toggle_paused``, ``is_paused``, ``get_rate``, ``set_rate`` (rate > 0), ``play_next`` (one
+  message while paused), ``seek`` (log time inside the bag); ``--start-paused`` waits for them;
+* ``--wait-subscribers S`` (default 5): before the first message, wait up to S wall seconds
+  until every selected topic has a subscriber (0: do not wait);
+* progress on stderr (``[RUNNING] bag time ... progress ...``), by default when it is a terminal;
+* ``--foxglove PORT``: also stream every published message to a Foxglove WebSocket server
+  (:mod:`magtune_core.ros.live`) at its log time;
 * a truncated/corrupt bag (no summary) is scanned: what is readable is replayed and the
   final JSON line on stdout reports what was not (``unreadable``).
 """
@@ -29,17 +38,22 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import threading
 import time
 
 import rclpy
 from rclpy.duration import Duration
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
+from rosbag2_interfaces import srv as bag_srv
 
 from magtune_core import bags as baglib
+from magtune_core.base.errors import ConfigError
+from magtune_core.ros.replay import DEFAULT_WAIT_SUBSCRIBERS, SERVICES, ReplayOptions, validate
 
 from .bag_common import install_stop_handlers, message_class, offer_from_recorded
 
@@ -49,9 +63,13 @@ CLOCK = "/clock"
 def parse_args(argv):
     p = argparse.ArgumentParser(prog="player", description=__doc__.split("\n\n")[0])
     p.add_argument("bag", help="bag directory (or .mcap file)")
-    p.add_argument("--rate", type=float, default=1.0, help="speed factor; 0 = as fast as acked")
+    p.add_argument("--rate", type=float, default=1.0, help="speed factor > 0; 0 = as fast as acked")
     p.add_argument("--topics", nargs="*", default=None, help="only these topics")
+    p.add_argument("--exclude", default=None, metavar="REGEX", help="leave out topics matching REGEX")
     p.add_argument("--start", type=float, default=0.0, help="skip the first S seconds")
+    p.add_argument("--playback-duration", type=float, default=0.0, help="play S bag seconds (0: to the end)")
+    p.add_argument("--playback-until", type=float, default=None, help="stop after log time T [s]")
+    p.add_argument("--start-paused", action="store_true", help="wait for resume/play_next")
     p.add_argument("--loop", action="store_true")
     p.add_argument("--no-clock", action="store_true", help="do not publish /clock")
     p.add_argument("--depth", type=int, default=1000, help="publisher queue depth")
@@ -59,27 +77,53 @@ def parse_args(argv):
                    help="rate 0: also wait for acks every N messages (0: never)")
     p.add_argument("--order", choices=("log", "publish"), default="log",
                    help="timeline: receive (log) time, as rosbag2 play, or publish time")
-    p.add_argument("--wait-subscribers", type=float, default=0.0,
-                   help="wait up to S seconds until every topic has a subscriber")
+    p.add_argument("--wait-subscribers", type=float, default=DEFAULT_WAIT_SUBSCRIBERS,
+                   help="wait up to S seconds until every topic has a subscriber (0: no wait)")
+    p.add_argument("--progress", default="auto", help="progress line on stderr: auto (if a terminal), on, off")
+    p.add_argument("--foxglove", type=int, default=None, metavar="PORT",
+                   help="also stream to a Foxglove WebSocket server on PORT (0: any free port)")
     return p.parse_args(argv)
 
 
-class Player(Node):
-    """Publishers for the selected topics of one bag, plus ``/clock``."""
+def options_of(args) -> ReplayOptions:
+    return ReplayOptions(rate=args.rate, topics=args.topics, exclude=args.exclude, start=args.start,
+                         playback_duration=args.playback_duration, playback_until=args.playback_until,
+                         loop=args.loop, no_clock=args.no_clock, start_paused=args.start_paused,
+                         wait_subscribers=args.wait_subscribers, progress=args.progress, foxglove=args.foxglove)
 
-    def __init__(self, args):
+
+class PlayState:
+    """Pause / rate / seek / play-next requests shared by the service callbacks and the play loop."""
+
+    def __init__(self, paused: bool, rate: float):
+        self.cond = threading.Condition()
+        self.paused = paused
+        self.rate = rate
+        self.seek_ns: int | None = None
+        self.next_requests = 0
+        self.exhausted = False    # the window is played out (play_next then fails)
+        self.version = 0          # bumped on every change: the play loop re-anchors its timing
+
+    def change(self, **kw):
+        with self.cond:
+            for k, v in kw.items():
+                setattr(self, k, v)
+            self.version += 1
+            self.cond.notify_all()
+
+
+class Player(Node):
+    """Publishers for the selected topics of one bag, plus ``/clock`` and the control services."""
+
+    def __init__(self, args, sel, stop: threading.Event):
         super().__init__("magtune_player",
                          parameter_overrides=[Parameter("use_sim_time", value=False)])
-        self.args = args
+        self.args, self.sel, self.stop = args, sel, stop
+        self.state = PlayState(args.start_paused, args.rate)
         topics = baglib.topics_of(args.bag)
-        if args.topics:
-            missing = [t for t in args.topics if t not in topics]
-            if missing:
-                self.get_logger().warning(f"topics not in bag: {missing}")
-            topics = {n: t for n, t in topics.items() if n in args.topics}
-        self.topics = topics
+        self.topics = {n: topics[n] for n in sel.topics}
         self.pubs = {}
-        for name, info in topics.items():
+        for name, info in self.topics.items():
             qos = offer_from_recorded(info.offered_qos_profiles, args.depth)
             if args.rate == 0:
                 qos.history = HistoryPolicy.KEEP_ALL
@@ -90,10 +134,76 @@ class Player(Node):
             self._clock_msg = ClockMsg()
             self.clock_pub = self.create_publisher(
                 ClockMsg, CLOCK, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        self.live = None
+        if args.foxglove is not None:
+            from magtune_core.ros.live import LiveServer
+            self.live = LiveServer(args.foxglove, name="magtune replay")
+            for name, info in self.topics.items():
+                self.live.add_topic(name, info.type)
+            if self.clock_pub is not None:
+                self.live.add_topic(CLOCK, "rosgraph_msgs/msg/Clock")
+            print(f"magtune-player foxglove ws://127.0.0.1:{self.live.port}", flush=True)
+        for name, typ in SERVICES.items():
+            self.create_service(getattr(bag_srv, typ), f"~/{name}", getattr(self, f"_srv_{name}"))
+        self.bag_time = sel.start_ns   # log time of the last message published
 
+    # ---------------------------------------------------------------- services
+    def _srv_pause(self, req, res):
+        self.state.change(paused=True)
+        return res
+
+    def _srv_resume(self, req, res):
+        self.state.change(paused=False)
+        return res
+
+    def _srv_toggle_paused(self, req, res):
+        self.state.change(paused=not self.state.paused)
+        return res
+
+    def _srv_is_paused(self, req, res):
+        res.paused = bool(self.state.paused)
+        return res
+
+    def _srv_get_rate(self, req, res):
+        res.rate = float(self.state.rate)
+        return res
+
+    def _srv_set_rate(self, req, res):
+        ok = req.rate > 0 and req.rate < float("inf")
+        if ok:
+            self.state.change(rate=float(req.rate))
+        res.success = bool(ok)
+        return res
+
+    def _srv_play_next(self, req, res):
+        st = self.state
+        with st.cond:
+            if not st.paused:
+                res.success = False
+                return res
+            st.next_requests += 1
+            st.version += 1
+            st.cond.notify_all()
+            # answer once the loop has published it (or gave up: end of the window)
+            end = time.monotonic() + 5.0
+            while st.next_requests > 0 and time.monotonic() < end and not self.stop.is_set():
+                st.cond.wait(0.05)
+            res.success = st.next_requests == 0 and not st.exhausted
+            st.next_requests = 0
+        return res
+
+    def _srv_seek(self, req, res):
+        t = int(req.time.sec) * 1_000_000_000 + int(req.time.nanosec)
+        ok = self.sel.bag_start_ns <= t <= self.sel.bag_end_ns
+        if ok:
+            self.state.change(seek_ns=t)
+        res.success = bool(ok)
+        return res
+
+    # ---------------------------------------------------------------- playing
     def wait_subscribers(self, timeout: float) -> bool:
         end = time.monotonic() + timeout
-        while time.monotonic() < end:
+        while time.monotonic() < end and not self.stop.is_set():
             if all(p.get_subscription_count() > 0 for p in self.pubs.values()):
                 return True
             time.sleep(0.02)
@@ -103,6 +213,9 @@ class Player(Node):
         m = self._clock_msg
         m.clock.sec, m.clock.nanosec = divmod(int(t_ns), 1_000_000_000)
         self.clock_pub.publish(m)
+        if self.live is not None:
+            from rclpy.serialization import serialize_message
+            self.live.log(CLOCK, serialize_message(m), t_ns)
 
     def wait_acked(self, timeout_s: float = 10.0):
         for p in self.pubs.values():
@@ -111,68 +224,148 @@ class Player(Node):
         if self.clock_pub is not None and self.clock_pub.get_subscription_count() > 0:
             self.clock_pub.wait_for_all_acked(Duration(seconds=timeout_s))
 
-    def play_once(self, stop, counts: dict, report: dict) -> None:
-        """One pass over the bag."""
-        a = self.args
-        start_ns = None
-        meta_start = _bag_start(a.bag)
-        if a.start > 0:
-            start_ns = meta_start + int(a.start * 1e9)
-        wall0 = time.monotonic()
-        t0 = None
+    def play_once(self, counts: dict, report: dict) -> None:
+        """One pass over the playback window (restarted from the target on a seek)."""
+        a, st, sel = self.args, self.state, self.sel
+        start_ns = sel.start_ns
         last_clock = None
-        since_ack = 0
-        for m in baglib.iter_messages(a.bag, topics=list(self.pubs), start_ns=start_ns,
-                                      report=report, order=a.order):
-            if stop.is_set():
+        while True:
+            with st.cond:
+                st.seek_ns = None
+                version = st.version
+            anchor_wall, anchor_bag = time.monotonic(), None
+            since_ack = 0
+            seeked = False
+            for m in baglib.iter_messages(a.bag, topics=list(self.pubs), start_ns=start_ns,
+                                          report=report, order=a.order):
+                t = m.log_time if a.order == "log" else m.publish_time
+                if t > sel.end_ns:
+                    break
+                if anchor_bag is None:
+                    anchor_bag = t
+                stepped = False
+                with st.cond:
+                    while True:
+                        if self.stop.is_set():
+                            return
+                        if st.seek_ns is not None:
+                            seeked = True
+                            break
+                        if st.version != version:    # pause/resume/rate change: re-anchor the timing
+                            version = st.version
+                            anchor_wall, anchor_bag = time.monotonic(), t
+                        if st.paused:
+                            if st.next_requests > 0:
+                                stepped = True
+                                break
+                            st.cond.wait(0.1)
+                            continue
+                        rate = st.rate
+                        if rate <= 0:
+                            break
+                        delay = anchor_wall + (t - anchor_bag) / 1e9 / rate - time.monotonic()
+                        if delay <= 0:
+                            break
+                        st.cond.wait(min(delay, 0.1))
+                if seeked:
+                    break
+                if self.clock_pub is not None and (last_clock is None or t > last_clock):
+                    self.publish_clock(t)
+                    last_clock = t
+                    counts[CLOCK] = counts.get(CLOCK, 0) + 1
+                self.pubs[m.topic].publish(m.data)
+                if self.live is not None:
+                    self.live.log(m.topic, m.data, t)
+                counts[m.topic] = counts.get(m.topic, 0) + 1
+                self.bag_time = t
+                self.progress()
+                if stepped:
+                    with st.cond:
+                        st.next_requests = max(0, st.next_requests - 1)
+                        version = st.version = st.version + 1
+                        st.cond.notify_all()
+                    anchor_wall, anchor_bag = time.monotonic(), t
+                since_ack += 1
+                if a.rate == 0 and a.ack_every and since_ack >= a.ack_every:
+                    self.wait_acked()
+                    since_ack = 0
+            if seeked:
+                start_ns, last_clock = st.seek_ns, None
+                continue
+            # end of the window: a paused player stays paused until resumed (to allow a seek back)
+            with st.cond:
+                st.exhausted = True
+                st.next_requests = 0
+                st.cond.notify_all()
+                while st.paused and st.seek_ns is None and not self.stop.is_set():
+                    st.cond.wait(0.1)
+                seek = st.seek_ns
+                st.exhausted = False
+            if seek is None:
                 return
-            t = m.log_time if a.order == "log" else m.publish_time
-            if t0 is None:
-                t0 = t
-            if a.rate > 0:
-                delay = wall0 + (t - t0) / 1e9 / a.rate - time.monotonic()
-                if delay > 0:
-                    if stop.wait(delay):
-                        return
-            if self.clock_pub is not None and (last_clock is None or t > last_clock):
-                self.publish_clock(t)
-                last_clock = t
-                counts[CLOCK] = counts.get(CLOCK, 0) + 1
-            self.pubs[m.topic].publish(m.data)
-            counts[m.topic] = counts.get(m.topic, 0) + 1
-            since_ack += 1
-            if a.rate == 0 and a.ack_every and since_ack >= a.ack_every:
-                self.wait_acked()
-                since_ack = 0
+            start_ns, last_clock = seek, None
 
+    _last_progress = 0.0
 
-def _bag_start(bag) -> int:
-    try:
-        return int(baglib.info(bag)["start_ns"])
-    except Exception:  # noqa: BLE001 - an unreadable bag has no start; iteration reports it
-        return 0
+    def progress(self, final: bool = False):
+        if not self.show_progress:
+            return
+        now = time.monotonic()
+        if not final and now - self._last_progress < 0.2:
+            return
+        self._last_progress = now
+        sel = self.sel
+        span = max(1, sel.end_ns - sel.start_ns)
+        frac = min(1.0, max(0.0, (self.bag_time - sel.start_ns) / span))
+        status = "PAUSED " if self.state.paused else "RUNNING"
+        sys.stderr.write(f"\r[{status}] bag time {self.bag_time * 1e-9:14.3f} s  duration "
+                         f"{(self.bag_time - sel.bag_start_ns) * 1e-9:10.3f} s  progress {100 * frac:5.1f} %"
+                         + ("\n" if final else ""))
+        sys.stderr.flush()
 
 
 def main(argv=None):
     argv = sys.argv if argv is None else argv
     args = parse_args(remove_ros_args(argv)[1:])
+    try:
+        sel = validate(args.bag, options_of(args))
+    except ConfigError as exc:
+        print(f"player: {exc}", file=sys.stderr, flush=True)
+        return 2
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     stop = install_stop_handlers()
-    node = Player(args)
+    node = Player(args, sel, stop)
+    node.show_progress = args.progress == "on" or (args.progress == "auto" and sys.stderr.isatty())
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    spinner = threading.Thread(target=lambda: _spin(executor, stop), name="services", daemon=True)
+    spinner.start()
+
+    def wake(*_):
+        with node.state.cond:
+            node.state.cond.notify_all()
+
     counts: dict = {}
     report: dict = {}
     loops = 0
     t_start = time.monotonic()
     try:
+        if args.start_paused:
+            print("magtune-player paused", flush=True)
         if args.wait_subscribers > 0 and not node.wait_subscribers(args.wait_subscribers):
-            node.get_logger().warning("not every topic has a subscriber; playing anyway")
-        while True:
-            node.play_once(stop, counts, report)
+            node.get_logger().warning(f"not every topic has a subscriber after {args.wait_subscribers:g} s; "
+                                      "playing anyway")
+        print("magtune-player playing", flush=True)
+        while not stop.is_set():
+            node.play_once(counts, report)
             loops += 1
-            if not args.loop or stop.is_set():
+            if not args.loop:
                 break
+        node.progress(final=True)
         node.wait_acked()
     finally:
+        stop.set()
+        wake()
         elapsed = time.monotonic() - t_start
         out = {"bag": str(args.bag), "published": dict(sorted(counts.items())), "loops": loops,
                "wall_s": round(elapsed, 3), "complete": bool(report.get("complete", True))}
@@ -181,9 +374,23 @@ def main(argv=None):
                 "chunks_bad", "unreadable_tail_bytes", "problem", "messages_recovered")}
             node.get_logger().warning(f"bag is damaged; replayed what was readable: {out['unreadable']}")
         print(json.dumps(out), flush=True)
+        spinner.join(2.0)
+        if node.live is not None:
+            node.live.close()
+        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def _spin(executor, stop: threading.Event):
+    while not stop.is_set():
+        try:
+            executor.spin_once(timeout_sec=0.1)
+        except Exception:  # noqa: BLE001 - shutdown races end the service thread
+            if stop.is_set():
+                return
+            raise
 
 
 if __name__ == "__main__":

@@ -9,7 +9,8 @@ Usage (``ros2 run magtune_ros recorder`` or ``install/magtune_ros/lib/magtune_ro
 
 Every option is also a ROS parameter of the same name (``path`` for ``-o``; dashes become
 underscores); a command-line option wins over the parameter. Without ``--topics`` and
-``--all`` the project's topics (:data:`magtune_core.base.topics.PROJECT_TOPICS`) are recorded.
+``--all`` the project's topics (:data:`magtune_core.base.topics.PROJECT_TOPICS`) are recorded;
+the project's topics under a namespace (``/sat1/sim/truth``) get their type and durability too.
 
 Design:
 
@@ -59,7 +60,7 @@ from rclpy.utilities import remove_ros_args
 
 from magtune_core.bags.msgdefs import normalize_type
 from magtune_core.bags.writer import DEFAULT_CHUNK_SIZE, BagWriter
-from magtune_core.base.topics import PROJECT_TOPICS, topic_specs
+from magtune_core.base.topics import project_topic, topic_specs
 
 from .bag_common import HIDDEN_TOPICS, adapt_request, install_stop_handlers, message_class, qos_profile_dict
 
@@ -232,8 +233,8 @@ class Recorder(Node):
         for spec in args.topics:
             name, _, typ = spec.partition(":")
             name = "/" + name.lstrip("/")
-            if not typ and name in PROJECT_TOPICS:
-                typ = PROJECT_TOPICS[name][0]
+            if not typ and project_topic(name):  # also under a namespace: /sat1/sim/truth
+                typ = project_topic(name)[0]
             self.wanted[name] = normalize_type(typ) if typ else None
         self.subs = {}
         self.types: dict[str, str] = {}
@@ -291,7 +292,7 @@ class Recorder(Node):
     def _subscribe(self, name: str, typ: str):
         offered = [i.qos_profile for i in self.get_publishers_info_by_topic(name)]
         qos = adapt_request(offered, self.args.depth)
-        if not offered and PROJECT_TOPICS.get(name, ("", ""))[1] == "transient_local":
+        if not offered and (project_topic(name) or ("", ""))[1] == "transient_local":
             # subscribed before its publisher exists: ask for the late-joiner history the
             # project's lockstep publishers keep (transient-local, depth 100)
             qos.durability = DurabilityPolicy.TRANSIENT_LOCAL

@@ -18,6 +18,14 @@ Publishes (all stamped with simulated time t_k = k * ts):
   sim/magnetic_torque          geometry_msgs/WrenchStamped  m x b at t_k [N m], body axes
   sim/disturbance_torque       geometry_msgs/WrenchStamped  gravity gradient + residual dipole (+ drag, SRP) at t_k
   /diagnostics                 diagnostic_msgs/DiagnosticArray (steps, missed_steps, rejected, ...)
+  /tf                          tf2_msgs/TFMessage (``publish_tf``): orbital -> body (rotation q, the
+                               pose of sim/truth) and, with environment 'full', eci -> orbital
+                               (translation r [m], rotation = orbital axes in ECI); Foxglove's 3D panel
+  sim/markers                  visualization_msgs/MarkerArray (``publish_markers``), frame body: the
+                               0.6 x 1.0 x 0.8 m box, arrows of the true field (MARKER_FIELD_SCALE m per uT)
+                               and of the applied dipole (MARKER_DIPOLE_SCALE m per A m^2) of step k
+  Stamps are ``time_origin_ns`` + k * ts: 0 by default (sim time from 0), the scenario epoch in
+  ns since 1970 with ``magtune sil --epoch-time`` (tools then show real dates).
 Subscribes:
   controller/dipole_command    geometry_msgs/Vector3Stamped [A m^2], body axes; saturated per axis.
 
@@ -34,19 +42,26 @@ import json
 import time
 
 import numpy as np
-from geometry_msgs.msg import Vector3Stamped, WrenchStamped
+from geometry_msgs.msg import Point, TransformStamped, Vector3Stamped, WrenchStamped
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import MagneticField
+from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import Marker, MarkerArray
 
-from magtune_core.base.rotations import cross
+from magtune_core.base.rotations import cross, matrix_to_quat
 from magtune_core.design.law import DEFAULT_DIPOLE_LIMIT, linear_state, saturate
 from magtune_core.sim.simulate import DW0, SimResult, initial_state
 
 from . import common as c
+
+#: Arrow lengths of sim/markers: field 0.05 m per uT (|b| 20-50 uT -> 1-2.5 m), dipole 0.2 m per A m^2
+MARKER_FIELD_SCALE = 0.05e6
+MARKER_DIPOLE_SCALE = 0.2
+BOX_DIMS = (0.6, 1.0, 0.8)  # magtune_core.env.geometry.BoxGeometry default [m]
 
 
 def load_plugin(spec: str):
@@ -94,6 +109,11 @@ class Simulator(Node):
         self.pub_torques = c.declare(self, "publish_torques", True, "publish sim/*_torque topics")
         self.wait_peers = c.declare(self, "wait_for_peers", True,
                                     "start when the sensors and controller are matched")
+        self.pub_tf_on = c.declare(self, "publish_tf", True, "publish /tf (orbital -> body; eci -> orbital)")
+        self.pub_markers_on = c.declare(self, "publish_markers", True,
+                                        "publish sim/markers (body box, field and dipole arrows)")
+        self.time_origin_ns = c.declare(self, "time_origin_ns", 0,
+                                        "stamp of step 0 [ns since 1970]; 0 = sim time from 0", nonnegative=True)
         self.min_subs = c.declare(self, "min_truth_subscribers", 1,
                                   "subscribers of sim/truth required before starting (2 with a recorder)",
                                   positive=True)
@@ -151,7 +171,7 @@ class Simulator(Node):
                                  field=field, disturbances=dist, options=opts)
         self.y = initial_state(p, dw0, q0)
         self.k = 0
-        self.t_ns = [c.sec_to_ns(k * self.ts) for k in range(self.n + 1)]
+        self.t_ns = [self.time_origin_ns + c.sec_to_ns(k * self.ts) for k in range(self.n + 1)]
         self.m_cmd = np.zeros(3)
         self.last_cmd_ns = -1
         self.awaiting = False
@@ -173,6 +193,11 @@ class Simulator(Node):
         self.pub_tmag = self.create_publisher(WrenchStamped, c.TOPIC_MAG_TORQUE, c.LOCKSTEP_QOS)
         self.pub_tdist = self.create_publisher(WrenchStamped, c.TOPIC_DIST_TORQUE, c.LOCKSTEP_QOS)
         self.sub_cmd = self.create_subscription(Vector3Stamped, c.TOPIC_DIPOLE, self.on_command, c.LOCKSTEP_QOS)
+        self.pub_tf = self.create_publisher(TFMessage, c.TOPIC_TF, c.LOCKSTEP_QOS) if self.pub_tf_on else None
+        self.pub_markers = (self.create_publisher(MarkerArray, c.TOPIC_MARKERS, c.LOCKSTEP_QOS)
+                            if self.pub_markers_on else None)
+        self.msg_tf = self._make_tf()
+        self.msg_markers = self._make_markers()
         # preallocated messages (fields overwritten every step)
         self.msg_clock = ClockMsg()
         self.msg_truth = Odometry()
@@ -247,6 +272,8 @@ class Simulator(Node):
         self.t_publish = time.perf_counter()
         self.pub_truth.publish(m)
         self.pub_field.publish(f)
+        if self.pub_tf is not None:
+            self.publish_tf(k, stamp, o)
         # /clock right after the step's data: the nodes' clock callbacks then run off the
         # lockstep critical path (their inputs are accepted up to 2 Ts from their clock)
         self.msg_clock.clock = stamp
@@ -295,8 +322,12 @@ class Simulator(Node):
         if k >= self.n:
             if self.pub_torques:
                 self.publish_torques(k, m)
+            if self.pub_markers is not None:
+                self.publish_markers(k, m)
             self.finish_run()
             return
+        if self.pub_markers is not None:
+            self.publish_markers(k, m)
         self.y = self.dyn.step(k * self.ts, self.y, self.ts, m, self.substeps)
         self.k = k + 1
         if self.rtf > 0 and self.lockstep:
@@ -306,6 +337,67 @@ class Simulator(Node):
         self.publish_state()
         if self.pub_torques:  # torques of the step just applied, off the lockstep critical path
             self.publish_torques(k, m)
+
+    # ---------------------------------------------------------------- visualization
+    def _make_tf(self) -> TFMessage:
+        body = TransformStamped()
+        body.header.frame_id, body.child_frame_id = c.FRAME_ORBITAL, c.FRAME_BODY
+        tfs = [body]
+        if self.environment == "full":
+            orb = TransformStamped()
+            orb.header.frame_id, orb.child_frame_id = c.FRAME_ECI, c.FRAME_ORBITAL
+            tfs.append(orb)
+        return TFMessage(transforms=tfs)
+
+    def publish_tf(self, k, stamp, o):
+        """orbital -> body: the rotation of sim/truth (a body vector's orbital coordinates,
+        v_orb = R(q) v_body, as tf's parent <- child convention); eci -> orbital: the orbit's
+        position r [m] and R_eci_to_orbital^T (orbital axes expressed in ECI)."""
+        tfs = self.msg_tf.transforms
+        body = tfs[0]
+        body.header.stamp = stamp
+        body.transform.rotation = o
+        if len(tfs) > 1:
+            from magtune_core.env.orbit import eci_to_orbital
+            r, v = self.dyn.env.orbit.state(k * self.ts)
+            qo = matrix_to_quat(eci_to_orbital(r, v).T)
+            orb = tfs[1]
+            orb.header.stamp = stamp
+            tr, rot = orb.transform.translation, orb.transform.rotation
+            tr.x, tr.y, tr.z = float(r[0]), float(r[1]), float(r[2])
+            rot.w, rot.x, rot.y, rot.z = float(qo[0]), float(qo[1]), float(qo[2]), float(qo[3])
+        self.pub_tf.publish(self.msg_tf)
+
+    def _make_markers(self) -> MarkerArray:
+        def marker(mid, mtype, rgba, ns):
+            mk = Marker()
+            mk.header.frame_id = c.FRAME_BODY
+            mk.ns, mk.id, mk.type, mk.action = ns, mid, mtype, Marker.ADD
+            mk.pose.orientation.w = 1.0
+            mk.color.r, mk.color.g, mk.color.b, mk.color.a = rgba
+            mk.frame_locked = True
+            return mk
+        box = marker(0, Marker.CUBE, (0.7, 0.7, 0.7, 0.6), "body")
+        box.scale.x, box.scale.y, box.scale.z = BOX_DIMS
+        arrows = []
+        for mid, rgba, ns in ((1, (0.2, 0.4, 1.0, 1.0), "magnetic_field"), (2, (1.0, 0.3, 0.1, 1.0), "dipole")):
+            a = marker(mid, Marker.ARROW, rgba, ns)
+            a.scale.x, a.scale.y, a.scale.z = 0.04, 0.08, 0.12  # shaft, head diameter, head length [m]
+            a.points = [Point(), Point()]
+            arrows.append(a)
+        return MarkerArray(markers=[box, *arrows])
+
+    def publish_markers(self, k, m):
+        """Body box, true field b(t_k) and the dipole applied over [t_k, t_k+1], in body axes."""
+        stamp = c.ns_to_stamp(self.t_ns[k])
+        b = self.B[k]
+        mk = self.msg_markers.markers
+        for mark, vec, scale in ((mk[1], b, MARKER_FIELD_SCALE), (mk[2], m, MARKER_DIPOLE_SCALE)):
+            tip = mark.points[1]
+            tip.x, tip.y, tip.z = float(vec[0] * scale), float(vec[1] * scale), float(vec[2] * scale)
+        for mark in mk:
+            mark.header.stamp = stamp
+        self.pub_markers.publish(self.msg_markers)
 
     def publish_torques(self, k, m):
         y, b = self.Y[k], self.B[k]

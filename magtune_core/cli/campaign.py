@@ -1,0 +1,82 @@
+"""``magtune campaign`` and ``magtune campaign-report``: Monte Carlo campaigns on Dask
+(:mod:`..studies.campaign`, :mod:`..studies.campaign_report`)."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from ..base.errors import ConfigError
+from ..studies import campaign, campaign_report
+from .common import CommandError
+
+#: What ``--force`` removes from an existing output directory (our own outputs only).
+OUTPUTS = ("runs.parquet", "campaign.json", "spec.yaml", "summary.md", "envelopes.png", "histograms.png")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("campaign", help="Monte Carlo campaign: dispersed runs, batched, on Dask; Parquet results",
+                       description=campaign.__doc__.split("\n\n")[0])
+    p.add_argument("spec", help="campaign spec (YAML: campaign, dispersions, criteria; see config/campaigns/)")
+    p.add_argument("--runs", type=int, required=True, help="number of dispersed runs (per gains file)")
+    p.add_argument("--out", required=True, help="output directory (must be empty or new, unless --force)")
+    p.add_argument("--force", action="store_true", help="write into a non-empty --out (replaces earlier campaign outputs)")
+    p.add_argument("--scheduler", default=None,
+                   help="tcp://HOST:PORT of an existing Dask scheduler (default: a LocalCluster on this machine); "
+                        "'synchronous' runs in this process without Dask")
+    p.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: one per core)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+    r = sub.add_parser("campaign-report", help="report of a campaign directory: envelopes, histograms, summary.md",
+                       description=campaign_report.__doc__.split("\n\n")[0])
+    r.add_argument("dir", help="output directory of magtune campaign")
+    r.set_defaults(func=run_report)
+
+
+def _check_out(out: Path, force: bool) -> None:
+    if out.exists() and not out.is_dir():
+        raise ConfigError(out, None, "--out exists and is not a directory; choose another --out")
+    if out.is_dir() and any(out.iterdir()):
+        if not force:
+            raise ConfigError(out, None, "--out is not empty; choose a new directory or add --force")
+        for name in OUTPUTS:
+            (out / name).unlink(missing_ok=True)
+        if (out / "histories").is_dir():
+            shutil.rmtree(out / "histories")
+
+
+def run(args) -> int:
+    if args.runs < 1:
+        raise ConfigError("--runs", None, f"expected a positive number of runs, got {args.runs}")
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError("--workers", None, f"expected at least 1, got {args.workers}")
+    sched = args.scheduler
+    if sched is not None and sched != "synchronous" and "://" not in sched:
+        raise ConfigError("--scheduler", None, f"expected tcp://HOST:PORT or synchronous, got {sched!r}")
+    spec = campaign.load_spec(args.spec)  # ConfigError -> one line, exit 2, nothing started
+    out = Path(args.out)
+    _check_out(out, args.force)
+    steps = spec.steps()
+    print(f"campaign {spec.campaign['name']}: {args.runs} runs x {len(spec.gains_files)} gains file(s), "
+          f"{spec.campaign['environment']} environment, {spec.campaign['orbits']:g} orbits ({steps} steps of "
+          f"{spec.campaign['ts']:g} s), batches of {spec.campaign['batch_size']}, "
+          f"scheduler {sched or 'LocalCluster'}", flush=True)
+    try:
+        meta = campaign.run_campaign(spec, args.runs, out, scheduler=sched, workers=args.workers,
+                                     progress=not args.no_progress)
+    except OSError as exc:  # scheduler unreachable (distributed raises OSError subclasses on connect timeouts)
+        raise CommandError(f"cannot reach the Dask scheduler {sched}: {exc}") from None
+    cols = campaign.read_runs(out)
+    print("\n".join(campaign_report.summary_lines(meta, cols)))
+    print(f"wrote {out / 'runs.parquet'}, {out / 'histories'}/, {out / 'campaign.json'}; "
+          f"report: magtune campaign-report {out}")
+    return 0
+
+
+def run_report(args) -> int:
+    out = Path(args.dir)
+    if not (out / "runs.parquet").is_file() or not (out / "campaign.json").is_file():
+        raise ConfigError(out, None, "not a campaign directory (no runs.parquet / campaign.json); run magtune campaign first")
+    md = campaign_report.write_report(out)
+    print(md)
+    print(f"wrote {out / 'summary.md'}, {out / 'envelopes.png'}, {out / 'histograms.png'}")
+    return 0

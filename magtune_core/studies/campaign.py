@@ -1,0 +1,579 @@
+"""Monte Carlo campaigns: dispersed closed-loop runs, batched, executed as dask.distributed tasks.
+
+``magtune campaign SPEC.yaml --runs N --out DIR`` (the command: :mod:`magtune_core.cli.campaign`)
+
+A campaign spec (YAML, three sections, each validated by its :class:`Field` schema below)
+names the gains file(s), the spacecraft file, the environment, the run length and Ts, the
+dispersions and the pass/fail criteria. Run ``i`` (0 <= i < N) draws its parameters from its own
+generator ``numpy.random.default_rng([seed, i])`` in a fixed order (every draw is made even
+when its spread is zero, so changing one spread never reshuffles the others) and its sensor
+noise from ``default_rng([seed, i, 1])``. Runs are grouped in batches of ``batch_size``
+consecutive indices, each batch one Dask task that advances all its runs together
+(:func:`magtune_core.sim.batch.simulate_batch`). A run's result therefore depends on the spec,
+the seed and its index only: the same on 1 worker, 2 workers or a cluster.
+
+Dispersions (all optional; zero spread = nominal):
+
+* inertia: principal moments ``I_k (1 + e_k)``, ``e_k ~ N(0, inertia_rel_std_k^2)`` clipped at 3 sigma;
+* residual dipole [A m^2] per body axis: ``N(residual_dipole_mean, residual_dipole_std^2)``;
+* initial attitude: a rotation about a uniformly distributed axis by an angle uniform in
+  ``[0, attitude_max_deg]`` from the orbital frame; initial rate error ``dw(0) = rate_mean + U(-rate_max, rate_max)``
+  per axis [rad/s] (the paper's dw(0) = [1e-3, 2e-3, 0] is the default mean);
+* epoch and RAAN (full environment): uniform in ``[epoch_min, epoch_max]``, ``[raan_min_deg, raan_max_deg]``;
+* sensors: magnetometer white noise std [T] and bias ``N(0, mag_bias_std^2)`` per axis, gyro
+  noise [rad/s] and bias likewise, attitude-determination error std [rad] (the model of the
+  ``attitude_sensors`` node, :mod:`magtune_core.sim.batch`);
+* dipole limit per axis [A m^2]: uniform in ``[dipole_limit_min, dipole_limit_max]``.
+
+Figures of merit per run, from the true attitude at every controller instant (pointing error
+= rotation angle between body and orbital axes, ``2 asin(|q_vec|)`` [deg],
+:func:`magtune_core.sim.metrics.pointing_error_deg`):
+settling time (first instant after which the error stays below ``settle_threshold_deg``),
+RMS and max pointing error after settling (window ``t >= max_settling_orbits T``, the instant
+by which the criteria require settling: the same window for every run), final error, peak and RMS of |m| (whole run),
+saturation and weak-field fractions; pass/fail against the criteria. A run is ``ok``,
+``diverged`` (non-finite state or |w| > 1 rad/s at some step) or ``failed`` (an exception while
+setting it up or running it: the message is kept); every run has a row, none is dropped.
+
+Outputs in DIR: ``runs.parquet`` (one row per run: index, gains, status, parameters,
+figures, pass and reasons), ``histories/batch_NNNNN.npz`` (pointing error, |m| and |dw| of every
+run every ``history_step`` seconds, float32), ``campaign.json`` (resolved spec, counts, timing)
+and ``spec.yaml`` (the input). ``magtune campaign-report DIR`` adds ``summary.md``,
+``envelopes.png`` (5/50/95 % envelopes) and ``histograms.png``.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import dataclass, field, replace
+from datetime import datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..base.ament import ROOT
+from ..base.errors import ConfigError
+from ..base.schema import Field, parse
+from ..design.gains import load_gains
+from ..design.params import SpacecraftParams, load_spacecraft
+from ..sim.batch import BatchRuns, SensorNoise, simulate_batch
+from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions, nominal_orbit_period, substeps_for
+from ..sim.metrics import settling_time
+from ..sim.simulate import DW0
+
+#: Section ``campaign``: what is run.
+CAMPAIGN_FIELDS = (
+    Field("name", "str", "campaign name (reports)", "campaign"),
+    Field("seed", "int", "master seed: run i draws from default_rng([seed, i])", nonnegative=True),
+    Field("gains", "str", "gains file (config/gains/sigma_*.yaml); a list of files runs every dispersion with each"),
+    Field("spacecraft", "str", "spacecraft parameter file", "config/spacecraft.yaml"),
+    Field("environment", "str", "plant environment", "full", choices=ENVIRONMENTS),
+    Field("orbits", "float", "run length [nominal orbits]", 5.0, positive=True),
+    Field("ts", "float", "controller sample period Ts [s]", 1.0, positive=True),
+    Field("substeps", "int", "RK4 steps per Ts (0: at most 0.5 s per step, fullenv.substeps_for)", 0, nonnegative=True),
+    Field("batch_size", "int", "runs per Dask task (advanced together as arrays)", 250, positive=True),
+    Field("history_step", "float", "time step of the stored histories [s]", 60.0, positive=True),
+    Field("drag", "bool", "full environment: aerodynamic drag", True),
+    Field("srp", "bool", "full environment: solar radiation pressure", True),
+    Field("gravity_gradient", "bool", "full environment: gravity gradient", True),
+    Field("field", "str", "full environment: igrf or a periodic model of design/field.py", "igrf"),
+    Field("igrf_degree", "int", "full environment: IGRF degree", 10, positive=True),
+    Field("arg_lat_deg", "float", "full environment: argument of latitude at the epoch [deg] (default: the "
+          "spacecraft file's arg_latitude)", None),
+    Field("min_field", "float", "weak-field guard of the controller [T]", 1e-7, positive=True),
+)
+
+#: Section ``dispersions``.
+DISPERSION_FIELDS = (
+    Field("inertia_rel_std", "float[]", "1-sigma relative error of Ixx, Iyy, Izz (normal, clipped at 3 sigma)",
+          (0.0, 0.0, 0.0), size=3, nonnegative=True),
+    Field("residual_dipole_mean", "float[]", "mean residual dipole per body axis [A m^2]", (1.0, 1.0, 1.0), size=3),
+    Field("residual_dipole_std", "float[]", "1-sigma residual dipole per body axis [A m^2]", (0.0, 0.0, 0.0),
+          size=3, nonnegative=True),
+    Field("attitude_max_deg", "float", "initial attitude: rotation by U(0, max) about a random axis [deg]", 0.0,
+          nonnegative=True),
+    Field("rate_mean", "float[]", "initial rate error dw(0) mean [rad/s]", DW0, size=3),
+    Field("rate_max", "float[]", "initial rate error: + U(-max, max) per axis [rad/s]", (0.0, 0.0, 0.0), size=3,
+          nonnegative=True),
+    Field("epoch_min", "str", "epoch range start (UTC, ISO 8601; default: the spacecraft file's epoch)", ""),
+    Field("epoch_max", "str", "epoch range end (UTC, ISO 8601; default epoch_min)", ""),
+    Field("raan_min_deg", "float", "RAAN range start [deg] (default: the spacecraft file's raan)", None),
+    Field("raan_max_deg", "float", "RAAN range end [deg] (default raan_min_deg)", None),
+    Field("mag_noise_std", "float", "magnetometer white noise std [T]", 0.0, nonnegative=True),
+    Field("mag_bias_std", "float", "magnetometer bias 1-sigma per axis [T]", 0.0, nonnegative=True),
+    Field("gyro_noise_std", "float", "gyro white noise std [rad/s]", 0.0, nonnegative=True),
+    Field("gyro_bias_std", "float", "gyro bias 1-sigma per axis [rad/s]", 0.0, nonnegative=True),
+    Field("attitude_noise_std", "float", "attitude-determination error std per axis [rad]", 0.0, nonnegative=True),
+    Field("dipole_limit_min", "float", "per-axis dipole limit range start [A m^2]", 50.0, positive=True),
+    Field("dipole_limit_max", "float", "per-axis dipole limit range end [A m^2] (default dipole_limit_min)", None,
+          positive=True),
+)
+
+#: Section ``criteria`` (a run passes when it is ok and meets every criterion given).
+CRITERIA_FIELDS = (
+    Field("settle_threshold_deg", "float", "pointing error below which the run counts as settled [deg]", 2.0,
+          positive=True),
+    Field("max_settling_orbits", "float", "settling time limit [nominal orbits]", 2.0, positive=True),
+    Field("max_pointing_deg", "float", "limit of the max pointing error in steady state (t >= max_settling_orbits T) [deg]",
+          None, positive=True),
+    Field("max_rms_pointing_deg", "float", "limit of the RMS pointing error in steady state [deg]", None, positive=True),
+    Field("max_peak_dipole", "float", "limit of the peak |m| [A m^2]", None, positive=True),
+    Field("max_saturation_fraction", "float", "limit of the fraction of saturated controller steps", None,
+          nonnegative=True),
+)
+
+SECTIONS = {"campaign": CAMPAIGN_FIELDS, "dispersions": DISPERSION_FIELDS, "criteria": CRITERIA_FIELDS}
+STATUSES = ("ok", "diverged", "failed")
+#: Figures of merit (columns of runs.parquet) and their units, in report order.
+FIGURES = (("settling_time", "s"), ("max_pointing_deg", "deg"), ("rms_pointing_deg", "deg"),
+           ("final_pointing_deg", "deg"), ("peak_dipole", "A m^2"), ("rms_dipole", "A m^2"),
+           ("saturation_fraction", "-"), ("weak_field_fraction", "-"))
+
+
+@dataclass
+class CampaignSpec:
+    """A validated campaign: the sections' values plus the loaded spacecraft and gains (so a task
+    carries everything a remote worker needs; workers read no file)."""
+
+    path: str
+    campaign: dict
+    dispersions: dict
+    criteria: dict
+    gains_files: list
+    K: np.ndarray  #: (G, 3, 6) one gain per gains file
+    p: SpacecraftParams
+    epoch_min: datetime
+    epoch_max: datetime
+    raw: dict = field(default_factory=dict)
+
+    @property
+    def seed(self) -> int:
+        return int(self.campaign["seed"])
+
+    @property
+    def substeps(self) -> int:
+        s = int(self.campaign["substeps"])
+        return s if s > 0 else substeps_for(self.campaign["ts"])
+
+    def env_options(self, epoch: datetime, raan_deg: float) -> FullEnvironmentOptions:
+        c = self.campaign
+        return FullEnvironmentOptions(gravity_gradient=c["gravity_gradient"], drag=c["drag"], srp=c["srp"],
+                                      field=c["field"], igrf_degree=c["igrf_degree"], epoch=epoch,
+                                      raan_deg=float(raan_deg), arg_lat_deg=c["arg_lat_deg"])
+
+    def reference_period(self) -> float:
+        """Nominal period of the undispersed orbit (epoch_min, raan_min_deg): the run length is
+        ``orbits`` of it for every run, whatever its own orbit."""
+        if self.campaign["environment"] == "full":
+            return nominal_orbit_period(self.p, self.env_options(self.epoch_min, self.dispersions["raan_min_deg"]))
+        return float(self.p.orbit_period)
+
+    def steps(self) -> int:
+        return int(round(self.campaign["orbits"] * self.reference_period() / self.campaign["ts"]))
+
+    def record_every(self) -> int:
+        return max(1, int(round(self.campaign["history_step"] / self.campaign["ts"])))
+
+
+def _resolve(path: str, spec_path: Path) -> Path:
+    """A file named in the spec: absolute, else relative to the current directory, the spec's
+    directory, then the repository root."""
+    p = Path(path).expanduser()
+    if p.is_absolute():
+        return p
+    for base in (Path.cwd(), spec_path.parent, ROOT):
+        if (base / p).is_file():
+            return base / p
+    return p
+
+
+def _epoch(text: str, where, name) -> datetime:
+    try:
+        e = datetime.fromisoformat(text)
+    except (TypeError, ValueError):
+        raise ConfigError(where, name, f"expected a UTC date-time like 2026-03-20T00:00:00, got {text!r}") from None
+    return e.replace(tzinfo=None) if e.tzinfo is None else (e - e.utcoffset()).replace(tzinfo=None)
+
+
+def load_spec(path) -> CampaignSpec:
+    """Read and validate a campaign spec; load its spacecraft and gains files.
+
+    Raises ConfigError naming the file, the field and the fix (unknown keys and sections too).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(path, None, "campaign spec not found")
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(path, None, f"not valid YAML ({str(exc).splitlines()[0]})") from None
+    if not isinstance(raw, dict):
+        raise ConfigError(path, None, f"expected a mapping with sections {', '.join(SECTIONS)}")
+    for key in raw:
+        if key not in SECTIONS:
+            raise ConfigError(path, key, f"unknown section; expected {', '.join(SECTIONS)}")
+    values = {}
+    for name, fields in SECTIONS.items():
+        sec = raw.get(name) or {}
+        if not isinstance(sec, dict):
+            raise ConfigError(path, name, "expected a mapping of fields")
+        known = {f.name for f in fields}
+        for key in sec:
+            if key not in known:
+                raise ConfigError(path, f"{name}.{key}", f"unknown field; expected one of {', '.join(sorted(known))}")
+        sec = dict(sec)
+        if name == "campaign" and isinstance(sec.get("gains"), list):
+            gl = sec["gains"]
+            if not gl or any(not isinstance(g, str) for g in gl):
+                raise ConfigError(path, "campaign.gains", f"expected a file name or a list of file names, got {gl!r}")
+            sec["gains"] = gl[0]
+            values[name] = parse(sec, fields, path)
+            values[name]["gains"] = list(gl)
+        else:
+            values[name] = parse(sec, fields, path)
+    c, d = values["campaign"], values["dispersions"]
+    if isinstance(c["gains"], str):
+        c["gains"] = [c["gains"]]
+    from ..design.field import FIELD_MODELS
+
+    if c["field"] != "igrf" and c["field"] not in FIELD_MODELS:
+        raise ConfigError(path, "campaign.field", f"expected igrf or one of {', '.join(FIELD_MODELS)}, got {c['field']!r}")
+    sc = _resolve(c["spacecraft"], path)
+    if not sc.is_file():
+        raise ConfigError(path, "campaign.spacecraft", f"file not found: {c['spacecraft']}")
+    p = load_spacecraft(sc)
+    e0 = _epoch(d["epoch_min"], path, "dispersions.epoch_min") if d["epoch_min"] else p.epoch
+    e1 = _epoch(d["epoch_max"], path, "dispersions.epoch_max") if d["epoch_max"] else e0
+    if e1 < e0:
+        raise ConfigError(path, "dispersions.epoch_max", f"must not precede epoch_min ({e0.isoformat()})")
+    if c["arg_lat_deg"] is None:
+        c["arg_lat_deg"] = float(p.arg_lat_deg)
+    if d["raan_min_deg"] is None:
+        d["raan_min_deg"] = float(p.raan_deg)
+    if d["raan_max_deg"] is None:
+        d["raan_max_deg"] = d["raan_min_deg"]
+    if d["raan_max_deg"] < d["raan_min_deg"]:
+        raise ConfigError(path, "dispersions.raan_max_deg", f"must be >= raan_min_deg ({d['raan_min_deg']:g})")
+    if d["dipole_limit_max"] is None:
+        d["dipole_limit_max"] = d["dipole_limit_min"]
+    if d["dipole_limit_max"] < d["dipole_limit_min"]:
+        raise ConfigError(path, "dispersions.dipole_limit_max", f"must be >= dipole_limit_min ({d['dipole_limit_min']:g})")
+    if d["attitude_max_deg"] > 180.0:
+        raise ConfigError(path, "dispersions.attitude_max_deg", f"expected at most 180, got {d['attitude_max_deg']:g}")
+    if np.any(3.0 * d["inertia_rel_std"] >= 1.0):
+        raise ConfigError(path, "dispersions.inertia_rel_std", "expected < 1/3 (3-sigma inertia must stay positive)")
+    Ks, files = [], []
+    for g in c["gains"]:
+        gp = _resolve(g, path)
+        if not gp.is_file():
+            raise ConfigError(path, "campaign.gains", f"file not found: {g}")
+        Ks.append(load_gains(gp).K)
+        files.append(str(g))
+    return CampaignSpec(str(path), c, d, values["criteria"], files, np.array(Ks), p, e0, e1, raw)
+
+
+# --- per-run parameters ------------------------------------------------------------------------
+def draw_run(spec: CampaignSpec, i: int) -> dict:
+    """The dispersed parameters of run ``i``: a function of (seed, i) only (module docstring)."""
+    d = spec.dispersions
+    rng = np.random.default_rng([spec.seed, int(i)])
+    z = rng.standard_normal(3)
+    e = np.clip(d["inertia_rel_std"] * z, -3.0 * d["inertia_rel_std"], 3.0 * d["inertia_rel_std"])
+    inertia = np.asarray(spec.p.inertia, dtype=float).reshape(3) * (1.0 + e)
+    mres = d["residual_dipole_mean"] + d["residual_dipole_std"] * rng.standard_normal(3)
+    axis = rng.standard_normal(3)
+    axis /= np.linalg.norm(axis)
+    angle = math.radians(d["attitude_max_deg"]) * rng.uniform()
+    q0 = np.concatenate([[math.cos(angle / 2)], math.sin(angle / 2) * axis])
+    dw0 = d["rate_mean"] + d["rate_max"] * rng.uniform(-1.0, 1.0, 3)
+    span = (spec.epoch_max - spec.epoch_min).total_seconds()
+    epoch_offset = span * rng.uniform()
+    raan = d["raan_min_deg"] + (d["raan_max_deg"] - d["raan_min_deg"]) * rng.uniform()
+    limit = d["dipole_limit_min"] + (d["dipole_limit_max"] - d["dipole_limit_min"]) * rng.uniform()
+    mag_bias = d["mag_bias_std"] * rng.standard_normal(3)
+    gyro_bias = d["gyro_bias_std"] * rng.standard_normal(3)
+    return dict(run=int(i), inertia=inertia, residual_dipole=mres, attitude_angle_deg=math.degrees(angle),
+                attitude_axis=axis, q0=q0, dw0=dw0, epoch=spec.epoch_min + timedelta(seconds=epoch_offset),
+                epoch_offset_s=epoch_offset, raan_deg=raan, dipole_limit=limit, mag_bias=mag_bias,
+                gyro_bias=gyro_bias, noise_seed=[spec.seed, int(i), 1])
+
+
+def _batch_runs(spec: CampaignSpec, draws: list, gains_index: list) -> BatchRuns:
+    d, c = spec.dispersions, spec.campaign
+    n = len(draws)
+    full = c["environment"] == "full"
+    sensors = SensorNoise(np.full(n, d["mag_noise_std"]), np.array([r["mag_bias"] for r in draws]),
+                          np.full(n, d["gyro_noise_std"]), np.array([r["gyro_bias"] for r in draws]),
+                          np.full(n, d["attitude_noise_std"]), [r["noise_seed"] for r in draws])
+    return BatchRuns(K=spec.K[np.asarray(gains_index)], inertia=np.array([r["inertia"] for r in draws]),
+                     residual_dipole=np.array([r["residual_dipole"] for r in draws]),
+                     dipole_limit=np.array([r["dipole_limit"] for r in draws]),
+                     q0=np.array([r["q0"] for r in draws]), dw0=np.array([r["dw0"] for r in draws]),
+                     p=spec.p, environment=c["environment"],
+                     env_options=[spec.env_options(r["epoch"], r["raan_deg"]) for r in draws] if full else None,
+                     sensors=sensors, min_field=c["min_field"])
+
+
+def run_figures(t, err_deg, m_norm, orbit_period: float, criteria: dict) -> dict:
+    """Figures of merit of one run from its pointing error and |m| at every controller instant.
+
+    The steady-state window is ``t >= max_settling_orbits * T`` (the instant by which the
+    criteria require the run to have settled, the same for every run, so a run that settles
+    late is not rewarded with a shorter window; the paper's RMS window starts at 1 T).
+
+    Returns
+    -------
+    dict
+        settling_time [s] (first instant after which the error stays below
+        ``settle_threshold_deg``; nan: never), max and RMS pointing error in the steady-state
+        window [deg] (nan if the run is shorter), final pointing error [deg], peak and RMS |m|
+        over the run [A m^2].
+    """
+    t, err, mn = np.asarray(t), np.asarray(err_deg), np.asarray(m_norm)
+    ts_ = settling_time(t, err, criteria["settle_threshold_deg"])
+    after = t >= criteria["max_settling_orbits"] * orbit_period
+    return dict(settling_time=ts_, max_pointing_deg=float(err[after].max()) if after.any() else math.nan,
+                rms_pointing_deg=float(np.sqrt(np.mean(err[after] ** 2))) if after.any() else math.nan,
+                final_pointing_deg=float(err[-1]), peak_dipole=float(mn.max()),
+                rms_dipole=float(np.sqrt(np.mean(mn**2))))
+
+
+def verdict(row: dict, criteria: dict, orbit_period: float) -> tuple[bool, str]:
+    """(pass, reasons) of one run against the spec's criteria."""
+    if row["status"] != "ok":
+        return False, row["status"]
+    why = []
+    if not np.isfinite(row["settling_time"]):
+        why.append(f"never below {criteria['settle_threshold_deg']:g} deg")
+    elif row["settling_time"] > criteria["max_settling_orbits"] * orbit_period:
+        why.append(f"settling {row['settling_time']:.0f} s > {criteria['max_settling_orbits']:g} orbits")
+    for key, lim in (("max_pointing_deg", "max_pointing_deg"), ("rms_pointing_deg", "max_rms_pointing_deg"),
+                     ("peak_dipole", "max_peak_dipole"), ("saturation_fraction", "max_saturation_fraction")):
+        if criteria[lim] is not None and np.isfinite(row[key]) and row[key] > criteria[lim]:
+            why.append(f"{key} {row[key]:.4g} > {criteria[lim]:g}")
+    return not why, "; ".join(why)
+
+
+def _param_columns(r: dict) -> dict:
+    out = dict(run=r["run"], attitude_angle_deg=r["attitude_angle_deg"], epoch=r["epoch"].isoformat(),
+               epoch_offset_s=r["epoch_offset_s"], raan_deg=r["raan_deg"], dipole_limit=r["dipole_limit"])
+    for name, ax in (("inertia", "xyz"), ("residual_dipole", "xyz"), ("dw0", "xyz"), ("mag_bias", "xyz"),
+                     ("gyro_bias", "xyz"), ("q0", "0123")):
+        for k, a in enumerate(ax):
+            out[f"{name}_{a}"] = float(r[name][k])
+    return out
+
+
+def _simulate_rows(spec: CampaignSpec, jobs: list, steps: int, record_every: int):
+    """Simulate ``jobs`` [(gains index, run index)] as one batch; rows + downsampled histories."""
+    draws = [draw_run(spec, i) for _, i in jobs]
+    runs = _batch_runs(spec, draws, [g for g, _ in jobs])
+    res = simulate_batch(runs, ts=spec.campaign["ts"], steps=steps, substeps=spec.substeps, record_every=record_every,
+                         full_series=True)
+    t_all = np.arange(steps + 1) * spec.campaign["ts"]
+    rows = []
+    for b, ((g, i), r) in enumerate(zip(jobs, draws)):
+        row = dict(_param_columns(r), gains=spec.gains_files[g], gains_index=g, orbit_period=float(res.orbit_period[b]))
+        row.update(run_figures(t_all, res.pointing_deg[b], res.m_norm[b], res.orbit_period[b], spec.criteria))
+        row.update(saturation_fraction=res.saturated_steps[b] / (steps + 1),
+                   weak_field_fraction=res.weak_field_steps[b] / (steps + 1),
+                   status="diverged" if res.diverged[b] else "ok", error="")
+        rows.append(row)
+    hist = dict(t=res.t.astype(np.float32), pointing_deg=res.pointing_deg[:, res.record_index].astype(np.float32),
+                dipole=np.linalg.norm(res.m, axis=2).astype(np.float32),
+                rate_error=np.linalg.norm(res.w - np.array([0.0, 0.0, -1.0])[None, None, :]
+                                          * (2 * np.pi / res.orbit_period)[:, None, None], axis=2).astype(np.float32))
+    return rows, hist
+
+
+def _failed_row(spec: CampaignSpec, g: int, i: int, exc: BaseException) -> dict:
+    try:
+        params = _param_columns(draw_run(spec, i))
+    except Exception:  # noqa: BLE001 - the row must exist even if drawing failed
+        params = dict(run=int(i))
+    row = dict(params, gains=spec.gains_files[g], gains_index=g, orbit_period=math.nan, status="failed",
+               error=f"{type(exc).__name__}: {exc}"[:500])
+    row.update({k: math.nan for k, _ in FIGURES})
+    return row
+
+
+def run_batch(spec: CampaignSpec, jobs: list, steps: int, record_every: int) -> dict:
+    """One Dask task: the runs ``jobs`` [(gains index, run index)] advanced together.
+
+    A batch that raises is re-run one run at a time, so one bad run is reported as failed
+    (with its message) without losing the others. Returns ``{"rows", "hist", "jobs", "wall"}``.
+    """
+    t0 = time.perf_counter()
+    try:
+        rows, hist = _simulate_rows(spec, jobs, steps, record_every)
+        keep = list(range(len(jobs)))
+    except Exception:  # noqa: BLE001 - isolate the culprit run(s) below
+        rows, parts, keep = [], [], []
+        for k, (g, i) in enumerate(jobs):
+            try:
+                r, h = _simulate_rows(spec, [(g, i)], steps, record_every)
+                rows += r
+                parts.append(h)
+                keep.append(k)
+            except Exception as exc:  # noqa: BLE001 - reported in the run's row
+                rows.append(_failed_row(spec, g, i, exc))
+        hist = None
+        if parts:
+            hist = dict(t=parts[0]["t"], **{key: np.concatenate([h[key] for h in parts])
+                                            for key in ("pointing_deg", "dipole", "rate_error")})
+    for row in rows:
+        ok, why = verdict(row, spec.criteria, row["orbit_period"])
+        row["passed"], row["fail_reasons"] = ok, why
+    return dict(rows=rows, hist=hist, jobs=[jobs[k] for k in keep], wall=time.perf_counter() - t0)
+
+
+# --- execution -----------------------------------------------------------------------------------
+#: Environment of every LocalCluster worker: one BLAS/OpenMP thread per worker process (the
+#: batched simulator is elementwise numpy; threads would only fight over the cores).
+WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+def plan(spec: CampaignSpec, runs: int) -> list:
+    """Batches of jobs [(gains index, run index)]: consecutive run indices, one gains file each."""
+    bs = int(spec.campaign["batch_size"])
+    out = []
+    for g in range(len(spec.gains_files)):
+        for a in range(0, runs, bs):
+            out.append([(g, i) for i in range(a, min(a + bs, runs))])
+    return out
+
+
+def run_campaign(spec: CampaignSpec, runs: int, out, *, scheduler: str | None = None, workers: int | None = None,
+                 progress: bool = True) -> dict:
+    """Run the campaign and write DIR (module docstring); returns the ``campaign.json`` content.
+
+    ``scheduler``: None (a LocalCluster of ``workers`` processes, default one per core, one
+    thread each), ``"tcp://HOST:PORT"`` (an existing Dask cluster) or ``"synchronous"`` (in this
+    process, no Dask: debugging and the reference of the tests).
+    """
+    out = Path(out)
+    (out / "histories").mkdir(parents=True, exist_ok=True)
+    steps, every = spec.steps(), spec.record_every()
+    batches = plan(spec, runs)
+    total = sum(len(b) for b in batches)
+    t0 = time.perf_counter()
+    bar = _progress(total, progress)
+    results, info = [], {}
+    try:
+        if scheduler == "synchronous":
+            info = dict(scheduler="synchronous", workers=1)
+            for j, jobs in enumerate(batches):
+                results.append((j, run_batch(spec, jobs, steps, every)))
+                bar.update(len(jobs))
+        else:
+            results, info = _run_dask(spec, batches, steps, every, scheduler, workers, bar)
+    finally:
+        bar.close()
+    wall = time.perf_counter() - t0
+    return write_results(spec, runs, out, results, batches, dict(info, wall=wall, steps=steps, record_every=every))
+
+
+def _progress(total: int, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="run", desc="campaign", disable=not enabled, smoothing=0.1)
+
+
+def _run_dask(spec, batches, steps, every, scheduler, workers, bar):
+    """Submit one task per batch; collect as they complete (progress bar on the client)."""
+    import logging
+
+    from distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if scheduler:
+        client = Client(scheduler, timeout="20s")
+    else:
+        workers = int(workers or os.cpu_count() or 1)
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=logging.ERROR, env=dict(WORKER_ENV))
+        client = Client(cluster)
+    try:
+        nworkers = len(client.scheduler_info(n_workers=-1)["workers"]) if hasattr(client, "scheduler_info") else 0
+        spec_f = client.scatter(spec, broadcast=True)
+        futures = {client.submit(run_batch, spec_f, jobs, steps, every, pure=False): j for j, jobs in enumerate(batches)}
+        results = []
+        for fut in as_completed(futures):
+            j = futures[fut]
+            try:
+                res = fut.result()
+            except Exception as exc:  # noqa: BLE001 - a lost task: every run of the batch is reported failed
+                res = dict(rows=[_failed_row(spec, g, i, exc) for g, i in batches[j]], hist=None, jobs=[], wall=math.nan)
+                for row in res["rows"]:
+                    row["passed"], row["fail_reasons"] = False, "failed"
+            results.append((j, res))
+            bar.update(len(batches[j]))
+        return results, dict(scheduler=scheduler or "LocalCluster", workers=nworkers)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def write_results(spec: CampaignSpec, runs: int, out: Path, results: list, batches: list, info: dict) -> dict:
+    """runs.parquet, histories/batch_*.npz, campaign.json, spec.yaml; returns the campaign.json content."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    results = sorted(results, key=lambda r: r[0])
+    rows = []
+    for j, res in results:
+        for row in res["rows"]:
+            rows.append(dict(row, batch=j))
+        if res["hist"] is not None:
+            h = res["hist"]
+            np.savez_compressed(out / "histories" / f"batch_{j:05d}.npz", run=np.array([i for _, i in res["jobs"]]),
+                                gains_index=np.array([g for g, _ in res["jobs"]]), **h)
+    rows.sort(key=lambda r: (r["gains_index"], r["run"]))
+    cols = {}
+    for key in rows[0]:
+        cols[key] = [r.get(key) for r in rows]
+    pq.write_table(pa.table(cols), out / "runs.parquet")
+    status = [r["status"] for r in rows]
+    meta = dict(name=spec.campaign["name"], spec=str(spec.path), seed=spec.seed, runs=runs,
+                total_runs=len(rows), gains=spec.gains_files, environment=spec.campaign["environment"],
+                orbits=spec.campaign["orbits"], ts=spec.campaign["ts"], substeps=spec.substeps,
+                batch_size=spec.campaign["batch_size"], batches=len(batches),
+                counts={s: status.count(s) for s in STATUSES}, passed=int(sum(bool(r["passed"]) for r in rows)),
+                campaign=_plain(spec.campaign), dispersions=_plain(spec.dispersions), criteria=_plain(spec.criteria),
+                **info)
+    meta["runs_per_second"] = len(rows) / info["wall"] if info.get("wall") else math.nan
+    (out / "campaign.json").write_text(json.dumps(meta, indent=1, default=str))
+    (out / "spec.yaml").write_text(yaml.safe_dump(spec.raw, sort_keys=False))
+    return meta
+
+
+def _plain(d: dict) -> dict:
+    return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in d.items()}
+
+
+def read_runs(out) -> dict:
+    """runs.parquet as {column: numpy array}."""
+    import pyarrow.parquet as pq
+
+    t = pq.read_table(Path(out) / "runs.parquet")
+    return {name: t.column(name).to_numpy(zero_copy_only=False) for name in t.column_names}
+
+
+def read_histories(out) -> dict:
+    """All histories/batch_*.npz concatenated, sorted by (gains index, run)."""
+    parts = [np.load(f) for f in sorted((Path(out) / "histories").glob("batch_*.npz"))]
+    if not parts:
+        return {}
+    h = {k: np.concatenate([p[k] for p in parts]) for k in ("run", "gains_index", "pointing_deg", "dipole", "rate_error")}
+    h["t"] = parts[0]["t"]
+    order = np.lexsort((h["run"], h["gains_index"]))
+    return {k: (v if k == "t" else v[order]) for k, v in h.items()}
+
+
+def with_criteria(spec: CampaignSpec, **criteria) -> CampaignSpec:
+    """A copy of ``spec`` with some criteria replaced (tests, what-if reports)."""
+    return replace(spec, criteria=dict(spec.criteria, **criteria))

@@ -1,0 +1,103 @@
+"""``live_bridge`` node: stream ROS topics to Foxglove over WebSocket (``magtune sil --foxglove``).
+
+Usage::
+
+    live_bridge [--port 8765] [--host 127.0.0.1] [--topics /a:pkg/msg/Type ...] [--ros-args ...]
+
+Subscribes raw (CDR bytes, nothing deserialized) to the project's topics
+(:data:`magtune_core.base.topics.PROJECT_TOPICS`, or ``--topics``) with QoS compatible with
+their publishers, and logs each message to a Foxglove WebSocket server
+(:class:`magtune_core.ros.live.LiveServer`: one ``cdr`` channel with a ``ros2msg`` schema per
+topic) at the sim time of the last ``/clock`` received. Prints ``magtune-live ws://HOST:PORT``
+once the server listens. SIGINT/SIGTERM stop it.
+
+Why a node and not the simulator itself: it sees what is on the wire (a remapped or namespaced
+run, a replayed bag, a real satellite's topics) and keeps WebSocket work off the lockstep loop.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
+
+from magtune_core.base.topics import PROJECT_TOPICS
+from magtune_core.ros.live import DEFAULT_PORT, LiveServer
+
+from .bag_common import install_stop_handlers, message_class
+
+CLOCK = "/clock"
+
+
+def parse_args(argv):
+    p = argparse.ArgumentParser(prog="live_bridge", description=__doc__.split("\n\n")[0])
+    p.add_argument("--port", type=int, default=DEFAULT_PORT, help="WebSocket port (0: any free port)")
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (0.0.0.0: every interface)")
+    p.add_argument("--topics", nargs="*", default=None, help="/name:pkg/msg/Type (default: the project's topics)")
+    return p.parse_args(argv)
+
+
+class LiveBridge(Node):
+    def __init__(self, args):
+        super().__init__("live_bridge")
+        self.server = LiveServer(args.port, args.host, name="magtune sil")
+        specs = args.topics or [f"{n}:{t}" for n, (t, _) in PROJECT_TOPICS.items()]
+        self.sim_ns = 0
+        self.subs = []
+        for spec in specs:
+            name, _, typ = spec.partition(":")
+            if not typ and name in PROJECT_TOPICS:
+                typ = PROJECT_TOPICS[name][0]
+            if not typ:
+                raise SystemExit(f"live_bridge: topic {name!r} needs a type (/name:pkg/msg/Type)")
+            durable = PROJECT_TOPICS.get(name, ("", "volatile"))[1] == "transient_local"
+            qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL if durable else DurabilityPolicy.VOLATILE)
+            self.server.add_topic(name, typ)
+            self.subs.append(self.create_subscription(message_class(typ), name, self._callback(name), qos, raw=True))
+
+    def _callback(self, name):
+        server = self.server
+        if name == CLOCK:
+            def on_clock(data: bytes):
+                import struct
+                endian = "<" if data[1] == 1 else ">"
+                sec, nsec = struct.unpack_from(endian + "iI", data, 4)
+                self.sim_ns = sec * 1_000_000_000 + nsec
+                server.log(name, data, self.sim_ns)
+            return on_clock
+        return lambda data: server.log(name, data, self.sim_ns)
+
+
+def main(argv=None):
+    argv = sys.argv if argv is None else argv
+    args = parse_args(remove_ros_args(argv)[1:])
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    stop = install_stop_handlers()
+    try:
+        node = LiveBridge(args)
+    except (OSError, RuntimeError) as exc:   # port in use, ...
+        print(f"live_bridge: cannot start the WebSocket server on port {args.port}: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    print(f"magtune-live ws://{args.host}:{node.server.port}", flush=True)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        node.server.close()
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,234 @@
+"""Monte Carlo campaigns (magtune_core.studies.campaign, magtune campaign / campaign-report):
+spec validation, seeded draws, results independent of the executor (in-process, LocalCluster,
+a real ``dask scheduler`` + two ``dask worker`` processes), failed and diverged runs kept."""
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from magtune_core.base.errors import ConfigError
+from magtune_core.cli import main
+from magtune_core.studies import campaign, campaign_report
+
+ROOT = Path(__file__).resolve().parents[2]
+#: Short runs keep CI time small: 60 steps of 1 s in the full environment (two epochs, two RAANs).
+SPEC = dict(
+    campaign=dict(name="ci", seed=11, gains=["config/gains/sigma_120.yaml", "config/gains/sigma_60.yaml"],
+                  environment="full", orbits=0.0107, ts=1.0, batch_size=3, history_step=10.0),
+    dispersions=dict(inertia_rel_std=[0.05, 0.05, 0.05], residual_dipole_std=[0.3, 0.3, 0.3], attitude_max_deg=10.0,
+                     rate_max=[5e-4, 5e-4, 5e-4], epoch_min="2026-01-01T00:00:00", epoch_max="2026-06-01T00:00:00",
+                     raan_min_deg=0.0, raan_max_deg=360.0, mag_noise_std=1e-7, mag_bias_std=2e-7, gyro_noise_std=1e-5,
+                     gyro_bias_std=2e-6, attitude_noise_std=1e-3, dipole_limit_min=20.0, dipole_limit_max=50.0),
+    criteria=dict(settle_threshold_deg=12.0, max_settling_orbits=0.005, max_pointing_deg=15.0),
+)
+RUNS = 4
+#: Figures compared between executors: each run is computed by the same code on the same inputs,
+#: whatever process runs it, so they must agree exactly (NaN == NaN for never-settled runs).
+COLUMNS = ("run", "gains", "status", "passed", "settling_time", "max_pointing_deg", "rms_pointing_deg",
+           "final_pointing_deg", "peak_dipole", "rms_dipole", "saturation_fraction", "inertia_x", "raan_deg", "epoch")
+
+
+def _write_spec(tmp_path, spec=None, name="spec.yaml") -> Path:
+    p = tmp_path / name
+    p.write_text(yaml.safe_dump(spec or SPEC))
+    return p
+
+
+def _columns_equal(a: dict, b: dict):
+    for c in COLUMNS:
+        x, y = a[c], b[c]
+        if x.dtype.kind == "f":
+            np.testing.assert_array_equal(x, y, err_msg=c)
+        else:
+            assert list(x) == list(y), c
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """The campaign run in this process (no Dask): the reference of the executor tests."""
+    tmp = tmp_path_factory.mktemp("ref")
+    spec = campaign.load_spec(_write_spec(tmp))
+    campaign.run_campaign(spec, RUNS, tmp / "out", scheduler="synchronous", progress=False)
+    return tmp / "out"
+
+
+def test_reference_campaign_outputs(reference):
+    cols = campaign.read_runs(reference)
+    assert len(cols["run"]) == 2 * RUNS  # every dispersion with each gains file
+    assert set(cols["status"]) == {"ok"}
+    h = campaign.read_histories(reference)
+    assert h["pointing_deg"].shape == (2 * RUNS, 7) and h["t"].tolist() == [0, 10, 20, 30, 40, 50, 60]  # 60 steps
+    # the same dispersion with both gains files (paired comparison), different outcomes
+    assert list(cols["inertia_x"][:RUNS]) == list(cols["inertia_x"][RUNS:])
+    assert not np.array_equal(cols["peak_dipole"][:RUNS], cols["peak_dipole"][RUNS:])
+    # figures: the stored history samples are samples of the full-resolution series
+    assert np.all(cols["final_pointing_deg"] == pytest.approx(h["pointing_deg"][:, -1], rel=1e-6))
+
+
+def test_draws_depend_on_seed_and_index_only(tmp_path):
+    spec = campaign.load_spec(_write_spec(tmp_path))
+    a = campaign.draw_run(spec, 7)
+    for _ in range(2):
+        campaign.draw_run(spec, 3)
+    b = campaign.draw_run(spec, 7)
+    assert np.array_equal(a["inertia"], b["inertia"]) and a["epoch"] == b["epoch"]
+    d = [campaign.draw_run(spec, i) for i in range(300)]
+    ang = np.array([r["attitude_angle_deg"] for r in d])
+    rel = np.array([r["inertia"] for r in d]) / spec.p.inertia - 1
+    raan = np.array([r["raan_deg"] for r in d])
+    # U(0, 10 deg) angle, unit axis; inertia within the 3-sigma clip; RAAN over its range
+    assert 0 <= ang.min() and ang.max() <= 10 and 4 < ang.mean() < 6
+    assert np.all(np.abs(rel) <= 0.15 + 1e-12) and 0.04 < rel.std() < 0.06
+    assert raan.min() < 20 and raan.max() > 340
+    assert all(abs(np.linalg.norm(r["q0"]) - 1) < 1e-12 for r in d)
+
+
+def test_local_cluster_equals_in_process(reference, tmp_path):
+    """The default executor (a LocalCluster, here 2 worker processes) through the command line."""
+    out = tmp_path / "lc"
+    assert main(["campaign", str(_write_spec(tmp_path)), "--runs", str(RUNS), "--out", str(out), "--workers", "2",
+                 "--no-progress"]) == 0
+    _columns_equal(campaign.read_runs(out), campaign.read_runs(reference))
+    meta = yaml.safe_load((out / "campaign.json").read_text())
+    assert meta["workers"] == 2 and meta["scheduler"] == "LocalCluster" and meta["batches"] == 4
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_external_dask_cluster_equals_in_process(reference, tmp_path):
+    """A real `dask scheduler` and two `dask worker` processes on localhost (--scheduler tcp://...)."""
+    dask_cli = str(Path(sys.executable).parent / "dask")
+    port = _free_port()
+    addr = f"tcp://127.0.0.1:{port}"
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    logs = [open(tmp_path / f"{n}.log", "w") for n in ("scheduler", "worker1", "worker2")]
+    procs = []
+    try:
+        procs.append(subprocess.Popen([dask_cli, "scheduler", "--host", "127.0.0.1", "--port", str(port),
+                                       "--no-dashboard"], stdout=logs[0], stderr=subprocess.STDOUT, env=env, cwd=tmp_path))
+        for i in (1, 2):
+            procs.append(subprocess.Popen([dask_cli, "worker", addr, "--nthreads", "1", "--nworkers", "1",
+                                           "--host", "127.0.0.1", "--no-dashboard", "--name", f"w{i}"],
+                                          stdout=logs[i], stderr=subprocess.STDOUT, env=env, cwd=tmp_path))
+        from distributed import Client
+
+        deadline = time.monotonic() + 90
+        while True:  # the scheduler takes a moment to listen; then wait for both workers
+            try:
+                with Client(addr, timeout="5s") as c:
+                    c.wait_for_workers(2, timeout=max(1.0, deadline - time.monotonic()))
+                break
+            except OSError:
+                if time.monotonic() > deadline or any(p.poll() is not None for p in procs):
+                    raise
+                time.sleep(0.5)
+        out = tmp_path / "ext"
+        assert main(["campaign", str(_write_spec(tmp_path)), "--runs", str(RUNS), "--out", str(out), "--scheduler", addr,
+                     "--no-progress"]) == 0
+        _columns_equal(campaign.read_runs(out), campaign.read_runs(reference))
+        meta = yaml.safe_load((out / "campaign.json").read_text())
+        assert meta["workers"] == 2 and meta["scheduler"] == addr
+        # both workers took part (4 tasks on 2 single-thread workers)
+        assert all("w" in (tmp_path / f"worker{i}.log").read_text() for i in (1, 2))
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+        for f in logs:
+            f.close()
+
+
+def test_failed_and_diverged_runs_are_kept(tmp_path, monkeypatch):
+    """Run 1 raises while set up (failed, with its message), run 2 spins at 2 rad/s (diverged);
+    the other runs of the same batch are unaffected, every run has a row, the report lists them."""
+    spec = campaign.load_spec(_write_spec(tmp_path))
+    good = campaign.run_batch(spec, [(0, 0), (0, 3)], spec.steps(), spec.record_every())["rows"]
+    real_draw = campaign.draw_run
+
+    def draw(spec_, i):
+        r = real_draw(spec_, i)
+        if i == 1:
+            raise RuntimeError("orbit propagation failed (injected)")
+        if i == 2:
+            r["dw0"] = np.array([2.0, 0.0, 0.0])
+        return r
+
+    monkeypatch.setattr(campaign, "draw_run", draw)
+    out = tmp_path / "bad"
+    spec.campaign["gains"] = spec.campaign["gains"][:1]
+    spec.gains_files, spec.K = spec.gains_files[:1], spec.K[:1]
+    campaign.run_campaign(spec, 4, out, scheduler="synchronous", progress=False)
+    cols = campaign.read_runs(out)
+    assert cols["status"].tolist() == ["ok", "failed", "diverged", "ok"]
+    assert "injected" in cols["error"][1] and not cols["passed"][1] and not cols["passed"][2]
+    # the batch was re-run one run at a time to isolate run 1: same runs, but each orbit now
+    # propagated alone instead of in a batched ephemeris (both within the single-run tolerance,
+    # ~1e-5 m apart): the figures agree to ~1e-11 relative
+    for k, row in zip((0, 3), good):
+        assert cols["peak_dipole"][k] == pytest.approx(row["peak_dipole"], rel=1e-9)
+        assert cols["settling_time"][k] == row["settling_time"]
+    md = campaign_report.write_report(out)
+    assert "| 1 | config/gains/sigma_120.yaml | failed | RuntimeError: orbit propagation failed (injected) |" in md
+    assert "| 2 | config/gains/sigma_120.yaml | diverged |" in md
+    assert (out / "envelopes.png").stat().st_size > 10_000 and (out / "histograms.png").stat().st_size > 10_000
+
+
+def test_report_command(reference, capsys):
+    assert main(["campaign-report", str(reference)]) == 0
+    text = (reference / "summary.md").read_text()
+    assert "| ok | 8 |" in text and "## Worst runs" in text and "| settling_time | s |" in text
+    assert (reference / "envelopes.png").is_file() and (reference / "histograms.png").is_file()
+
+
+@pytest.mark.parametrize("section, key, value, expect", [
+    ("campaign", "seed", "x", "field 'seed': expected an integer"),
+    ("campaign", "orbitz", 5, "field 'campaign.orbitz': unknown field"),
+    ("campaign", "environment", "moon", "field 'environment': expected one of paper, full"),
+    ("dispersions", "inertia_rel_std", [0.1, 0.1], "field 'inertia_rel_std': expected a list of 3 numbers"),
+    ("dispersions", "epoch_max", "yesterday", "field 'dispersions.epoch_max': expected a UTC date-time"),
+    ("dispersions", "raan_max_deg", -5.0, "field 'dispersions.raan_max_deg': must be >= raan_min_deg"),
+    ("campaign", "gains", "nowhere.yaml", "field 'campaign.gains': file not found: nowhere.yaml"),
+    ("criteria", "max_pointing_deg", -1.0, "field 'max_pointing_deg': expected a positive number"),
+])
+def test_bad_spec_one_line_exit_2(tmp_path, capsys, section, key, value, expect):
+    spec = yaml.safe_load(yaml.safe_dump(SPEC))
+    spec[section][key] = value
+    p = _write_spec(tmp_path, spec)
+    with pytest.raises(ConfigError, match=expect.replace("(", r"\(")):
+        campaign.load_spec(p)
+    assert main(["campaign", str(p), "--runs", "2", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and expect in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()  # nothing started
+
+
+def test_refuses_non_empty_out_without_force(tmp_path, capsys):
+    p = _write_spec(tmp_path)
+    out = tmp_path / "used"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    assert main(["campaign", str(p), "--runs", "1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--out is not empty; choose a new directory or add --force" in err and len(err.strip().splitlines()) == 1
+    assert main(["campaign", str(p), "--runs", "1", "--out", str(out), "--force", "--scheduler", "synchronous",
+                 "--no-progress"]) == 0
+    assert (out / "notes.txt").read_text() == "mine" and (out / "runs.parquet").is_file()  # only our outputs replaced
+    assert main(["campaign", str(p), "--runs", "0", "--out", str(tmp_path / "x")]) == 2
+    assert main(["campaign", str(p), "--runs", "1", "--out", str(tmp_path / "x"), "--scheduler", "localhost:1"]) == 2
