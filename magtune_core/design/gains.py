@@ -82,10 +82,10 @@ NODE_COMMON = ("use_sim_time",)
 
 
 def _spacecraft_names() -> tuple:
-    """A gains file's ``/**`` section may carry the spacecraft parameters the controller reads."""
-    from .params import SpacecraftParams
+    """A gains file's ``/**`` section may carry the spacecraft parameters and the node parameters."""
+    from .params import NODE_PARAMETERS, SpacecraftParams
 
-    return tuple(f.name for f in SpacecraftParams.FIELDS)
+    return tuple(f.name for f in SpacecraftParams.FIELDS) + NODE_PARAMETERS
 
 
 def load_gains(path) -> Gains:
