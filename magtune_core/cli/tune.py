@@ -5,8 +5,9 @@ import sys
 
 from ..design.gains import Gains, save_gains
 from ..design.problem import figures
+from ..design.resolution import resolved_steps, start_gain
 from ..design.tuner import TunerSettings, tune
-from .common import ANALYSIS_STEPS, add_force_argument, check_output, field_model_argument, load_model, repo_path
+from .common import ANALYSIS_STEPS, CommandError, add_force_argument, check_output, field_model_argument, load_model, repo_path
 
 
 def register(sub) -> None:
@@ -34,22 +35,33 @@ def run(args) -> int:
 
     out = check_output(args.out or repo_path(f"config/gains/sigma_{args.sigma:g}.yaml"), force=args.force)
     model = load_model(args)
+    # start gain and Magnus steps resolved for this model (design/resolution.py): the paper's LQ
+    # start and 64 steps for the paper's satellite; more steps / a milder LQ start for stiff loops
+    try:
+        K0, sigma0, steps, _ = start_gain(model, args.sigma)
+    except ValueError as exc:
+        raise CommandError(f"{exc}; try a larger --sigma") from None
     settings = TunerSettings(samples=args.samples, r_max=args.r_max, mu=args.mu, workers=args.workers,
-                             max_iter=args.max_iter, patience=args.patience)
+                             max_iter=args.max_iter, patience=args.patience, steps=steps)
     bar = tqdm(desc=f"tune sigma={args.sigma:g}", unit="it", disable=args.quiet, file=sys.stderr)
 
     def progress(it, J, r, mu, nb):
         bar.update(1)
         bar.set_postfix_str(f"J={J:.3f} r={r:.4f} mu={mu:.2e} better={nb}")
 
-    res = tune(model, args.sigma, seed=args.seed, settings=settings, progress=progress)
+    res = tune(model, args.sigma, seed=args.seed, settings=settings, progress=progress, K0=K0)
     bar.close()
-    fig = figures(model, res.K, args.sigma, steps=ANALYSIS_STEPS)
-    prov = {**fig.as_dict(), **res.provenance(), "field_model": model.field.name,
-            "analysis_steps": ANALYSIS_STEPS, "tune_seconds": round(res.seconds, 1)}
+    analysis_steps, _ = resolved_steps(model, res.K, args.sigma, ANALYSIS_STEPS)
+    fig = figures(model, res.K, args.sigma, steps=analysis_steps)
+    prov = {**fig.as_dict(), **res.provenance(), "design_field": model.field.name,
+            "analysis_steps": analysis_steps, "tune_seconds": round(res.seconds, 1)}
+    if sigma0 != args.sigma:
+        prov["start"] = f"LQ of sigma {sigma0:g} (the LQ gain of sigma {args.sigma:g} does not stabilize the LTP model)"
     prov.pop("stable", None)
     save_gains(out, Gains(res.K, args.sigma, args.ts, prov),
                header=f"magtune tune --sigma {args.sigma:g} --seed {args.seed} --samples {args.samples}")
-    print(f"sigma={args.sigma:g}  J: {res.J0:.3f} (LQ start) -> {fig.J:.3f} in {res.iterations} iterations, "
-          f"{res.seconds:.1f} s; c1={fig.c1:.3f} c2={fig.c2:.2f} rho={fig.rho:.5f}; wrote {out}")
+    start = "LQ start" if sigma0 == args.sigma else f"LQ start of sigma {sigma0:g}"
+    print(f"sigma={args.sigma:g}  J: {res.J0:.3f} ({start}, {steps} Magnus steps) -> {fig.J:.3f} in "
+          f"{res.iterations} iterations, {res.seconds:.1f} s; c1={fig.c1:.3f} c2={fig.c2:.2f} rho={fig.rho:.5f} "
+          f"({analysis_steps} steps); wrote {out}")
     return 0
