@@ -123,7 +123,7 @@ def info(bag, ts: float | None = None) -> dict:
     if Path(bag).is_dir():
         try:
             meta = read_metadata(Path(bag))
-        except (OSError, KeyError, TypeError, ValueError):
+        except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError):
             meta = {}
     single = len(parts) == 1
     return {"path": parts[0]["path"] if single else str(Path(bag)), "complete": all(p["complete"] for p in parts),

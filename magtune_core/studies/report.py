@@ -102,7 +102,7 @@ def load_run(path, *, truth=TRUTH, dipole=DIPOLE, orbit_rate: float | None = Non
     # 1970); times here are seconds from the start of the run, as the offline simulation's
     try:
         origin = int((baglib.read_metadata(path).get("custom_data") or {}).get("time_origin_ns", 0))
-    except (OSError, KeyError, TypeError, ValueError):
+    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError):
         origin = 0
     for msg in baglib.iter_messages(path, topics=[truth, dipole] + ([rate_topic] if has_rate else []), report=report):
         o = d.decode(msg.data, msg.type)
