@@ -1,13 +1,15 @@
 """Reading bags: messages in time order, topics, summary (damaged files through :mod:`.scan`)."""
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Iterator
 
 import yaml
 from mcap.reader import make_reader
 
-from .layout import BagMessage, TopicInfo, has_summary, resolve_mcap
+from .layout import BagMessage, TopicInfo, has_summary, read_metadata, resolve_mcap
 from .scan import scan
+from .timing import TimingCheck, has_header
 
 
 def iter_messages(bag, topics=None, start_ns: int | None = None, report: dict | None = None,
@@ -15,9 +17,11 @@ def iter_messages(bag, topics=None, start_ns: int | None = None, report: dict | 
     """Messages of a bag in log-time order (``order="publish"``: by publish time, ties in
     log-time order; ``start_ns`` then applies to publish times).
 
-    A cleanly closed file is read through its index. A truncated or corrupt file (no summary) is
-    scanned sequentially; every complete, CRC-valid chunk is returned and ``report`` (if a dict)
-    receives what was skipped (see :func:`magtune_core.bags.scan.scan`).
+    Every chunk is CRC-checked (:func:`magtune_core.bags.scan.scan`, through the chunk index of
+    a cleanly closed file, sequentially otherwise); the messages of every intact chunk are
+    returned and ``report`` (if a dict) receives the integrity summary: ``complete`` and, for a
+    damaged file, which chunks are damaged and how many messages they held. An empty or
+    non-MCAP file raises :class:`~magtune_core.base.errors.ConfigError`.
     """
     if order == "publish":
         msgs = sorted(iter_messages(bag, topics, None, report), key=lambda m: m.publish_time)
@@ -29,21 +33,10 @@ def iter_messages(bag, topics=None, start_ns: int | None = None, report: dict | 
     wanted = set(topics) if topics is not None else None
     if wanted is not None and not wanted:
         return
-    if has_summary(path):
-        with open(path, "rb") as f:
-            for schema, channel, msg in make_reader(f).iter_messages(
-                    topics=list(wanted) if wanted else None, start_time=start_ns,
-                    log_time_order=True):
-                yield BagMessage(channel.topic, schema.name if schema else "", msg.log_time,
-                                 msg.publish_time, msg.data)
-        if report is not None:
-            report.update({"complete": True})
-        return
-    res = scan(path)
+    res = scan(path, topics=wanted)
     if report is not None:
         report.update(res.summary())
-    msgs = [m for m in res.messages if (wanted is None or m.topic in wanted)
-            and (start_ns is None or m.log_time >= start_ns)]
+    msgs = [m for m in res.messages if start_ns is None or m.log_time >= start_ns]
     msgs.sort(key=lambda m: m.log_time)  # stable: file order within equal times
     yield from msgs
 
@@ -66,22 +59,49 @@ def topics_of(bag) -> dict[str, TopicInfo]:
     return scan(path).topics
 
 
-def info(bag) -> dict:
-    """Summary of a bag for ``magtune bag info``: counts, times, topics, integrity."""
+def info(bag, ts: float | None = None) -> dict:
+    """Summary of a bag for ``magtune bag info``: counts, times, topics, integrity, timing.
+
+    ``ts`` (s): tolerance of the timing check (default: ``ts`` of metadata.yaml custom_data,
+    else the /clock period).
+
+    Returns
+    -------
+    dict
+        path, complete, size, counts, times, chunks, topics, ``integrity`` (the scan summary:
+        damaged chunks and the messages they held) and ``timing``
+        (:meth:`magtune_core.bags.timing.TimingCheck.report`: /clock gaps, log time vs stamp).
+    """
     path = resolve_mcap(bag)
-    complete = has_summary(path)
-    if complete:
-        with open(path, "rb") as f:
-            s = make_reader(f).get_summary()
-        st = s.statistics
-        start, end, count = st.message_start_time, st.message_end_time, st.message_count
-        chunks = st.chunk_count
-    else:
-        res = scan(path)
-        start, end, count = res.start_ns, res.end_ns, res.message_count
-        chunks = res.chunks_ok
-    return {"path": str(path), "complete": complete, "size_bytes": path.stat().st_size,
+    if ts is None:
+        ts = _metadata_ts(bag)
+    check = TimingCheck()
+    res = scan(path, visit=lambda m: check.add(m.topic, m.log_time, m.data))
+    count, start, end = res.message_count, res.start_ns, res.end_ns
+    integ = res.summary()
+    integ.pop("per_topic", None)
+    return {"path": str(path), "complete": res.complete, "size_bytes": path.stat().st_size,
             "message_count": count, "start_ns": start, "end_ns": end,
-            "duration_s": (end - start) / 1e9 if count else 0.0, "chunks": chunks,
+            "duration_s": (end - start) / 1e9 if count else 0.0, "chunks": res.chunks_ok,
             "topics": {n: {"type": t.type, "count": t.message_count}
-                       for n, t in sorted(topics_of(path).items())}}
+                       for n, t in sorted(res.topics.items())},
+            "integrity": integ, "timing": check.report(ts, _stamped_topics(res))}
+
+
+def _metadata_ts(bag) -> float | None:
+    p = Path(bag)
+    try:
+        v = float((read_metadata(p if p.is_dir() else p.parent).get("custom_data") or {}).get("ts"))
+    except (OSError, KeyError, TypeError, ValueError, AttributeError, yaml.YAMLError):
+        return None
+    return v if v > 0 and v == v and v != float("inf") else None
+
+
+def _stamped_topics(res) -> set[str]:
+    """Topics whose type starts with a std_msgs/Header (from the schema text)."""
+    out = set()
+    for ch in res.channels.values():
+        sc = res.schemas.get(ch.schema_id)
+        if sc is not None and has_header(bytes(sc.data).decode(errors="replace")):
+            out.add(ch.topic)
+    return out

@@ -60,7 +60,13 @@ def run_command(args) -> int:
     """Run ``args.func(args)``, turning user-caused errors into one line on stderr + exit code."""
     name = f"magtune {args.command}" + (f" {args.bag_cmd}" if getattr(args, "bag_cmd", None) else "")
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()  # a closed pipe (``magtune bag info | head``) shows up here, not at exit
+        return code
+    except BrokenPipeError:
+        # the reader went away: no traceback, no second error at interpreter exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE, what a shell reports for a command killed by a closed pipe
     except CommandError as exc:
         print(f"{name}: {exc}", file=sys.stderr)
         return exc.code

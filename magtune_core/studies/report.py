@@ -33,6 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from .. import bags as baglib
 from ..bags.decode import Decoder, stamp_ns
@@ -125,11 +126,12 @@ def load_run(path, *, truth=TRUTH, dipole=DIPOLE, orbit_rate: float | None = Non
             sigma = (baglib.read_metadata(path).get("custom_data") or {}).get("sigma")
             if sigma:
                 label = f"sigma = {sigma}"
-        except (OSError, KeyError, TypeError):
-            pass
+        except (OSError, KeyError, TypeError, AttributeError, yaml.YAMLError):
+            pass  # a malformed metadata.yaml only costs the label
     integ = {"complete": bool(report.get("complete", True))}
     if not integ["complete"]:
-        integ.update({k: report.get(k) for k in ("messages_recovered", "chunks_bad", "problem")})
+        integ.update({k: report.get(k) for k in ("messages_recovered", "messages_expected",
+                                                "messages_in_damaged_chunks", "chunks_bad", "problem")})
     return Run(name or path.name, label, np.array(t), q_arr, x, np.array(tm), np.array(m).reshape(-1, 3), integ)
 
 
@@ -160,7 +162,7 @@ def load_runs(path, *, truth=TRUTH, dipole=DIPOLE, orbit_rate: float | None = No
         return [load_run(path, truth=truth, dipole=dipole, orbit_rate=orbit_rate, twist=twist)]
     try:
         custom = baglib.read_metadata(path).get("custom_data") or {}
-    except (OSError, KeyError, TypeError):
+    except (OSError, KeyError, TypeError, AttributeError, yaml.YAMLError):
         custom = {}
     out = []
     for ns in nss:

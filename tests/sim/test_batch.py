@@ -117,3 +117,20 @@ def test_divergence_is_flagged_per_run(setup):
     ang = np.degrees(2 * np.arctan2(np.linalg.norm(ref.q[..., 1:], axis=-1), np.abs(ref.q[..., 0])))
     np.testing.assert_allclose(ref.pointing_deg, ang, rtol=1e-9, atol=1e-9)  # asin vs atan2 form
     np.testing.assert_allclose(ref.m_norm, np.linalg.norm(ref.m, axis=-1), rtol=1e-12)
+
+
+@pytest.mark.slow
+def test_one_orbit_full_environment_equals_simulate(setup):
+    """Over a whole orbit (5611 steps; eclipses, the IGRF field along the orbit, two batched orbits):
+    still equal to the single-run loop at 1e-9."""
+    s = setup
+    opts = [FullEnvironmentOptions(raan_deg=r, epoch=datetime(2026, m, 5)) for r, m in ((10.0, 2), (250.0, 8))]
+    runs = _runs(s, "full", opts, inertia=s["inertia"][:2], residual_dipole=s["mres"][:2], dipole_limit=s["lim"][:2],
+                 q0=s["q0"][:2], dw0=s["dw0"][:2])
+    n = 5611
+    res = simulate_batch(runs, ts=1.0, steps=n, record_every=1)
+    for i in range(2):
+        r = simulate(s["K"], replace(s["p"], inertia=s["inertia"][i]), ts=1.0, steps=n, dw0=s["dw0"][i], q0=s["q0"][i],
+                     dipole_limit=s["lim"][i], residual_dipole=s["mres"][i], environment="full", env_options=opts[i])
+        _assert_close(res.x[i], r.x)
+        _assert_close(res.m[i], r.m, scale=50.0)

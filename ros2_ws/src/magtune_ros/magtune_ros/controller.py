@@ -30,7 +30,9 @@ from rclpy.node import Node
 from rclpy.task import Future
 from sensor_msgs.msg import Imu, MagneticField
 
-from magtune_core.design.gains import Gains
+from magtune_core.base.errors import ConfigError
+from magtune_core.base.schema import parse
+from magtune_core.design.gains import CONTROLLER_FIELDS, Gains
 from magtune_core.design.law import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD, ProjectionController, linear_state
 
 from . import common as c
@@ -48,6 +50,10 @@ class Controller(Node):
                           "float[]", size=3, positive=True)
         b_min = c.declare(self, "min_field", DEFAULT_MIN_FIELD,
                           "below this |b| [T] the dipole is zero (projection ill-conditioned)", positive=True)
+        try:  # the physical bounds of the gains-file schema (same error as the CLI)
+            parse({"dipole_limit": m_max, "min_field": b_min}, CONTROLLER_FIELDS, f"node '{self.NODE_NAME}'")
+        except ConfigError as exc:
+            raise c.ParamError(exc.field or "?", exc.expected) from None
         p = c.declare_spacecraft(self)
         c.declare_overrides(self)
         self.w0 = p.orbit_rate

@@ -17,7 +17,13 @@ Design:
 * subscriptions are ``raw=True`` (the callback gets the serialized CDR bytes; nothing is
   deserialized); QoS adapted to the publishers' offers (reliable when they all are), KEEP_LAST
   with a deep queue (``--depth``, default 10000: seconds of backlog at full SIL speed);
-* log time = receive time in sim time (unless ``--wall-time``): the recorder always listens to
+* log time of a message with a header (every project topic but ``/clock``) = its header stamp
+  in sim-time mode: so a bag's log time is never earlier than the stamp nor later by any amount,
+  whatever the load (the lockstep publishers stamp each sample with the sim time of the step it
+  belongs to, which is the sim time at which it was sent). Under CPU load the mapping below
+  drifted by up to +-100 s (issue #10), which made replayed inputs stale;
+* otherwise (``/clock``, headerless types) log time = receive time in sim time (unless
+  ``--wall-time``): the recorder always listens to
   ``/clock`` and keeps a table (DDS receive wall time of each ``/clock`` sample -> its sim
   time); a message gets the sim time of the last ``/clock`` that DDS delivered before the
   message itself (``MessageInfo.received_timestamp``). So the log time does not depend on how
@@ -58,7 +64,9 @@ from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
+from magtune_core.bags import msgdefs
 from magtune_core.bags.msgdefs import normalize_type
+from magtune_core.bags.timing import has_header, stamp_from_cdr
 from magtune_core.bags.writer import DEFAULT_CHUNK_SIZE, BagWriter
 from magtune_core.base.topics import project_topic, topic_specs
 
@@ -142,6 +150,14 @@ class SimClockMap:
         return self.sims[i] if i >= 0 else 0
 
 
+def _has_header(typ: str) -> bool:
+    """True if the type's first field is a std_msgs/Header (False for unknown types)."""
+    try:
+        return has_header(msgdefs.full_definition(typ))
+    except Exception:  # noqa: BLE001 - a type the typestore does not know: no stamp used
+        return False
+
+
 def clock_from_cdr(data: bytes) -> int:
     """Sim time (ns) of a serialized rosgraph_msgs/Clock (CDR: 4-byte header, int32, uint32)."""
     endian = "<" if data[1] == 1 else ">"
@@ -193,6 +209,9 @@ class BagWriterThread(threading.Thread):
                             t, tp = item[1], item[3]
                         else:
                             t, tp = cm.sim_at(item[1]), cm.source.sim_at(item[3])
+                            s = stamp_from_cdr(item[2]) if item[4] else None
+                            if s:  # stamped message: logged at its header stamp (see module doc)
+                                t = s
                         w.write(item[0], item[2], t, tp)
                         n += 1
                     q.popleft()
@@ -210,9 +229,16 @@ class BagWriterThread(threading.Thread):
             self.error = exc
 
     def finish(self):
+        """Stop, write what is queued, close the bag. After a write error (disk full) the bag
+        is left as it is: every chunk completed before the error is readable and
+        ``magtune bag recover`` rebuilds it (closing could not succeed on a full disk)."""
         self._halt.set()
         self.join()
-        self.writer.close()
+        if self.error is None:
+            try:
+                self.writer.close()
+            except Exception as exc:  # noqa: BLE001 - reported by the node on exit
+                self.error = exc
 
 
 class Recorder(Node):
@@ -309,6 +335,7 @@ class Recorder(Node):
         q = self.thread.queue
         record = self._selected(name)
         cm = self.clock_map if name == CLOCK else None
+        stamped = name != CLOCK and _has_header(typ)
 
         def handle(data: bytes, info: dict):
             wall = info["received_timestamp"]
@@ -326,7 +353,7 @@ class Recorder(Node):
                 offered = [qos_profile_dict(i.qos_profile)
                            for i in self.get_publishers_info_by_topic(name)]
                 q.append((None, name, typ, offered))
-            q.append((name, wall, data, info["source_timestamp"]))
+            q.append((name, wall, data, info["source_timestamp"], stamped))
             self.counts[name] += 1
             self.received += 1
 
@@ -366,10 +393,10 @@ def main(argv=None):
             if args.duration and time.monotonic() - t0 >= args.duration:
                 break
             if node.thread.error:
-                raise node.thread.error
+                break
         # drain what DDS has already delivered: spin until 3 idle rounds of 50 ms
         idle = 0
-        while idle < 3 and not (args.max_messages and node.received >= args.max_messages):
+        while idle < 3 and not node.thread.error and not (args.max_messages and node.received >= args.max_messages):
             before = node.received
             executor.spin_once(timeout_sec=0.05)
             idle = idle + 1 if node.received == before else 0
@@ -382,8 +409,13 @@ def main(argv=None):
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
-    if node.thread.error:
-        raise SystemExit(f"recorder: writer failed: {node.thread.error}")
+    err = node.thread.error
+    if err is not None:
+        why = getattr(err, "strerror", None) or str(err)
+        print(f"recorder: writing {node.bag.dir} failed ({why}) after {node.thread.written} messages; "
+              f"the chunks written before are readable: magtune bag recover {node.bag.dir}",
+              file=sys.stderr, flush=True)
+        return 1
     return 0
 
 

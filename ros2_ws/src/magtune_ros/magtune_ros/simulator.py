@@ -57,7 +57,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from magtune_core.base.rotations import cross, matrix_to_quat
 from magtune_core.design.law import DEFAULT_DIPOLE_LIMIT, linear_state, saturate
-from magtune_core.sim.simulate import DW0, SimResult, initial_state
+from magtune_core.sim.simulate import DIVERGED_EXIT, DW0, SimResult, divergence, initial_state
 
 from . import common as c
 
@@ -341,6 +341,11 @@ class Simulator(Node):
             self.publish_markers(k, m)
         self.y = self.dyn.step(k * self.ts, self.y, self.ts, m, self.substeps)
         self.k = k + 1
+        why = divergence(self.y)
+        if why:  # stop at once: stepping a NaN state would "succeed" with garbage
+            self.get_logger().error(f"simulation diverged at step {self.k} (t={self.k * self.ts:.3f} s): {why}")
+            self.finish_run(DIVERGED_EXIT)
+            return
         if self.rtf > 0 and self.lockstep:
             lag = self.wall0 + self.k * self.ts / self.rtf - time.perf_counter()
             if lag > 0:
