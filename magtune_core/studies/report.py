@@ -98,10 +98,16 @@ def load_run(path, *, truth=TRUTH, dipole=DIPOLE, orbit_rate: float | None = Non
     d = Decoder()
     report: dict = {}
     t, t_ns, q, w, tm, m, rates = [], [], [], [], [], [], {}
+    # a run recorded with `magtune sil --epoch-time` is stamped from the scenario epoch (ns since
+    # 1970); times here are seconds from the start of the run, as the offline simulation's
+    try:
+        origin = int((baglib.read_metadata(path).get("custom_data") or {}).get("time_origin_ns", 0))
+    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError):
+        origin = 0
     for msg in baglib.iter_messages(path, topics=[truth, dipole] + ([rate_topic] if has_rate else []), report=report):
         o = d.decode(msg.data, msg.type)
         s = stamp_ns(o)
-        s = msg.log_time if s is None else s
+        s = (msg.log_time if s is None else s) - origin
         if msg.topic == truth:
             p, a = o.pose.pose.orientation, o.twist.twist.angular
             t_ns.append(s)
