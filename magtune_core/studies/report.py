@@ -122,6 +122,12 @@ def load_run(path, *, truth=TRUTH, dipole=DIPOLE, orbit_rate: float | None = Non
             m.append((v.x, v.y, v.z))
     if not t:
         raise ValueError(f"{path}: no messages on {truth} (topics: {sorted(baglib.topics_of(path))})")
+    # time series in stamp order: bag order is log-time order, and in a multi-satellite bag the
+    # log times of the other satellites come from the first one's clock (ties, reordering)
+    o = np.argsort(np.array(t_ns), kind="stable")
+    t_ns, t, q, w = [t_ns[i] for i in o], [t[i] for i in o], [q[i] for i in o], [w[i] for i in o]
+    om = np.argsort(np.array(tm), kind="stable")
+    tm, m = [tm[i] for i in om], [m[i] for i in om]
     q_arr = np.array(q)
     # the exact inertial rate at each truth stamp when recorded (a damaged bag may miss some)
     w = [rates.get(k) or _inertial(qi, wi, w0, twist) for k, qi, wi in zip(t_ns, q_arr, w)]
