@@ -15,4 +15,4 @@ each equation to its code and ``docs/architecture.md`` draws the layers. Bottom 
 
 Each layer imports only from layers below it (tests/test_architecture.py checks it).
 """
-__version__ = "0.2.0"
+__version__ = "0.3.0"

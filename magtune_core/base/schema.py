@@ -9,6 +9,7 @@ the defaults are the same everywhere.
 from __future__ import annotations
 
 import array
+import difflib
 import math
 from dataclasses import dataclass
 
@@ -35,6 +36,10 @@ class Field:
     positive: bool = False
     nonnegative: bool = False
     choices: tuple | None = None
+    #: physical bounds (inclusive) of the value, or of every element of a list: what a real
+    #: spacecraft can have; a value outside is a typo or a unit error (e.g. nT written as T)
+    bounds: tuple[float, float] | None = None
+    unit: str = ""
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -63,6 +68,8 @@ def parse_value(f: Field, v, where):
             raise ConfigError(where, f.name, f"expected positive numbers, got {_show(v)}")
         if f.nonnegative and np.any(arr < 0):
             raise ConfigError(where, f.name, f"expected non-negative numbers, got {_show(v)}")
+        if f.bounds is not None and np.any((arr < f.bounds[0]) | (arr > f.bounds[1])):
+            raise ConfigError(where, f.name, f"expected numbers in {_range(f)}, got {_show(v)}")
         return arr
     if f.kind in ("float", "int"):
         if not _number(v) or (f.kind == "int" and float(v) != int(v)):
@@ -74,6 +81,8 @@ def parse_value(f: Field, v, where):
             raise ConfigError(where, f.name, f"expected a positive number, got {v!r}")
         if f.nonnegative and v < 0:
             raise ConfigError(where, f.name, f"expected a non-negative number, got {v!r}")
+        if f.bounds is not None and not f.bounds[0] <= v <= f.bounds[1]:
+            raise ConfigError(where, f.name, f"expected a number in {_range(f)}, got {v!r}")
         v = int(v) if f.kind == "int" else float(v)
     elif f.kind == "bool":
         if not isinstance(v, bool):
@@ -86,12 +95,27 @@ def parse_value(f: Field, v, where):
     return v
 
 
-def parse(mapping: dict, fields, where) -> dict:
+def check_names(mapping: dict, fields, where, allowed=()) -> None:
+    """Reject a key of ``mapping`` that is neither a field nor in ``allowed`` (an explicit list,
+    e.g. a gains file's provenance keys), with the closest known name as a suggestion: a
+    misspelled parameter (``min_feild``) must not be silently ignored."""
+    known = [f.name for f in fields] + list(allowed)
+    for key in mapping:
+        if key not in known:
+            close = difflib.get_close_matches(str(key), known, n=1, cutoff=0.6)
+            hint = f"did you mean '{close[0]}'?" if close else f"known names: {', '.join(sorted(known))}"
+            raise ConfigError(where, str(key), f"unknown parameter; {hint}")
+
+
+def parse(mapping: dict, fields, where, allowed=None) -> dict:
     """Validate ``mapping`` against ``fields``; return ``{name: value}`` with defaults filled in.
 
-    Keys of ``mapping`` that are not fields are ignored here (the caller decides: provenance,
-    other nodes' parameters). A missing required field raises ConfigError naming it.
+    With ``allowed`` (a sequence, possibly empty) every other key of ``mapping`` must be a field
+    or listed there (:func:`check_names`); with None other keys are ignored here (the caller
+    decides, e.g. other nodes' parameters). A missing required field raises ConfigError naming it.
     """
+    if allowed is not None:
+        check_names(mapping, fields, where, allowed)
     out = {}
     for f in fields:
         if f.name in mapping and mapping[f.name] is not None:
@@ -103,6 +127,11 @@ def parse(mapping: dict, fields, where) -> dict:
         else:
             out[f.name] = parse_value(f, f.default, where) if f.default is not None else None
     return out
+
+
+def _range(f: Field) -> str:
+    lo, hi = f.bounds
+    return f"[{lo:g}, {hi:g}]" + (f" {f.unit}" if f.unit else "")
 
 
 def _show(v) -> str:

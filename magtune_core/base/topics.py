@@ -7,7 +7,8 @@ before the publishers exist, with the durability they offer) and the bag report.
 from __future__ import annotations
 
 # Topic names as the nodes use them: relative, hence remappable and namespaceable.
-TOPIC_TRUTH = "sim/truth"                     # nav_msgs/Odometry: attitude (body w.r.t. orbital), body rate
+TOPIC_TRUTH = "sim/truth"                     # nav_msgs/Odometry: attitude and rate, body w.r.t. orbital
+TOPIC_INERTIAL_RATE = "sim/inertial_rate"     # geometry_msgs/Vector3Stamped: inertial body rate, body axes
 TOPIC_TRUE_FIELD = "sim/magnetic_field"       # sensor_msgs/MagneticField: true b [T], body axes
 TOPIC_MAG_TORQUE = "sim/magnetic_torque"      # geometry_msgs/WrenchStamped
 TOPIC_DIST_TORQUE = "sim/disturbance_torque"  # geometry_msgs/WrenchStamped
@@ -19,8 +20,12 @@ TOPIC_DIAGNOSTICS = "/diagnostics"            # diagnostic_msgs/DiagnosticArray 
 TOPIC_TF = "tf"                               # tf2_msgs/TFMessage: orbital -> body (+ eci -> orbital, full env.); /tf un-namespaced
 TOPIC_MARKERS = "sim/markers"                 # visualization_msgs/MarkerArray: body box, field and dipole arrows
 
-#: Frames (REP-103): orbital = LVLH with X nadir (yaw), Y along-track (roll), Z = -orbit
-#: normal (pitch) as in the paper's section 3; body = spacecraft principal axes.
+#: Frames (REP-103, right-handed): orbital = LVLH with X nadir (yaw), Y along-track (roll),
+#: Z = X x Y = -orbit normal, opposite r x v (pitch), as in the paper's section 3; body =
+#: spacecraft principal axes. ``sim/truth`` (nav_msgs/Odometry, frame orbital, child body)
+#: follows REP-105: pose = body w.r.t. orbital, twist.angular = rate of the body w.r.t. the
+#: orbital frame in body axes; the inertial rate (what a gyro measures, and the paper's w) is
+#: on ``sim/inertial_rate``.
 FRAME_ORBITAL = "orbital"
 FRAME_BODY = "body"
 #: Earth-centred inertial frame of the full environment (``magtune_core.env.orbit``: the
@@ -29,6 +34,7 @@ FRAME_ECI = "eci"
 
 # Names as recorded in bags of an un-namespaced run (absolute).
 TRUTH = "/" + TOPIC_TRUTH
+INERTIAL_RATE = "/" + TOPIC_INERTIAL_RATE
 TRUE_FIELD = "/" + TOPIC_TRUE_FIELD
 MAG = "/" + TOPIC_MAG
 ATTITUDE = "/" + TOPIC_ATTITUDE
@@ -41,6 +47,7 @@ CONTROLLER_INPUTS = (MAG, ATTITUDE)
 PROJECT_TOPICS: dict[str, tuple[str, str]] = {
     TOPIC_CLOCK: ("rosgraph_msgs/msg/Clock", "volatile"),
     TRUTH: ("nav_msgs/msg/Odometry", "transient_local"),
+    INERTIAL_RATE: ("geometry_msgs/msg/Vector3Stamped", "transient_local"),
     TRUE_FIELD: ("sensor_msgs/msg/MagneticField", "transient_local"),
     "/" + TOPIC_MAG_TORQUE: ("geometry_msgs/msg/WrenchStamped", "transient_local"),
     "/" + TOPIC_DIST_TORQUE: ("geometry_msgs/msg/WrenchStamped", "transient_local"),

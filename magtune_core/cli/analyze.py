@@ -5,6 +5,7 @@ import json
 
 from ..design.gains import load_gains
 from ..design.problem import figures
+from ..design.resolution import resolved_steps
 from .common import ANALYSIS_STEPS, field_model_argument, load_model
 
 
@@ -12,7 +13,9 @@ def register(sub) -> None:
     a = sub.add_parser("analyze", help="J, c1, c2, rho of a gains file")
     a.add_argument("path", help="gains parameter file (config/gains/sigma_*.yaml)")
     a.add_argument("--json", action="store_true", help="one JSON object with keys J, c1, c2, rho, stable")
-    a.add_argument("--steps", type=int, default=ANALYSIS_STEPS, help="Magnus intervals per period")
+    a.add_argument("--steps", type=int, default=None,
+                   help=f"Magnus intervals per period (default: {ANALYSIS_STEPS}, doubled until J agrees with "
+                        "twice as many to 1e-3; see magtune_core/design/resolution.py)")
     a.add_argument("--robust", metavar="SPEC", default=None,
                    help="robust spec YAML (docs/robust.md): also J, c1, c2, rho on every model of the set, "
                         "the worst case and the worst model")
@@ -25,6 +28,7 @@ def run(args) -> int:
     g = load_gains(args.path)
     if args.robust:
         return run_robust(args, model, g)
+    args.steps = args.steps or resolved_steps(model, g.K, g.sigma, ANALYSIS_STEPS)[0]
     fig = figures(model, g.K, g.sigma, steps=args.steps)
     d = fig.as_dict()
     if args.json:
@@ -43,7 +47,9 @@ def run_robust(args, model, g) -> int:
     """``analyze --robust SPEC``: figures on every model of the spec's set, nominal and worst case."""
     from ..design.robust import load_robust_spec, model_set, robust_figures
 
-    models = model_set(model, load_robust_spec(args.robust), args.robust)
+    skipped: list = []
+    models = model_set(model, load_robust_spec(args.robust), args.robust, skipped=skipped)
+    args.steps = args.steps or resolved_steps([m.model for m in models], g.K, g.sigma, ANALYSIS_STEPS)[0]
     rf = robust_figures(models, g.K, g.sigma, steps=args.steps)
     nom, worst = rf.nominal(), rf.worst()
     if args.json:
@@ -59,6 +65,8 @@ def run_robust(args, model, g) -> int:
     if nom:
         print(f"  {'NOMINAL':48s} {nom.J:10.5g} {nom.c1:10.5g} {nom.c2:10.5g} {nom.rho:9.6f}")
     print(f"  {'WORST CASE':48s} {worst['J']:10.5g} {worst['c1']:10.5g} {worst['c2']:10.5g} {worst['rho']:9.6f}")
+    if skipped:
+        print(f"  left out (not a rigid body): {'; '.join(skipped)}")
     print(f"  worst model (largest J): {rf.worst_name}"
           + ("" if all(f.stable for f in rf.figures) else "; some closed loops are UNSTABLE"))
     return 0

@@ -1,53 +1,92 @@
 """``magtune bag info|recover``: inspect a recorded bag, or repair one left unfinished.
 
 ``magtune bag info bags/NAME`` prints topics, counts, times and integrity (JSON with --json).
-``magtune bag recover bags/NAME`` rewrites a bag left unfinished by a crash (SIGKILL, power
-loss): every complete chunk is kept, the summary and ``metadata.yaml`` are rebuilt, and the
-report says what was recovered and what was lost.
+``magtune bag recover bags/NAME`` rebuilds a bag left unfinished by a crash (SIGKILL, power
+loss) or damaged on disk into ``bags/NAME_recovered`` (the input is never modified unless
+``--in-place``): every chunk whose CRC is good is kept, the summary and ``metadata.yaml`` are
+rebuilt, and the report says how many messages were recovered out of how many expected.
 """
 from __future__ import annotations
 
 import json
+import sys
 
 from .. import bags
 from ..bags import recover
-from .common import CommandError
+from ..base.errors import ConfigError
 
 
 def register(sub) -> None:
     b = sub.add_parser("bag", help="inspect or repair recorded bags")
     bs = b.add_subparsers(dest="bag_cmd", required=True)
-    i = bs.add_parser("info", help="topics, counts, duration, integrity")
+    i = bs.add_parser("info", help="topics, counts, duration, integrity (chunk CRCs), timing checks")
     i.add_argument("bag", help="bag directory (bags/NAME) or .mcap file")
     i.add_argument("--json", action="store_true", help="print the summary as JSON")
+    i.add_argument("--ts", type=float, default=None,
+                   help="tolerance of |log_time - stamp| in s (default: ts of metadata.yaml, else the /clock period)")
     i.set_defaults(func=run_info)
-    r = bs.add_parser("recover", help="rebuild summary + metadata.yaml of an unfinished bag")
-    r.add_argument("bag", help="bag directory (bags/NAME)")
-    r.add_argument("--keep-original", action="store_true", help="keep the damaged file as .damaged")
+    r = bs.add_parser("recover", help="rebuild a damaged or unfinished bag (the input is never modified)")
+    r.add_argument("bag", help="bag directory (bags/NAME) or .mcap file")
+    r.add_argument("-o", "--output", default=None,
+                   help="new bag directory (default: bags/NAME_recovered beside the input)")
+    r.add_argument("--in-place", action="store_true",
+                   help="replace the bag's MCAP and metadata.yaml (the damaged file is kept as .damaged)")
     r.set_defaults(func=run_recover)
 
 
 def run_info(args) -> int:
+    if args.ts is not None and not (0 < args.ts < float("inf")):
+        raise ConfigError("--ts", None, f"expected a positive finite step in s, got {args.ts}")
     try:
-        inf = bags.info(args.bag)
-    except (OSError, ValueError) as exc:
-        raise CommandError(str(exc)) from None
+        inf = bags.info(args.bag, ts=args.ts)
+    except OSError as exc:
+        raise ConfigError(args.bag, None, f"cannot read the bag: {exc.strerror or exc}") from None
     if args.json:
         print(json.dumps(inf, indent=1))
         return 0
-    print(f"bag:      {inf['path']} ({inf['size_bytes']} bytes, "
-          f"{'complete' if inf['complete'] else 'UNFINISHED/DAMAGED: run magtune bag recover'})")
+    integ, timing = inf["integrity"], inf["timing"]
+    state = "complete" if inf["complete"] else "DAMAGED/UNFINISHED: run magtune bag recover"
+    print(f"bag:      {inf['path']} ({inf['size_bytes']} bytes, {state})")
     print(f"messages: {inf['message_count']} in {inf['chunks']} chunks, "
           f"{inf['duration_s']:.3f} s from {inf['start_ns'] * 1e-9:.3f} s")
+    print(f"start:    {inf['start_utc'] or '-'} ({inf['start_ns'] * 1e-9:.9f} s)")
+    print(f"end:      {inf['end_utc'] or '-'} ({inf['end_ns'] * 1e-9:.9f} s)")
+    print(f"storage:  {inf['storage_identifier']}   ROS distro: {inf['ros_distro'] or '-'}")
+    print(f"files:    {len(inf['files'])}")
+    for f in inf["files"]:
+        print(f"  {f['path']}  {f['size_bytes']} bytes  {f['message_count']} messages"
+              + ("" if f["complete"] else "  UNFINISHED/DAMAGED"))
     for name, t in inf["topics"].items():
         print(f"  {name:32s} {t['type']:40s} {t['count']:8d}")
+    for part in integ.get("files", [integ]):   # a split bag: one integrity summary per file
+        for line in integrity_lines(part):
+            print(f"warning: {line}")
+    for line in timing["warnings"]:
+        print(f"warning: {line}")
     return 0
 
 
+def integrity_lines(integ: dict) -> list[str]:
+    """One line per integrity problem of a scan summary (shared by info, replay, report)."""
+    out = []
+    for c in integ.get("chunks_bad") or []:
+        held = "unknown number of" if c.get("messages") is None else str(c["messages"])
+        span = (f", log time {c['start_ns'] * 1e-9:.3f}..{c['end_ns'] * 1e-9:.3f} s"
+                if c.get("start_ns") is not None else "")
+        out.append(f"damaged chunk at byte {c['offset']} ({held} messages{span}): {c['reason']}")
+    if integ.get("problem"):
+        out.append(integ["problem"])
+    if integ.get("unreadable_tail_bytes"):
+        out.append(f"{integ['unreadable_tail_bytes']} bytes at the end are unreadable (no summary)")
+    if integ.get("orphan_messages"):
+        out.append(f"{integ['orphan_messages']} messages belong to a channel whose definition was lost")
+    return out
+
+
 def run_recover(args) -> int:
-    try:
-        rep = recover.recover(args.bag, keep_original=args.keep_original)
-    except (OSError, ValueError) as exc:
-        raise CommandError(str(exc)) from None
+    rep = recover.recover(args.bag, args.output, in_place=args.in_place)
     print(json.dumps(rep, indent=1))
+    exp = rep["messages_expected"]
+    print(f"recovered {rep['messages_recovered']} of {exp} messages into {rep['output']}"
+          f" (original untouched: {rep['original_kept']})", file=sys.stderr)
     return 0

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..base.errors import ConfigError
 from ..studies import campaign, campaign_report
-from .common import CommandError
+from .common import CommandError, plain_summary
 
 #: What ``--force`` removes from an existing output directory (our own outputs only).
 OUTPUTS = ("runs.parquet", "campaign.json", "spec.yaml", "summary.md", "envelopes.png", "histograms.png")
@@ -15,7 +15,7 @@ OUTPUTS = ("runs.parquet", "campaign.json", "spec.yaml", "summary.md", "envelope
 
 def register(sub) -> None:
     p = sub.add_parser("campaign", help="Monte Carlo campaign: dispersed runs, batched, on Dask; Parquet results",
-                       description=campaign.__doc__.split("\n\n")[0])
+                       description=plain_summary(campaign.__doc__))
     p.add_argument("spec", help="campaign spec (YAML: campaign, dispersions, criteria; see config/campaigns/)")
     p.add_argument("--runs", type=int, required=True, help="number of dispersed runs (per gains file)")
     p.add_argument("--out", required=True, help="output directory (must be empty or new, unless --force)")
@@ -27,7 +27,7 @@ def register(sub) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     r = sub.add_parser("campaign-report", help="report of a campaign directory: envelopes, histograms, summary.md",
-                       description=campaign_report.__doc__.split("\n\n")[0])
+                       description=plain_summary(campaign_report.__doc__))
     r.add_argument("dir", help="output directory of magtune campaign")
     r.set_defaults(func=run_report)
 

@@ -25,6 +25,15 @@ def repo_path(relative: str) -> str:
     return str(ROOT / relative)
 
 
+def shown_path(path) -> str:
+    """``path`` as written into generated files and messages: relative to the repository when it
+    lies inside it (so regenerated docs do not depend on where the checkout is), else as given."""
+    try:
+        return str(Path(path).resolve().relative_to(ROOT))
+    except ValueError:
+        return str(path)
+
+
 #: The spacecraft/orbit parameter file every command reads by default.
 DEFAULT_CONFIG = repo_path("config/spacecraft.yaml")
 #: Magnus intervals per period for reported figures (~1e-5 relative, see bench/).
@@ -51,7 +60,13 @@ def run_command(args) -> int:
     """Run ``args.func(args)``, turning user-caused errors into one line on stderr + exit code."""
     name = f"magtune {args.command}" + (f" {args.bag_cmd}" if getattr(args, "bag_cmd", None) else "")
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()  # a closed pipe (``magtune bag info | head``) shows up here, not at exit
+        return code
+    except BrokenPipeError:
+        # the reader went away: no traceback, no second error at interpreter exit
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141  # 128 + SIGPIPE, what a shell reports for a command killed by a closed pipe
     except CommandError as exc:
         print(f"{name}: {exc}", file=sys.stderr)
         return exc.code
@@ -132,6 +147,11 @@ def load_model(args):
     if getattr(args, "field", None):
         return AttitudeLTP(p, field_for_spacecraft(args.field, p))
     return AttitudeLTP.from_params(p, getattr(args, "field_model", None))
+
+
+def say(command: str, text: str) -> None:
+    """One progress line on stderr (``magtune COMMAND: text``), so stdout stays the result."""
+    print(f"magtune {command}: {text}", file=sys.stderr, flush=True)
 
 
 def add_force_argument(p: argparse.ArgumentParser) -> None:

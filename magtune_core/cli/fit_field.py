@@ -6,7 +6,7 @@ from datetime import datetime
 
 from ..design import fitfield
 from ..design.params import check_orbit
-from .common import CommandError, add_force_argument, check_output, plain_summary, repo_path
+from .common import CommandError, add_force_argument, check_output, plain_summary, repo_path, say
 
 
 def _parse_epoch(text: str) -> datetime:
@@ -40,6 +40,8 @@ def run(args) -> int:
         raise CommandError("need --harmonics >= 1, --days > 0, --step > 0, 1 <= --degree <= 13", code=2)
     check_orbit(args.altitude * 1e3, args.inclination, "command line")
     check_output(args.out, force=args.force)
+    say("fit-field", f"sampling IGRF degree {args.degree} along {args.days:g} days of orbit every {args.step:g} s "
+                     "and fitting (about a minute for the defaults)")
     field, report = fitfield.fit_field(args.altitude * 1e3, args.inclination, args.harmonics, args.days, args.step,
                               args.degree, args.epoch, args.raan)
     meta = dict(altitude=args.altitude * 1e3, inclination=args.inclination, igrf_degree=args.degree,

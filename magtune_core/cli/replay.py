@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 
+from ..bags.scan import check_file
 from ..ros.live import DEFAULT_PORT
 from ..ros.replay import DEFAULT_WAIT_SUBSCRIBERS, ReplayOptions, run_player
 
@@ -46,6 +47,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    check_file(args.bag)  # missing, empty, no .mcap, not MCAP: one line, exit 2, nothing started
     return run_player(args.bag, ReplayOptions(
         rate=args.rate, topics=args.topics, exclude=args.exclude, start=args.start,
         playback_duration=args.playback_duration, playback_until=args.playback_until, loop=args.loop,

@@ -6,7 +6,7 @@ from pathlib import Path
 from ..base.topics import DIPOLE, TRUTH
 from ..design.law import DEFAULT_DIPOLE_LIMIT
 from ..studies import report
-from .common import CommandError, check_output, plain_summary
+from .common import CommandError, check_output, plain_summary, say
 
 
 def register(sub) -> None:
@@ -26,6 +26,9 @@ def register(sub) -> None:
                    help="legend labels, one per bag (default: custom_data sigma or bag name)")
     p.add_argument("--truth-topic", default=TRUTH, help=f"nav_msgs/Odometry truth topic (default {TRUTH})")
     p.add_argument("--dipole-topic", default=DIPOLE, help=f"dipole command topic (default {DIPOLE})")
+    p.add_argument("--truth-twist", choices=report.TWIST_MODES, default="relative",
+                   help="how to read the truth twist when the bag has no sim/inertial_rate topic: relative "
+                        "(default; body w.r.t. orbital frame, REP-105) or inertial (bags recorded before 0.3)")
     p.add_argument("--orbit-period", type=float, default=None, help="s (default: spacecraft.yaml)")
     p.set_defaults(func=run)
 
@@ -34,10 +37,11 @@ def run(args) -> int:
     check_output(args.out, option="--out", directory=True)
     if not args.dipole_limit > 0:
         raise CommandError("--dipole-limit must be positive", code=2)
+    say("report", f"decoding {len(args.bags)} bag(s) and drawing Figs. 2-5 into {args.out}")
     try:
         s = report.make_report(args.bags, args.out, run=args.run, truth=args.truth_topic,
                                dipole=args.dipole_topic, orbit_period=args.orbit_period, labels=args.labels,
-                               dipole_limit=args.dipole_limit)
+                               dipole_limit=args.dipole_limit, twist=args.truth_twist)
     except (OSError, ValueError) as exc:
         raise CommandError(str(exc)) from None
     print(Path(args.out, "summary.md").read_text())

@@ -7,7 +7,8 @@ import sys
 from ..base.errors import ConfigError
 from ..design.gains import Gains, load_gains, save_gains
 from ..design.problem import figures
-from .common import ANALYSIS_STEPS, add_force_argument, check_output, field_model_argument, load_model, repo_path
+from ..design.resolution import resolved_steps, start_gain
+from .common import ANALYSIS_STEPS, CommandError, add_force_argument, check_output, field_model_argument, load_model, repo_path
 
 METHODS = ("cma", "paper")
 
@@ -57,14 +58,23 @@ def run(args) -> int:
     _check_args(args)
     out = check_output(args.out or repo_path(f"config/gains/sigma_{args.sigma:g}.yaml"), force=args.force)
     model = load_model(args)
-    K0 = load_gains(args.start).K if args.start else None
+    # start gain and Magnus steps resolved for this model (design/resolution.py): the paper's LQ
+    # start and 64 steps for the paper's satellite; more steps / a milder LQ start for stiff loops
+    try:
+        K0, sigma0, steps, _ = start_gain(model, args.sigma)
+    except ValueError as exc:
+        raise CommandError(f"{exc}; try a larger --sigma") from None
+    start = "LQ start" if sigma0 == args.sigma else f"LQ start of sigma {sigma0:g}"
+    if args.start:
+        K0, start = load_gains(args.start).K, f"start {args.start}"
+        steps, _ = resolved_steps(model, K0, args.sigma)
     bar = tqdm(desc=f"tune sigma={args.sigma:g} ({args.method})", unit="gen" if args.method == "cma" else "it",
                disable=args.quiet, file=sys.stderr)
     if args.method == "paper":
         from ..design.tuner import TunerSettings, tune
 
         settings = TunerSettings(samples=args.samples, r_max=args.r_max, mu=args.mu, workers=args.workers,
-                                 max_iter=args.max_iter, patience=args.patience)
+                                 max_iter=args.max_iter, patience=args.patience, steps=steps)
 
         def progress(it, J, r, mu, nb):
             bar.update(1)
@@ -74,27 +84,27 @@ def run(args) -> int:
         header = f"magtune tune --method paper --sigma {args.sigma:g} --seed {args.seed} --samples {args.samples}"
     else:
         from ..design.cmaes import CmaSettings, tune_cma
-        from ..design.lq import lq_gain
         from ..design.objective import HinfObjective
 
         settings = CmaSettings(popsize=args.popsize, max_evals=args.max_evals, certify=args.restarts,
-                               workers=args.workers)
+                               workers=args.workers, steps=steps)
 
         def progress(ev, J, gen, step, restart):
             bar.update(1)
             bar.set_postfix_str(f"J={J:.4f} evals={ev} step={step:.2e} restart={restart}")
 
         with HinfObjective(model, args.sigma, steps=settings.steps, rtol=settings.rtol, workers=args.workers) as obj:
-            res = tune_cma(obj, lq_gain(model, args.sigma) if K0 is None else K0, args.sigma, seed=args.seed,
-                           settings=settings, progress=progress)
+            res = tune_cma(obj, K0, args.sigma, seed=args.seed, settings=settings, progress=progress)
         header = f"magtune tune --sigma {args.sigma:g} --seed {args.seed}" + (f" --start {args.start}" if args.start else "")
     bar.close()
-    fig = figures(model, res.K, args.sigma, steps=ANALYSIS_STEPS)
-    prov = {**fig.as_dict(), **res.provenance(), "start": args.start or "lq_averaged", "field_model": model.field.name,
-            "analysis_steps": ANALYSIS_STEPS, "tune_seconds": round(res.seconds, 1)}
+    analysis_steps, _ = resolved_steps(model, res.K, args.sigma, ANALYSIS_STEPS)
+    fig = figures(model, res.K, args.sigma, steps=analysis_steps)
+    prov = {**fig.as_dict(), **res.provenance(), "start": start, "design_field": model.field.name,
+            "analysis_steps": analysis_steps, "tune_seconds": round(res.seconds, 1)}
     prov.pop("stable", None)
     save_gains(out, Gains(res.K, args.sigma, args.ts, prov), header=header)
     state = "converged" if res.converged else "NOT certified (budget reached)"
-    print(f"sigma={args.sigma:g} [{res.method}]  J: {res.J0:.3f} (start) -> {fig.J:.3f} in {res.evaluations} evaluations, "
-          f"{res.seconds:.1f} s, {state}; c1={fig.c1:.3f} c2={fig.c2:.2f} rho={fig.rho:.5f}; wrote {out}")
+    print(f"sigma={args.sigma:g} [{res.method}]  J: {res.J0:.3f} ({start}, {steps} Magnus steps) -> {fig.J:.3f} in "
+          f"{res.evaluations} evaluations, {res.seconds:.1f} s, {state}; c1={fig.c1:.3f} c2={fig.c2:.2f} "
+          f"rho={fig.rho:.5f} ({analysis_steps} steps); wrote {out}")
     return 0

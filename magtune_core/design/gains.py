@@ -18,6 +18,7 @@ import yaml
 
 from ..base.paramfile import read_ros_params
 from ..base.schema import Field, parse
+from .law import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD
 
 #: The controller's default node name: what a gains file is read for (``load_gains``).
 CONTROLLER_NODE = "controller"
@@ -36,23 +37,56 @@ class Gains:
     ts: float = 1.0
     provenance: dict = field(default_factory=dict)
 
-    #: The schema of a gains file (the controller node's own parameters among them).
+    #: The schema of a gains file (the controller node's own parameters among them). Bounds:
+    #: |K| entries up to 1e3 (paper gains are below 1: u = K x is a torque in N m for x in rad,
+    #: rad/s); sigma over the paper's range with margin; Ts from 1 ms to 1 h (the nutation check
+    #: against the spacecraft is :func:`magtune_core.design.params.check_sample_period`).
     FIELDS = (
-        Field("gain", "float[]", "the 3x6 gain K, row-major (rows: torque axes; columns: [dq; dw])", size=18),
-        Field("sigma", "float", "control-effort weight sigma of the design", positive=True),
-        Field("ts", "float", "controller sample period Ts [s] (sim time)", 1.0, positive=True),
+        Field("gain", "float[]", "the 3x6 gain K, row-major (rows: torque axes; columns: [dq; dw])", size=18,
+              bounds=(-1e3, 1e3)),
+        Field("sigma", "float", "control-effort weight sigma of the design", positive=True, bounds=(1e-6, 1e9)),
+        Field("ts", "float", "controller sample period Ts [s] (sim time)", 1.0, positive=True, bounds=(1e-3, 3600.0),
+              unit="s"),
     )
+    #: Read-only provenance a gains file may carry (``magtune tune`` writes these); any other
+    #: key is rejected with a "did you mean" (a misspelled parameter is never silently kept).
+    PROVENANCE = ("J", "c1", "c2", "rho", "J_initial", "seed", "iterations", "converged", "tuner", "design",
+                  "method", "evaluations", "seeds",
+                  "field_model", "design_field", "start", "analysis_steps", "tune_seconds", "written")
 
     @classmethod
     def from_mapping(cls, params: dict, where="gains") -> "Gains":
-        """Validate a parameter mapping against :attr:`FIELDS`; other keys become provenance.
+        """Validate a parameter mapping against :attr:`FIELDS`; the keys of :attr:`PROVENANCE`
+        become provenance; the controller node's own options (:data:`CONTROLLER_FIELDS`) and
+        ``use_sim_time`` are checked and allowed; any other key is rejected ("did you mean").
 
         Raises ConfigError naming ``where``, the field and what was expected.
         """
-        v = parse(params, cls.FIELDS, where)
-        own = {f.name for f in cls.FIELDS}
-        prov = {k: x for k, x in params.items() if k not in own}
+        allowed = cls.PROVENANCE + tuple(f.name for f in CONTROLLER_FIELDS) + NODE_COMMON
+        v = parse(params, cls.FIELDS, where, allowed=allowed + _spacecraft_names())
+        parse({k: params[k] for k in params if k in {f.name for f in CONTROLLER_FIELDS}}, CONTROLLER_FIELDS, where)
+        prov = {k: x for k, x in params.items() if k in cls.PROVENANCE}
         return cls(v["gain"].reshape(3, 6), v["sigma"], v["ts"], prov)
+
+
+#: Options of the controller node a gains file (section ``controller``) may set, with their
+#: physical bounds: dipole limits of real magnetorquers (1e-6 to 1e4 A m^2), the projection's
+#: weak-field threshold below the geomagnetic field (at most 1e-3 T).
+CONTROLLER_FIELDS = (
+    Field("dipole_limit", "float[]", "per-axis dipole saturation [A m^2]", (DEFAULT_DIPOLE_LIMIT,) * 3, size=3,
+          positive=True, bounds=(1e-6, 1e4), unit="A m^2"),
+    Field("min_field", "float", "below this |b| [T] the dipole is zero (projection ill-conditioned)",
+          DEFAULT_MIN_FIELD, positive=True, bounds=(1e-12, 1e-3), unit="T"),
+)
+#: Parameters every node has.
+NODE_COMMON = ("use_sim_time",)
+
+
+def _spacecraft_names() -> tuple:
+    """A gains file's ``/**`` section may carry the spacecraft parameters and the node parameters."""
+    from .params import NODE_PARAMETERS, SpacecraftParams
+
+    return tuple(f.name for f in SpacecraftParams.FIELDS) + NODE_PARAMETERS
 
 
 def load_gains(path) -> Gains:
@@ -69,6 +103,8 @@ def save_gains(path, gains: Gains, header: str = "") -> None:
         "ts": float(gains.ts),
     }
     for k, v in gains.provenance.items():
+        if k not in Gains.PROVENANCE:  # a program error: the file would not load again
+            raise ValueError(f"provenance key {k!r} is not in Gains.PROVENANCE; add it there")
         params[k] = _plain(v)
     params.setdefault("written", _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"))
     text = yaml.safe_dump({GAINS_SECTION: {"ros__parameters": params}}, sort_keys=False, width=120)

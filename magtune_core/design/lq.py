@@ -28,4 +28,4 @@ def lq_gain(model: AttitudeLTP, sigma: float) -> np.ndarray:
 
 def lq_gains(model: AttitudeLTP, sigma: float, ts: float = 1.0) -> Gains:
     """:func:`lq_gain` wrapped as :class:`~magtune_core.design.gains.Gains` with its provenance."""
-    return Gains(lq_gain(model, sigma), sigma, ts, {"design": "lq_averaged", "field_model": model.field.name})
+    return Gains(lq_gain(model, sigma), sigma, ts, {"design": "lq_averaged", "design_field": model.field.name})

@@ -2,7 +2,8 @@
 
 Paper section 3 (eqs. 11-19) as read in SPEC.md. State x = [dq (3); dw (3)]: vector part of
 the body-to-orbital quaternion and the deviation of the inertial body rate from [0, 0, -W0].
-Axes: X yaw (to Earth's centre), Y roll (along velocity), Z pitch (orbit normal).
+Axes: X yaw (to Earth's centre), Y roll (along velocity), Z pitch (= X x Y: minus the orbit normal,
+opposite the orbital angular momentum r x v).
 """
 from __future__ import annotations
 

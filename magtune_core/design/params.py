@@ -67,6 +67,20 @@ def check_orbit(altitude: float, inclination_deg: float, where="spacecraft param
         raise ConfigError(where, "inclination", f"expected 0 .. 180 deg, got {inclination_deg:g}")
 
 
+#: Parameters the SIL nodes (simulator, attitude_sensors, controller) declare besides the schema
+#: fields: a parameter file handed to every node (``config/spacecraft.yaml``, ``/**``) may set
+#: them; any other name is a typo and rejected with a suggestion. Kept equal to what the nodes
+#: declare by ``tests/base/test_bad_input.py::test_node_parameter_list_matches_the_nodes``.
+NODE_PARAMETERS = (
+    "attitude_noise_std", "dipole_limit", "disturbance_plugins", "env_drag", "env_field", "env_gravity_gradient",
+    "env_srp", "environment", "field_file", "field_plugin", "gyro_bias", "gyro_noise_std", "igrf_degree",
+    "initial_quaternion", "initial_rate_error", "lockstep", "lockstep_timeout", "mag_bias", "mag_noise_std",
+    "mag_quantum", "min_field", "min_truth_subscribers", "orbits", "publish_markers", "publish_tf",
+    "publish_torques", "real_time_factor", "residual_dipole", "results_path", "seed", "startup_timeout", "steps",
+    "substeps", "time_origin_ns", "ts", "wait_for_peers", "use_sim_time",
+)
+
+
 @dataclass(frozen=True)
 class SpacecraftParams:
     """Inertia, wheel and circular-orbit data of paper section 5 (SI units)."""
@@ -90,35 +104,45 @@ class SpacecraftParams:
     #: validate exactly these parameters. The physical data are required; the orbit (circular)
     #: and field model default to the paper's section 5; the period is derived (module docstring).
     FIELDS = (
-        Field("inertia", "float[]", "principal moments Ixx, Iyy, Izz [kg m^2]", size=3, positive=True),
-        Field("wheel_inertia", "float", "pitch wheel inertia J [kg m^2]", positive=True),
-        Field("wheel_speed", "float", "nominal wheel speed Wwheel [rad/s]"),
+        # bounds: physically possible values (a typo or a unit error falls outside): a 1 g cubesat
+        # to a space station; wheels up to 1e4 rad/s; |b| at most 1e-3 T per axis (the geomagnetic
+        # field is below 7e-5 T); altitude and inclination: check_orbit
+        Field("inertia", "float[]", "principal moments Ixx, Iyy, Izz [kg m^2]", size=3, positive=True,
+              bounds=(1e-6, 1e8), unit="kg m^2"),
+        Field("wheel_inertia", "float", "pitch wheel inertia J [kg m^2]", positive=True, bounds=(1e-9, 1e4),
+              unit="kg m^2"),
+        Field("wheel_speed", "float", "nominal wheel speed Wwheel [rad/s]", bounds=(-1e4, 1e4), unit="rad/s"),
         Field("altitude", "float", "circular-orbit altitude above the equatorial radius [m], 150 km .. 2000 km",
               450e3, positive=True),
         Field("inclination", "float", "orbit inclination [deg], 0 .. 180", 87.0),
-        Field("raan", "float", "right ascension of the ascending node at epoch [deg]", 0.0),
-        Field("arg_latitude", "float", "argument of latitude at epoch [deg] (angle from the ascending node)", 0.0),
+        Field("raan", "float", "right ascension of the ascending node at epoch [deg]", 0.0, bounds=(-360.0, 360.0),
+              unit="deg"),
+        Field("arg_latitude", "float", "argument of latitude at epoch [deg] (angle from the ascending node)", 0.0,
+              bounds=(-360.0, 360.0), unit="deg"),
         Field("epoch", "str", "UTC epoch of the orbit and of IGRF, ISO 8601", DEFAULT_EPOCH.isoformat()),
         Field("period_model", "str", "nominal period: keplerian (paper) or j2_mean (mean rate of the J2 orbit)",
               "keplerian", choices=PERIOD_MODELS),
         Field("orbit_period", "float", "nominal period T [s]; optional: derived from the orbit by period_model, "
-              "if given it must agree with the Keplerian period within 0.5 %", None, positive=True),
+              "if given it must agree with the Keplerian period within 0.5 %", None, positive=True,
+              bounds=(1e3, 1e7), unit="s"),
         Field("box_dims", "float[]", "full environment: edge lengths of the drag/SRP box along body X, Y, Z [m]",
-              (0.6, 1.0, 0.8), size=3, positive=True),
+              (0.6, 1.0, 0.8), size=3, positive=True, bounds=(1e-3, 100.0), unit="m"),
         Field("cp_offset", "float[]", "full environment: centre of pressure minus centre of mass, body axes [m]",
-              (0.05 / 3.0 ** 0.5,) * 3, size=3),
+              (0.05 / 3.0 ** 0.5,) * 3, size=3, bounds=(-10.0, 10.0), unit="m"),
         Field("field_model", "str", "geomagnetic field model in orbital axes", "eq26", choices=FIELD_MODELS),
         Field("constant_field", "float[]", "field [T] in orbital axes for field_model = constant",
-              (2e-5, 0.0, 1e-5), size=3),
+              (2e-5, 0.0, 1e-5), size=3, bounds=(-1e-3, 1e-3), unit="T"),
     )
 
     @classmethod
-    def from_mapping(cls, params: dict, where="spacecraft parameters") -> "SpacecraftParams":
+    def from_mapping(cls, params: dict, where="spacecraft parameters", strict: bool = False) -> "SpacecraftParams":
         """Validate a parameter mapping (file or declared node parameters) against :attr:`FIELDS`.
 
+        ``strict``: a key that is neither a field nor a node parameter (:data:`NODE_PARAMETERS`)
+        is an error with a "did you mean" (the CLI reading ``config/spacecraft.yaml``).
         Raises ConfigError naming ``where``, the field and what was expected.
         """
-        v = parse(params, cls.FIELDS, where)
+        v = parse(params, cls.FIELDS, where, allowed=NODE_PARAMETERS if strict else None)
         check_orbit(v["altitude"], v["inclination"], where)
         epoch = parse_epoch(v["epoch"], where)
         p = cls(inertia=v["inertia"], wheel_inertia=v["wheel_inertia"], wheel_speed=v["wheel_speed"],
@@ -153,10 +177,30 @@ class SpacecraftParams:
         """Wheel angular momentum in body axes, h = [0, 0, -J Wwheel] (SPEC.md sign check)."""
         return np.array([0.0, 0.0, -self.wheel_inertia * self.wheel_speed])
 
+    @property
+    def nutation_period(self) -> float:
+        """Nutation period 2 pi sqrt(Ixx Iyy) / h [s] of the momentum-biased body (wheel momentum
+        h = J |Wwheel| along the pitch axis, transverse axes x, y); inf without wheel momentum.
+        The fastest natural motion of the attitude: a sample period must resolve it."""
+        h = abs(self.wheel_inertia * self.wheel_speed)
+        return float(2.0 * np.pi * np.sqrt(self.inertia[0] * self.inertia[1]) / h) if h > 0 else float("inf")
+
     def field(self, model: str | None = None) -> FourierField:
         return paper_field(self.orbit_rate, model or self.field_model, self.constant_field)
 
 
+def check_sample_period(ts: float, p: SpacecraftParams, where="ts") -> None:
+    """ConfigError unless ``0 < ts < nutation period / 2`` (Nyquist: the sampled controller must
+    resolve the nutation; beyond it the loop cannot damp it and RK4 at 2 sub-steps goes unstable,
+    e.g. ts = 100 s for the paper's spacecraft, whose nutation period is 76.6 s)."""
+    if not (isinstance(ts, (int, float)) and np.isfinite(ts) and ts > 0):
+        raise ConfigError(where, None, f"expected a positive finite sample period in s, got {ts!r}")
+    limit = p.nutation_period / 2.0
+    if ts >= limit:
+        raise ConfigError(where, None, f"sample period {ts:g} s does not resolve the nutation period "
+                                       f"{p.nutation_period:.1f} s; use ts < {limit:.1f} s")
+
+
 def load_spacecraft(path) -> SpacecraftParams:
     """Read ``config/spacecraft.yaml`` (every node section merged) into SpacecraftParams."""
-    return SpacecraftParams.from_mapping(read_ros_params(path), path)
+    return SpacecraftParams.from_mapping(read_ros_params(path), path, strict=True)

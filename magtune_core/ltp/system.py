@@ -133,9 +133,18 @@ def multipliers(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
     Returns
     -------
     ndarray (*batch, n), complex
-        Eigenvalues of the monodromy matrix.
+        Eigenvalues of the monodromy matrix; ``inf`` for a system whose monodromy overflows
+        (a hugely unstable loop, e.g. a gain of 10 per entry: the product of the interval
+        transitions exceeds 1e308).
     """
-    return np.linalg.eigvals(monodromy(sys, steps))
+    with np.errstate(over="ignore", invalid="ignore"):
+        M = monodromy(sys, steps)
+    finite = np.all(np.isfinite(M), axis=(-2, -1))
+    if np.all(finite):
+        return np.linalg.eigvals(M)
+    out = np.full(M.shape[:-1], np.inf, dtype=complex)
+    out[finite] = np.linalg.eigvals(M[finite])
+    return out
 
 
 def spectral_radius(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:

@@ -2,7 +2,8 @@
 
 The player (``<prefix>/lib/magtune_ros/player``, where ``ros2 run`` looks) republishes a bag
 at its recorded sim time with /clock; it runs with the caller's ROS environment (ROS_DOMAIN_ID
-etc.), Ctrl-C/SIGTERM are forwarded to it and its exit status is returned. It prints a JSON
+etc.), Ctrl-C/SIGTERM/SIGHUP are forwarded to it (as SIGINT: it stops cleanly) and its exit
+status is returned; it gets SIGTERM from the kernel if this process dies (``PR_SET_PDEATHSIG``). It prints a JSON
 line with what it published and, for a damaged bag, what it could not read.
 
 What ``ros2 bag play`` offers and the player mirrors (``magtune replay`` passes it on):
@@ -34,6 +35,7 @@ from pathlib import Path
 
 from ..base import ament
 from ..base.errors import ConfigError
+from .sil import STOP_SIGNALS, die_with_parent
 
 PACKAGE = "magtune_ros"
 #: default wait for subscribers [wall s] before the first message
@@ -165,18 +167,26 @@ def run_player(bag, opts: ReplayOptions) -> int:
     """Validate, run the player on ``bag`` until it ends; forward SIGINT/SIGTERM; return its exit status."""
     validate(bag, opts)
     cmd = player_command(bag, opts)
-    proc = subprocess.Popen(cmd, env=ament.child_env(ament.package_prefix(PACKAGE)), start_new_session=True)
+    proc = subprocess.Popen(cmd, env=ament.child_env(ament.package_prefix(PACKAGE)), start_new_session=True,
+                            preexec_fn=die_with_parent())
 
     def forward(signum, frame):  # noqa: ARG001
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)
 
-    old = {s: signal.signal(s, forward) for s in (signal.SIGINT, signal.SIGTERM)}
+    old = {s: signal.signal(s, forward) for s in STOP_SIGNALS}
     try:
-        return proc.wait()
+        while True:
+            try:
+                return proc.wait()
+            except KeyboardInterrupt:  # pragma: no cover - only if a handler raised
+                forward(signal.SIGINT, None)
     finally:
+        if proc.poll() is None:
+            try:
+                proc.wait(timeout=10.0)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
         for s, h in old.items():
             signal.signal(s, h)
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()

@@ -8,7 +8,10 @@ does (``<prefix>/lib/magtune_ros/<exe>`` for the first prefix of AMENT_PREFIX_PA
 package's ament index marker). Each run gets a ROS_DOMAIN_ID of its own (held by a lock file,
 so concurrent runs never share a domain) and ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST. Every
 node runs in its own process group, stopped in a ``finally`` block (SIGINT, then SIGTERM,
-then SIGKILL), so neither Ctrl-C nor a failing node leaves orphans.
+then SIGKILL) that a second Ctrl-C, SIGTERM or SIGHUP cannot interrupt; every node also gets
+SIGTERM from the kernel if the runner dies (``PR_SET_PDEATHSIG``, so even ``kill -9`` of the
+runner leaves no orphan) and inherits the domain lock's descriptor, so the domain is free again
+only when the runner and all its nodes are gone.
 
 The simulator runs in lockstep with the controller (see magtune_ros/simulator.py) and writes
 its trajectory to an .npz (``SimResult``), from which the summary (paper section 5
@@ -16,8 +19,10 @@ figures: final and peak |dq_R|, RMS over orbits 2-5, peak |m|) is computed.
 """
 from __future__ import annotations
 
+import ctypes
 import fcntl
 import json
+import math
 import os
 import re
 import shutil
@@ -37,10 +42,10 @@ from ..base.paramfile import check_ros_params
 from ..base.topics import topic_specs
 from ..design.fitfield import field_for_spacecraft
 from ..design.gains import CONTROLLER_NODE, Gains
-from ..design.params import SpacecraftParams
+from ..design.params import SpacecraftParams, check_sample_period
 from ..sim.fullenv import FullEnvironmentOptions, full_params
 from ..sim.metrics import format_figures
-from ..sim.simulate import SimResult
+from ..sim.simulate import DIVERGED_EXIT, SimResult
 
 PACKAGE = "magtune_ros"
 NODES = ("controller", "attitude_sensors", "simulator")
@@ -66,6 +71,13 @@ DEFAULT_SPACECRAFT = ROOT / "config" / "spacecraft.yaml"
 #: ROS_DOMAIN_IDs handed out to runs: 215-232 map Fast DDS ports above Linux's ephemeral range
 #: (32768-60999), the other range the ROS 2 docs call safe besides 0-101, which other tools use.
 DOMAIN_RANGE = range(215, 233)
+
+
+def epoch_ns(epoch) -> int:
+    """A naive UTC ``datetime`` (the spacecraft file's ``epoch``) in integer ns since 1970."""
+    import calendar
+
+    return calendar.timegm(epoch.timetuple()) * 1_000_000_000 + epoch.microsecond * 1000
 
 
 class SilError(RuntimeError):
@@ -144,12 +156,58 @@ class NodeProcess:
         return "\n".join(lines[-n:])
 
 
-def start_node(name: str, exe: Path, ros_args: list[str], env: dict, log_dir: Path) -> NodeProcess:
+PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent(sig: int = signal.SIGTERM):
+    """A ``preexec_fn`` that makes the child receive ``sig`` when the runner dies (Linux
+    ``prctl(PR_SET_PDEATHSIG)``), whatever kills the runner, SIGKILL included; SIGTERM lets
+    the recorder still close its bag. If the runner already died between fork and this call
+    (the child was re-parented), the child signals itself at once."""
+    parent = os.getpid()
+
+    def preexec():
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
+        except (OSError, AttributeError):  # pragma: no cover - not Linux: the finally still stops the nodes
+            return
+        if os.getppid() != parent:
+            os.kill(os.getpid(), sig)
+    return preexec
+
+
+def start_node(name: str, exe: Path, ros_args: list[str], env: dict, log_dir: Path,
+               keep_fds: tuple = (), args=()) -> NodeProcess:
+    """Start ``exe [args] --ros-args ros_args`` in its own process group, dying with the runner
+    (:func:`die_with_parent`).
+
+    ``keep_fds``: descriptors the node inherits (the domain lock: its flock is then held until
+    the runner *and* every node have closed it, so the domain is never handed out while a node
+    of this run is still alive, even after a SIGKILL of the runner).
+    """
     log = log_dir / f"{name}.log"
     with open(log, "wb") as fh:
-        p = subprocess.Popen([str(exe), "--ros-args", *ros_args], env=env, stdout=fh, stderr=subprocess.STDOUT,
-                             stdin=subprocess.DEVNULL, start_new_session=True)
+        p = subprocess.Popen([str(exe), *args, "--ros-args", *ros_args], env=env, stdout=fh, stderr=subprocess.STDOUT,
+                             stdin=subprocess.DEVNULL, start_new_session=True, pass_fds=keep_fds,
+                             preexec_fn=die_with_parent())
     return NodeProcess(name, p, log)
+
+
+def wait_groups_gone(procs: list[NodeProcess], timeout: float = 5.0) -> bool:
+    """Wait until no process of the nodes' process groups is left (grandchildren included)."""
+    end = time.monotonic() + timeout
+    while True:
+        alive = []
+        for p in procs:
+            try:
+                os.killpg(p.popen.pid, 0)
+                alive.append(p)
+            except (ProcessLookupError, PermissionError):
+                pass
+        if not alive or time.monotonic() > end:
+            return not alive
+        time.sleep(0.02)
 
 
 def stop_nodes(procs: list[NodeProcess], grace: float = 5.0) -> None:
@@ -174,6 +232,55 @@ def stop_nodes(procs: list[NodeProcess], grace: float = 5.0) -> None:
             os.killpg(p.popen.pid, signal.SIGKILL)
         except (ProcessLookupError, PermissionError):
             pass
+    wait_groups_gone(procs)
+
+
+# ------------------------------------------------------------------ input checks
+def _positive_finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+
+
+def check_run_arguments(*, orbits=None, steps=None, substeps=2, real_time_factor=0.0, timeout=None) -> None:
+    """ConfigError for a non-physical run length or setting (before any node starts)."""
+    if steps is not None and not (isinstance(steps, int) and 0 < steps <= 10**8):
+        raise ConfigError("--steps", None, f"expected a positive number of steps (at most 1e8), got {steps!r}")
+    if steps is None and not (_positive_finite(orbits) and orbits <= 1e4):
+        raise ConfigError("--orbits", None, f"expected a positive run length in orbits (at most 1e4), got {orbits!r}")
+    if not (isinstance(substeps, int) and 1 <= substeps <= 1000):
+        raise ConfigError("--substeps", None, f"expected an integer in [1, 1000], got {substeps!r}")
+    if not (real_time_factor == 0 or _positive_finite(real_time_factor)):
+        raise ConfigError("--rtf", None, f"expected 0 (as fast as possible) or a positive factor, got {real_time_factor!r}")
+    if timeout is not None and not _positive_finite(timeout):
+        raise ConfigError("--timeout", None, f"expected a positive number of wall seconds, got {timeout!r}")
+
+
+def check_writable(path, flag: str, *, directory: bool = False, empty: bool = False) -> None:
+    """ConfigError unless ``path`` (a file, or a directory with ``directory``) can be written
+    now, so an unwritable output is reported before the run, not after it. Probed for real (a
+    temporary file created and removed in the nearest existing directory): permission bits say
+    nothing for root or a read-only file system. ``empty``: an existing directory must be empty
+    (a bag directory). Nothing is left behind."""
+    p = Path(path)
+    if directory and p.exists() and not p.is_dir():
+        raise ConfigError(flag, None, f"{p} exists and is not a directory")
+    if not directory and p.is_dir():
+        raise ConfigError(flag, None, f"{p} is a directory; give a file name")
+    if empty and p.is_dir() and any(p.iterdir()):
+        raise ConfigError(flag, None, f"{p} exists and is not empty; choose a new name")
+    probe_dir = p if directory else p.parent
+    while not probe_dir.exists() and probe_dir != probe_dir.parent:
+        probe_dir = probe_dir.parent
+    if not probe_dir.is_dir():
+        raise ConfigError(flag, None, f"cannot create {p}: {probe_dir} is not a directory")
+    try:
+        fd, name = tempfile.mkstemp(prefix=".magtune_probe_", dir=probe_dir)
+        os.close(fd)
+        os.unlink(name)
+        if not directory and p.exists():
+            with open(p, "ab"):
+                pass
+    except OSError as exc:
+        raise ConfigError(flag, None, f"cannot write {p}: {exc.strerror or exc}") from None
 
 
 class LogProgress:
@@ -212,6 +319,40 @@ class LogProgress:
 # ------------------------------------------------------------------ run
 def _raise_interrupt(signum, frame):
     raise KeyboardInterrupt(f"signal {signum}")
+
+
+#: Signals that stop a run: Ctrl-C, ``kill``, closed terminal.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+class StopSignals:
+    """While running: SIGINT/SIGTERM/SIGHUP raise KeyboardInterrupt (-> the ``finally`` that
+    stops the nodes). While stopping (:meth:`shield`): they are noted, not raised, so a second
+    Ctrl-C cannot abort the clean-up half-way and leave a node behind (the clean-up is bounded:
+    SIGINT, then SIGTERM, then SIGKILL). Only installable from the main thread; elsewhere the
+    caller's handlers stay (and the nodes still die with the runner)."""
+
+    def __init__(self):
+        self.old: dict = {}
+        self.pending: list[int] = []
+
+    def __enter__(self):
+        try:
+            for s in STOP_SIGNALS:
+                self.old[s] = signal.signal(s, _raise_interrupt)
+        except ValueError:  # not the main thread
+            self.old.clear()
+        return self
+
+    def shield(self):
+        def note(signum, frame):  # noqa: ARG001
+            self.pending.append(signum)
+        for s in self.old:
+            signal.signal(s, note)
+
+    def __exit__(self, *exc):
+        for s, h in self.old.items():
+            signal.signal(s, h if h is not None else signal.SIG_DFL)
 
 
 @dataclass
@@ -273,7 +414,8 @@ def run_fleet(satellites: dict, *, orbits: float = 5.0, steps: int | None = None
               timeout: float | None = None, domain_id: int | None = None, log_dir=None, results=None,
               simulator_params: dict | None = None, sensor_params: dict | None = None,
               controller_params: dict | None = None, on_start=None, environment: str = "paper",
-              env_options=None, field=None, progress=None) -> dict[str, SilRun]:
+              env_options=None, field=None, progress=None, epoch_time: bool = False,
+              foxglove: int | None = None, bag_topics=None, bag_exclude: str | None = None) -> dict[str, SilRun]:
     """Satellites side by side in one ROS domain, one namespace each (``{"/sat1": gains_a,
     "/sat2": gains_b}``; ``""`` is the root namespace), optionally recorded in one bag.
 
@@ -297,6 +439,11 @@ def run_fleet(satellites: dict, *, orbits: float = 5.0, steps: int | None = None
     ``progress(k, n)`` is called with each "step k/n" line the simulators log (every tenth of the run; summed over satellites) and once with
     ``(n, n)`` at the end. ``results``: the trajectory ``.npz`` (``<stem>_<ns><suffix>`` per
     satellite when there are several).
+    ``epoch_time``: stamps and /clock start at the spacecraft file's ``epoch`` (ns since 1970)
+    instead of 0, so bag tools and Foxglove show real dates (the bag's ``custom_data`` keeps
+    ``time_origin_ns``; the trajectory's ``t`` still starts at 0). ``foxglove``: a port (0: any
+    free one) for the ``live_bridge`` node, which streams the run to Foxglove over WebSocket.
+    ``bag_topics`` / ``bag_exclude`` (a regex): what the recorder keeps (default: every project topic).
 
     Returns
     -------
@@ -311,7 +458,17 @@ def run_fleet(satellites: dict, *, orbits: float = 5.0, steps: int | None = None
     # every input is validated before any process starts (ConfigError: one line, exit 2 in the CLI)
     # (one read per file: the rcl-compatibility check returns the parameters the schema validates)
     gains_params = {ns: Gains.from_mapping(check_ros_params(g, CONTROLLER_NODE), g) for ns, g in sats.items()}
-    sc_params = SpacecraftParams.from_mapping(check_ros_params(spacecraft), spacecraft)
+    sc_params = SpacecraftParams.from_mapping(check_ros_params(spacecraft), spacecraft, strict=True)
+    check_run_arguments(orbits=orbits, steps=steps, substeps=substeps, real_time_factor=real_time_factor,
+                        timeout=timeout)
+    for ns, g in sats.items():
+        check_sample_period(float(ts if ts is not None else gains_params[ns].ts), sc_params,
+                            "--ts" if ts is not None else f"{g}: field 'ts'")
+    for path, flag in ((log_dir, "--log-dir"), (results, "--results")):
+        if path:
+            check_writable(path, flag, directory=flag == "--log-dir")
+    if bag:
+        check_writable(bag, "--bag", directory=True, empty=True)
     if field is not None:
         if environment == "full":
             raise ConfigError("--field", None, "the full environment uses IGRF along the actual orbit; give --field "
@@ -341,8 +498,21 @@ def run_fleet(satellites: dict, *, orbits: float = 5.0, steps: int | None = None
         if res_paths[ns].exists():
             res_paths[ns].unlink()
 
+    if foxglove is not None and not 0 <= int(foxglove) <= 65535:
+        raise ConfigError("--foxglove", None, f"{foxglove}: expected a TCP port 0..65535 (0: any free port)")
+    if bag_exclude:
+        try:
+            re.compile(bag_exclude)
+        except re.error as exc:
+            raise ConfigError("--bag-exclude", None, f"{bag_exclude!r} is not a regular expression ({exc})") from None
+    if (bag_topics or bag_exclude) and not bag:
+        raise ConfigError("--bag-topics/--bag-exclude", None, "only with --bag")
+    time_origin_ns = epoch_ns(sc_params.epoch) if epoch_time else 0
+    if time_origin_ns and multi:
+        raise ConfigError("--epoch-time", None, "one satellite at a time (the recorder follows one clock)")
+
     common = {"use_sim_time": True}
-    sim = dict(common, substeps=int(substeps), lockstep=bool(lockstep), lockstep_timeout=float(lockstep_timeout),
+    sim = dict(common, time_origin_ns=int(time_origin_ns), substeps=int(substeps), lockstep=bool(lockstep), lockstep_timeout=float(lockstep_timeout),
                startup_timeout=float(startup_timeout), real_time_factor=float(real_time_factor))
     if rec_exe:
         sim["min_truth_subscribers"] = 2  # the recorder must be listening before step 0
@@ -384,11 +554,10 @@ def run_fleet(satellites: dict, *, orbits: float = 5.0, steps: int | None = None
     sims: dict[str, NodeProcess] = {}
     lock = DomainLock(domain_id)
     t0 = time.perf_counter()
-    old_term = signal.getsignal(signal.SIGTERM)
-    if old_term in (signal.SIG_DFL, None):  # turn SIGTERM into KeyboardInterrupt -> finally
-        signal.signal(signal.SIGTERM, _raise_interrupt)
+    stops = StopSignals().__enter__()
     try:
         env = child_env(lock.domain_id, prefix, *([rec_exe.parents[2]] if rec_exe else []))
+        fds = (lock.fh.fileno(),)
         if rec_exe:
             if multi:
                 custom = {"satellites": ",".join(sats), "ts": common_ts[next(iter(sats))]["ts"],
@@ -398,17 +567,27 @@ def run_fleet(satellites: dict, *, orbits: float = 5.0, steps: int | None = None
                     f"'{t}'" for t in topic_specs(tuple(sats))) + "]", "-r", f"/clock:={next(iter(sats))}/clock"]
             else:
                 custom = {"gains": sats[""].name, **common_ts[""], "sigma": f"{gains_params[''].sigma:g}"}
+                if time_origin_ns:
+                    custom["time_origin_ns"] = time_origin_ns
                 rargs = recorder_args(bag, custom)
-            procs.append(start_node("recorder", rec_exe, rargs, env, log_dir))
+            if bag_topics:   # replaces the default project topic list
+                rargs += ["-p", "topics:=[" + ", ".join(f"'{t}'" for t in bag_topics) + "]"]
+            if bag_exclude:
+                rargs += ["-p", "exclude:='" + bag_exclude.replace("'", "''") + "'"]  # a YAML string, whatever the regex
+            procs.append(start_node("recorder", rec_exe, rargs, env, log_dir, fds))
+        if foxglove is not None:
+            topics = [t for t in topic_specs(tuple(sats) if multi else ("",))]
+            procs.append(start_node("live_bridge", resolve_executable("live_bridge"), [], env, log_dir, fds,
+                                    args=["--port", str(int(foxglove)), "--topics", *topics]))
         for ns, g in sats.items():
             remap = ["-r", f"__ns:={ns}", "-r", f"/clock:={ns}/clock"] if ns else []
             tag = f"{_tag(ns)}_" if ns else ""
             procs.append(start_node(f"{tag}controller", exes["controller"], sc + [
-                "--params-file", str(g.resolve()), "--params-file", str(pfiles[ns])] + remap, env, log_dir))
+                "--params-file", str(g.resolve()), "--params-file", str(pfiles[ns])] + remap, env, log_dir, fds))
             procs.append(start_node(f"{tag}attitude_sensors", exes["attitude_sensors"],
-                                    sc + ["--params-file", str(pfiles[ns])] + remap, env, log_dir))
+                                    sc + ["--params-file", str(pfiles[ns])] + remap, env, log_dir, fds))
             sims[ns] = start_node(f"{tag}simulator", exes["simulator"], sc + ["--params-file", str(pfiles[ns])] + remap,
-                                  env, log_dir)
+                                  env, log_dir, fds)
             procs.append(sims[ns])
         if on_start:
             on_start(lock.domain_id, procs)
@@ -432,6 +611,10 @@ def run_fleet(satellites: dict, *, orbits: float = 5.0, steps: int | None = None
                     watches[ns].poll()
                     if rc is not None:
                         rcs[ns] = rc
+                        if rc == DIVERGED_EXIT:
+                            line = next((ln for ln in reversed(p.tail(20).splitlines()) if "diverged" in ln), "")
+                            raise SilError(f"the simulation diverged and was stopped ({p.name}): "
+                                           + (line.split("] ", 1)[-1] if line else "see the simulator log"))
                         if rc != 0 or not res_paths[ns].is_file():
                             raise SilError(f"simulator {p.name} exited with status {rc}:\n{p.tail()}")
             report()
@@ -449,11 +632,13 @@ def run_fleet(satellites: dict, *, orbits: float = 5.0, steps: int | None = None
     except SilError as exc:
         raise SilError(f"{exc}\n(node logs in {log_dir})") from None
     finally:
-        stop_nodes([p for p in procs if p.name != "recorder"])
-        stop_nodes([p for p in procs if p.name == "recorder"], grace=10.0)  # last: let it close the bag
-        lock.release()
-        if old_term in (signal.SIG_DFL, None):
-            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        stops.shield()  # a second Ctrl-C / SIGHUP must not abort the clean-up
+        try:
+            stop_nodes([p for p in procs if p.name != "recorder"])
+            stop_nodes([p for p in procs if p.name == "recorder"], grace=10.0)  # last: let it close the bag
+        finally:
+            lock.release()  # after every node is gone (they also held the lock's descriptor)
+            stops.__exit__()
     total = time.perf_counter() - t0
     out = {}
     for ns in sats:

@@ -2,9 +2,10 @@
 
 Conventions (SPEC.md "The model", paper section 3):
 
-* orbital axes: X to the Earth's centre (yaw), Y along the velocity (roll), Z orbit normal
-  (pitch); the orbital frame turns about its -Z axis at the orbit rate W0, so its inertial
-  angular velocity in orbital axes is ``[0, 0, -W0]``;
+* orbital axes: X to the Earth's centre (yaw), Y along the velocity (roll), Z = X x Y = minus
+  the orbit normal, i.e. opposite the orbital angular momentum r x v (pitch); the orbital frame
+  turns about its -Z axis at the orbit rate W0, so its inertial angular velocity in orbital
+  axes is ``[0, 0, -W0]``;
 * ``q = [q0, q1, q2, q3]`` scalar first, attitude of the body w.r.t. orbital axes; ``R(q)``
   takes body vectors to orbital axes (``v_orb = q (x) v_body (x) q*``);
 * ``w``: inertial angular velocity of the body, in body axes;
@@ -116,6 +117,17 @@ class AttitudeDynamics:
                    residual_dipole=m_res)
 
     # --- pieces -------------------------------------------------------------------------
+    def orbital_frame_rate(self, t: float) -> np.ndarray:
+        """w_oi, inertial angular velocity of the orbital frame in orbital axes [rad/s]:
+        ``[0, 0, -W0]`` on the circular orbit (the full environment overrides it)."""
+        return np.array([0.0, 0.0, -self.orbit_rate])
+
+    def relative_rate(self, t: float, q, w) -> np.ndarray:
+        """Angular velocity of the body w.r.t. the orbital frame, in body axes [rad/s]:
+        ``w - R(q)^T w_oi(t)`` (what nav_msgs/Odometry's twist holds for frame 'orbital' ->
+        child 'body', REP-105); ``w`` is the inertial body rate in body axes."""
+        return np.asarray(w, dtype=float) - rotation_matrix(q).T @ self.orbital_frame_rate(t)
+
     def body_field(self, t: float, q) -> np.ndarray:
         """b = R(q)^T b_orb(t), tesla, body axes."""
         return rotation_matrix(q).T @ np.asarray(self.field(t), dtype=float).reshape(3)
@@ -140,7 +152,7 @@ class AttitudeDynamics:
     def _rhs(self, t: float, y, m=None, torque=None) -> tuple:
         """rhs on plain floats (the SIL simulator calls it 4 x substeps times per step)."""
         q0, q1, q2, q3, wx, wy, wz = y
-        # rows of R(q) = columns of R^T: R^T e_X (nadir), R^T e_Z (orbit normal), and R^T v
+        # rows of R(q) = columns of R^T: R^T e_X (nadir), R^T e_Z (-orbit normal), and R^T v
         r00, r01, r02, r10, r11, r12, r20, r21, r22 = dcm_floats(q0, q1, q2, q3)
         tx = ty = tz = 0.0
         mr0, mr1, mr2 = self.residual_dipole

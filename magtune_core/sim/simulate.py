@@ -58,6 +58,24 @@ class SimResult:
             return cls(z["t"], z["q"], z["w"], z["x"], z["m"], z["b"], float(z["orbit_period"]), info)
 
 
+#: Body rate [rad/s] beyond which a run has diverged (about 950 rpm: no magnetic attitude loop
+#: comes back from it; the paper's runs stay below 2e-3 rad/s).
+DIVERGED_RATE = 100.0
+#: Exit status of the simulator node when the run diverged (the runner reports the step).
+DIVERGED_EXIT = 4
+
+
+def divergence(y) -> str | None:
+    """Why the state ``y = [q; w]`` is diverged (non-finite, or |w| > DIVERGED_RATE), else None."""
+    y = np.asarray(y, dtype=float)
+    if not np.all(np.isfinite(y)):
+        return "non-finite state (NaN/Inf)"
+    rate = float(np.linalg.norm(y[4:7]))
+    if rate > DIVERGED_RATE:
+        return f"body rate {rate:.3g} rad/s above {DIVERGED_RATE:g} rad/s"
+    return None
+
+
 def initial_state(p: SpacecraftParams, dw0=DW0, q0=(1.0, 0.0, 0.0, 0.0)) -> np.ndarray:
     """y(0) = [q0; [0, 0, -W0] + dw0]."""
     q0 = np.asarray(q0, dtype=float)

@@ -26,7 +26,8 @@ Dispersions (all optional; zero spread = nominal):
 * dipole limit per axis [A m^2]: uniform in ``[dipole_limit_min, dipole_limit_max]``.
 
 Figures of merit per run, from the true attitude at every controller instant (pointing error
-= rotation angle between body and orbital axes, ``2 atan2(|q_vec|, |q0|)`` [deg]):
+= rotation angle between body and orbital axes, ``2 asin(|q_vec|)`` [deg],
+:func:`magtune_core.sim.metrics.pointing_error_deg`):
 settling time (first instant after which the error stays below ``settle_threshold_deg``),
 RMS and max pointing error after settling (window ``t >= max_settling_orbits T``, the instant
 by which the criteria require settling: the same window for every run), final error, peak and RMS of |m| (whole run),
@@ -314,12 +315,6 @@ def _batch_runs(spec: CampaignSpec, draws: list, gains_index: list) -> BatchRuns
                      p=spec.p, environment=c["environment"],
                      env_options=[spec.env_options(r["epoch"], r["raan_deg"]) for r in draws] if full else None,
                      sensors=sensors, min_field=c["min_field"])
-
-
-def pointing_error_deg(q) -> np.ndarray:
-    """Rotation angle between body and orbital axes [deg] of scalar-first quaternions (..., 4)."""
-    q = np.asarray(q, dtype=float)
-    return np.degrees(2.0 * np.arctan2(np.linalg.norm(q[..., 1:], axis=-1), np.abs(q[..., 0])))
 
 
 def run_figures(t, err_deg, m_norm, orbit_period: float, criteria: dict) -> dict:

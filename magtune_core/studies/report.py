@@ -15,8 +15,9 @@ Everything comes from the bags (CDR decoded with rosbags; no rclpy, no simulator
   over the stated window, peak and RMS |m|) plus the bag's integrity (complete / recovered);
 * ``report.html``: one self-contained file (figures embedded) with the summary table.
 
-Signals: truth attitude and rate from ``/sim/truth`` (nav_msgs/Odometry: pose.orientation,
-twist.angular = inertial body rate), ``x = linear_state(q, w, W0)``, |dq_R| = |x[0:3]|,
+Signals: truth attitude from ``/sim/truth`` (nav_msgs/Odometry: pose.orientation), inertial
+body rate w from ``/sim/inertial_rate`` (else from the Odometry twist, see :func:`load_run`),
+``x = linear_state(q, w, W0)``, |dq_R| = |x[0:3]|,
 pointing error = 2 asin |dq_R|; dipole from ``/controller/dipole_command``
 (geometry_msgs/Vector3Stamped). Time axis = the header stamps (sim time). A bag of several
 namespaced satellites (``magtune sil --gains sat1=... sat2=...``) gives one run per namespace.
@@ -32,10 +33,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from .. import bags as baglib
 from ..bags.decode import Decoder, stamp_ns
-from ..base.topics import DIPOLE, TOPIC_DIPOLE, TOPIC_TRUTH, TRUTH
+from ..base.rotations import rotation_matrix
+from ..base.topics import DIPOLE, TOPIC_DIPOLE, TOPIC_INERTIAL_RATE, TOPIC_TRUTH, TRUTH
 from ..design.law import DEFAULT_DIPOLE_LIMIT, linear_state
 from ..design.params import SpacecraftParams
 from ..sim.metrics import figures_of_merit, pointing_error_deg
@@ -71,30 +74,63 @@ class Run:
         return np.linalg.norm(self.m, axis=1) if len(self.m) else np.zeros(0)
 
 
+#: How the truth Odometry's twist is read: "relative" (this release: body w.r.t. orbital frame,
+#: REP-105) or "inertial" (bags recorded before it carried the inertial rate there).
+TWIST_MODES = ("relative", "inertial")
+
+
 def load_run(path, *, truth=TRUTH, dipole=DIPOLE, orbit_rate: float | None = None, name: str | None = None,
-             label: str | None = None) -> Run:
-    """Decode the truth and dipole topics of a bag (damaged bags: what is readable)."""
+             label: str | None = None, twist: str = "relative") -> Run:
+    """Decode the truth, inertial-rate and dipole topics of a bag (damaged bags: what is readable).
+
+    The inertial body rate w of the paper's state comes from ``<ns>/sim/inertial_rate`` when the
+    bag has it (exact). Otherwise from the truth twist: with ``twist="relative"`` (the
+    convention of this release) w = twist + R(q)^T [0, 0, -W0], exact on the paper's circular
+    orbit and within the orbital frame's rate variation (J2, eccentricity) in the full
+    environment; with ``twist="inertial"`` (bags recorded before this release) w = twist.
+    """
     path = Path(path)
+    if twist not in TWIST_MODES:
+        raise ValueError(f"twist must be one of {TWIST_MODES}, got {twist!r}")
     w0 = orbit_rate if orbit_rate is not None else SpacecraftParams().orbit_rate
+    rate_topic = truth[: -len(TOPIC_TRUTH)] + TOPIC_INERTIAL_RATE if truth.endswith(TOPIC_TRUTH) else None
+    has_rate = rate_topic is not None and rate_topic in baglib.topics_of(path)
     d = Decoder()
     report: dict = {}
-    t, q, w, tm, m = [], [], [], [], []
-    for msg in baglib.iter_messages(path, topics=[truth, dipole], report=report):
+    t, t_ns, q, w, tm, m, rates = [], [], [], [], [], [], {}
+    # a run recorded with `magtune sil --epoch-time` is stamped from the scenario epoch (ns since
+    # 1970); times here are seconds from the start of the run, as the offline simulation's
+    try:
+        origin = int((baglib.read_metadata(path).get("custom_data") or {}).get("time_origin_ns", 0))
+    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError):
+        origin = 0
+    for msg in baglib.iter_messages(path, topics=[truth, dipole] + ([rate_topic] if has_rate else []), report=report):
         o = d.decode(msg.data, msg.type)
         s = stamp_ns(o)
-        s = msg.log_time if s is None else s
+        s = (msg.log_time if s is None else s) - origin
         if msg.topic == truth:
             p, a = o.pose.pose.orientation, o.twist.twist.angular
+            t_ns.append(s)
             t.append(s * 1e-9)
             q.append((p.w, p.x, p.y, p.z))
             w.append((a.x, a.y, a.z))
+        elif msg.topic == rate_topic:
+            rates[s] = (o.vector.x, o.vector.y, o.vector.z)
         else:
             v = o.vector
             tm.append(s * 1e-9)
             m.append((v.x, v.y, v.z))
     if not t:
         raise ValueError(f"{path}: no messages on {truth} (topics: {sorted(baglib.topics_of(path))})")
+    # time series in stamp order: bag order is log-time order, and in a multi-satellite bag the
+    # log times of the other satellites come from the first one's clock (ties, reordering)
+    o = np.argsort(np.array(t_ns), kind="stable")
+    t_ns, t, q, w = [t_ns[i] for i in o], [t[i] for i in o], [q[i] for i in o], [w[i] for i in o]
+    om = np.argsort(np.array(tm), kind="stable")
+    tm, m = [tm[i] for i in om], [m[i] for i in om]
     q_arr = np.array(q)
+    # the exact inertial rate at each truth stamp when recorded (a damaged bag may miss some)
+    w = [rates.get(k) or _inertial(qi, wi, w0, twist) for k, qi, wi in zip(t_ns, q_arr, w)]
     x = np.array([linear_state(qi, wi, w0) for qi, wi in zip(q_arr, w)])
     if label is None:
         label = path.name
@@ -102,12 +138,20 @@ def load_run(path, *, truth=TRUTH, dipole=DIPOLE, orbit_rate: float | None = Non
             sigma = (baglib.read_metadata(path).get("custom_data") or {}).get("sigma")
             if sigma:
                 label = f"sigma = {sigma}"
-        except (OSError, KeyError, TypeError):
-            pass
+        except (OSError, KeyError, TypeError, AttributeError, yaml.YAMLError):
+            pass  # a malformed metadata.yaml only costs the label
     integ = {"complete": bool(report.get("complete", True))}
     if not integ["complete"]:
-        integ.update({k: report.get(k) for k in ("messages_recovered", "chunks_bad", "problem")})
+        integ.update({k: report.get(k) for k in ("messages_recovered", "messages_expected",
+                                                "messages_in_damaged_chunks", "chunks_bad", "problem")})
     return Run(name or path.name, label, np.array(t), q_arr, x, np.array(tm), np.array(m).reshape(-1, 3), integ)
+
+
+def _inertial(q, twist_angular, w0: float, mode: str):
+    """Inertial body rate from the Odometry twist (see :func:`load_run`)."""
+    if mode == "inertial":
+        return twist_angular
+    return np.asarray(twist_angular, dtype=float) + rotation_matrix(q).T @ np.array([0.0, 0.0, -w0])
 
 
 def bag_namespaces(path, truth=TRUTH) -> list[str]:
@@ -121,22 +165,22 @@ def bag_namespaces(path, truth=TRUTH) -> list[str]:
     return sorted(n[: -len(suffix)] for n in topics if n.endswith(suffix) and n != suffix)
 
 
-def load_runs(path, *, truth=TRUTH, dipole=DIPOLE, orbit_rate: float | None = None) -> list[Run]:
+def load_runs(path, *, truth=TRUTH, dipole=DIPOLE, orbit_rate: float | None = None, twist: str = "relative") -> list[Run]:
     """Every satellite of a bag as a :class:`Run` (one for a single-satellite bag; one per
     namespace, named ``<bag>/<ns>`` and labelled with that satellite's sigma, otherwise)."""
     path = Path(path)
     nss = bag_namespaces(path, truth) if truth == TRUTH and dipole == DIPOLE else [""]
     if nss in ([""], []):
-        return [load_run(path, truth=truth, dipole=dipole, orbit_rate=orbit_rate)]
+        return [load_run(path, truth=truth, dipole=dipole, orbit_rate=orbit_rate, twist=twist)]
     try:
         custom = baglib.read_metadata(path).get("custom_data") or {}
-    except (OSError, KeyError, TypeError):
+    except (OSError, KeyError, TypeError, AttributeError, yaml.YAMLError):
         custom = {}
     out = []
     for ns in nss:
         tag = ns.strip("/").replace("/", "_")
         sigma = custom.get(f"{tag}.sigma")
-        out.append(load_run(path, truth=f"{ns}/{TOPIC_TRUTH}", dipole=f"{ns}/{TOPIC_DIPOLE}", orbit_rate=orbit_rate,
+        out.append(load_run(path, truth=f"{ns}/{TOPIC_TRUTH}", dipole=f"{ns}/{TOPIC_DIPOLE}", orbit_rate=orbit_rate, twist=twist,
                             name=f"{path.name}{ns}", label=f"{ns} sigma = {sigma}" if sigma else f"{path.name}{ns}"))
     return out
 
@@ -259,7 +303,7 @@ def windows(runs: list[Run], T: float) -> dict:
 
 def make_report(bags, out, *, run: str | None = None, truth=TRUTH, dipole=DIPOLE,
                 orbit_period: float | None = None, labels: list[str] | None = None,
-                dipole_limit: float = DEFAULT_DIPOLE_LIMIT) -> dict:
+                dipole_limit: float = DEFAULT_DIPOLE_LIMIT, twist: str = "relative") -> dict:
     """Write the figures, ``summary.md``/``.json`` and ``report.html`` for ``bags`` into ``out``.
 
     ``run``: only this run in Figs. 4-5 (default: every run, small multiples).
@@ -274,7 +318,7 @@ def make_report(bags, out, *, run: str | None = None, truth=TRUTH, dipole=DIPOLE
     T = orbit_period or SpacecraftParams().orbit_period
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    runs = [r for b in bags for r in load_runs(b, truth=truth, dipole=dipole, orbit_rate=2 * np.pi / T)]
+    runs = [r for b in bags for r in load_runs(b, truth=truth, dipole=dipole, orbit_rate=2 * np.pi / T, twist=twist)]
     if labels:
         if len(labels) != len(runs):
             raise ValueError(f"{len(labels)} labels for {len(runs)} runs")

@@ -137,11 +137,12 @@ def test_truncated_file_recovery(tmp_path):
     assert [d.decode(m.data, m.type).angular_velocity.x for m in imu] == [1e-3 * i for i in range(n)]
     out = bag_recover.recover(p)
     assert out["messages_recovered"] == rep["messages_recovered"]
-    assert bag.has_summary(f)
-    with AnyReader([p]) as r:
+    q = Path(out["output"])  # beside the input, which is left as it was
+    assert q == tmp_path / "run_recovered" and not bag.has_summary(f) and bag.has_summary(bag.resolve_mcap(q))
+    with AnyReader([q]) as r:
         assert {c.topic: c.msgcount for c in r.connections}["/imu"] == n
         assert sum(1 for _ in r.messages()) == rep["messages_recovered"]
-    assert bag.read_metadata(p)["custom_data"] == {"sigma": "60"}
+    assert bag.read_metadata(q)["custom_data"] == {"sigma": "60"}
 
 
 def test_corrupt_chunk_is_skipped_and_reported(tmp_path):

@@ -4,6 +4,10 @@ Read by the independent `rosbags` reader, it must hold every lockstep step and t
 trajectory the offline simulation gives for the shipped sigma = 60 gains: the SIL is
 deterministic and CDR carries float64 exactly, so the comparison is to round-off.
 Regenerate it when the gains or the dynamics change (README, "Recorded runs").
+
+It was recorded by magtune 0.2, whose ``/sim/truth`` twist carried the inertial body rate (0.3
+puts the rate relative to the orbital frame there, REP-105, and the inertial rate on
+``/sim/inertial_rate``): it doubles as the old-bag case of ``magtune report --truth-twist inertial``.
 """
 from pathlib import Path
 
@@ -66,3 +70,17 @@ def test_reference_bag_reads_with_mcap():
     assert summary.statistics.message_count >= 8 * STEPS
     assert all("offered_qos_profiles" in c.metadata for c in summary.channels.values())
     assert f.stat().st_size < 5e6  # "a few MB at most"
+
+
+def test_report_reads_the_pre_0_3_reference_bag_with_inertial_twist():
+    """``load_run(..., twist="inertial")`` on the 0.2 bag gives the offline linear state; the
+    default (relative) reading would be off by the orbit rate (checked to differ)."""
+    from magtune_core.studies.report import load_run
+
+    p = load_spacecraft(Path(__file__).resolve().parents[2] / "config" / "spacecraft.yaml")
+    g = load_gains(Path(__file__).resolve().parents[2] / "config" / "gains" / "sigma_60.yaml")
+    res = simulate(g.K, p, ts=1.0, steps=STEPS - 1)
+    run = load_run(REF, twist="inertial", orbit_rate=p.orbit_rate)
+    np.testing.assert_allclose(run.x, res.x, rtol=0, atol=1e-12)  # same float64 values through CDR
+    wrong = load_run(REF, twist="relative", orbit_rate=p.orbit_rate)
+    assert np.max(np.abs(wrong.x[:, 3:] - res.x[:, 3:])) > 0.5 * p.orbit_rate

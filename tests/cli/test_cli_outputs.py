@@ -134,3 +134,32 @@ def test_every_option_has_plain_help():
             markup.append(name)
     assert not missing, missing
     assert not markup, markup
+
+
+def test_sil_progress_follows_the_simulator_log(tmp_path):
+    """The progress of ``magtune sil`` comes from the simulator's own ``step k/n`` log lines:
+    whole lines only, each step once, and (n, n) at the end."""
+    from magtune_core.ros.sil import LogProgress
+
+    log = tmp_path / "simulator.log"
+    seen = []
+    watch = LogProgress(log, lambda k, n: seen.append((k, n)))
+    watch.poll()  # no file yet: nothing, no error
+    log.write_bytes(b"[INFO] [simulator]: step 10/100: 0.1 ms/step\n[INFO] [simulator]: step 2")
+    watch.poll()
+    with open(log, "ab") as fh:
+        fh.write(b"0/100: 0.1 ms/step\nother line\n")
+    watch.poll()
+    watch.poll()
+    watch.finish()
+    assert seen == [(10, 100), (20, 100), (100, 100)]
+
+
+@pytest.mark.parametrize("gains, msg", [
+    (["sat 1=x.yaml"], "/sat 1: not a valid ROS namespace"),
+    (["sat1=a.yaml", "/sat1/=b.yaml"], "namespace /sat1 given twice"),
+])
+def test_sil_satellite_arguments_checked_first(gains, msg, capsys):
+    assert cli_main(["sil", "--gains", *gains, "--orbits", "0.01"]) == 2
+    err = capsys.readouterr().err
+    assert msg in err and err.count("\n") == 1, err

@@ -73,8 +73,8 @@ def test_analyze_json_on_shipped_gains():
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     assert set(d) == {"J", "c1", "c2", "rho", "stable"} and d["stable"] is True
-    import yaml
-    prov = yaml.safe_load(open("config/gains/sigma_60.yaml"))["controller"]["ros__parameters"]
+    from magtune_core.base.paramfile import read_ros_params
+    prov = read_ros_params("config/gains/sigma_60.yaml", "controller")  # any section key (/**, controller)
     for k in ("J", "c1", "c2", "rho"):
         # same steps; the bisection brackets J, c1 to rtol 1e-7 (figures()), so that is the bar
         assert d[k] == pytest.approx(prov[k], rel=2e-7)

@@ -77,3 +77,20 @@ def test_utc_offset_epoch_is_converted():
     p = params(epoch="2027-01-01T02:00:00+02:00")
     assert p.epoch.isoformat() == "2027-01-01T00:00:00"
     assert np.allclose(p.box_dims, [0.6, 1.0, 0.8])
+
+
+@pytest.mark.parametrize("argv,field", [
+    (["fit-field", "--altitude", "100", "--out", "{tmp}/f.yaml"], "altitude"),
+    (["fit-field", "--altitude", "2100", "--out", "{tmp}/f.yaml"], "altitude"),
+    (["fit-field", "--inclination", "-5", "--out", "{tmp}/f.yaml"], "inclination"),
+    (["analyze", "config/gains/sigma_120.yaml", "--config", "{tmp}/sc.yaml"], "inclination"),
+])
+def test_cli_bad_orbit_exit_2_one_line(tmp_path, capsys, argv, field):
+    from magtune_core.cli import main as cli_main
+
+    (tmp_path / "sc.yaml").write_text(open("config/spacecraft.yaml").read().replace("inclination: 87.0",
+                                                                                    "inclination: 200.0"))
+    assert cli_main([a.format(tmp=tmp_path) for a in argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"'{field}'" in err, err
+    assert not (tmp_path / "f.yaml").exists()  # refused before any work

@@ -11,6 +11,7 @@ import json
 import shutil
 import signal
 import time
+from pathlib import Path
 
 import bag_fixture_pub as fx
 import pytest
@@ -183,10 +184,11 @@ def test_sigkill_keeps_completed_chunks(tmp_path):
     published_at_kill = rate * t_kill
     assert published_at_kill - 1.5 * rate <= k <= published_at_kill + 0.2 * rate
     summary = bag_recover.recover(out)
-    assert summary["per_topic"]["/imu"] == k and bag.has_summary(f)
-    with AnyReader([out]) as r:
+    rec = Path(summary["output"])  # beside the input, which is left as it was
+    assert summary["per_topic"]["/imu"] == k and bag.has_summary(bag.resolve_mcap(rec))
+    with AnyReader([rec]) as r:
         assert {c.topic: c.msgcount for c in r.connections}["/imu"] == k
-    assert bag.read_metadata(out)["message_count"] == rep["messages_recovered"]
+    assert bag.read_metadata(rec)["message_count"] == rep["messages_recovered"]
 
 
 def test_recorder_ros_parameters_and_discovery(tmp_path):

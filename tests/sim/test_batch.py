@@ -55,7 +55,9 @@ def test_each_run_equals_single_run_simulate(setup, environment):
         r = simulate(s["K"], replace(s["p"], inertia=s["inertia"][i]), ts=1.0, steps=STEPS, dw0=s["dw0"][i], q0=s["q0"][i],
                      dipole_limit=s["lim"][i], residual_dipole=s["mres"][i], environment=environment,
                      env_options=opts[i] if opts else None)
-        assert res.orbit_period[i] == r.orbit_period
+        # nominal period from the batched ephemeris (full: three orbits integrated as one system, each
+        # within its single-run tolerance, positions agree to ~1e-5 m of 6.8e6 m)
+        assert res.orbit_period[i] == pytest.approx(r.orbit_period, rel=1e-10)
         _assert_close(res.t, r.t)
         _assert_close(res.q[i], r.q)
         _assert_close(res.w[i], r.w)
@@ -113,5 +115,22 @@ def test_divergence_is_flagged_per_run(setup):
     np.testing.assert_array_equal(res.x[[0, 2]], ref.x[[0, 2]])
     # full series: the true pointing error and |m| at every instant, consistent with the histories
     ang = np.degrees(2 * np.arctan2(np.linalg.norm(ref.q[..., 1:], axis=-1), np.abs(ref.q[..., 0])))
-    np.testing.assert_allclose(ref.pointing_deg, ang, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(ref.pointing_deg, ang, rtol=1e-9, atol=1e-9)  # asin vs atan2 form
     np.testing.assert_allclose(ref.m_norm, np.linalg.norm(ref.m, axis=-1), rtol=1e-12)
+
+
+@pytest.mark.slow
+def test_one_orbit_full_environment_equals_simulate(setup):
+    """Over a whole orbit (5611 steps; eclipses, the IGRF field along the orbit, two batched orbits):
+    still equal to the single-run loop at 1e-9."""
+    s = setup
+    opts = [FullEnvironmentOptions(raan_deg=r, epoch=datetime(2026, m, 5)) for r, m in ((10.0, 2), (250.0, 8))]
+    runs = _runs(s, "full", opts, inertia=s["inertia"][:2], residual_dipole=s["mres"][:2], dipole_limit=s["lim"][:2],
+                 q0=s["q0"][:2], dw0=s["dw0"][:2])
+    n = 5611
+    res = simulate_batch(runs, ts=1.0, steps=n, record_every=1)
+    for i in range(2):
+        r = simulate(s["K"], replace(s["p"], inertia=s["inertia"][i]), ts=1.0, steps=n, dw0=s["dw0"][i], q0=s["q0"][i],
+                     dipole_limit=s["lim"][i], residual_dipole=s["mres"][i], environment="full", env_options=opts[i])
+        _assert_close(res.x[i], r.x)
+        _assert_close(res.m[i], r.m, scale=50.0)

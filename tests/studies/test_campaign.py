@@ -178,10 +178,11 @@ def test_failed_and_diverged_runs_are_kept(tmp_path, monkeypatch):
     cols = campaign.read_runs(out)
     assert cols["status"].tolist() == ["ok", "failed", "diverged", "ok"]
     assert "injected" in cols["error"][1] and not cols["passed"][1] and not cols["passed"][2]
-    # the batch was re-run one run at a time to isolate run 1: same runs, other batch shapes, so
-    # equal to rounding (numpy's vector loops may round a last bit differently with the array length)
+    # the batch was re-run one run at a time to isolate run 1: same runs, but each orbit now
+    # propagated alone instead of in a batched ephemeris (both within the single-run tolerance,
+    # ~1e-5 m apart): the figures agree to ~1e-11 relative
     for k, row in zip((0, 3), good):
-        assert cols["peak_dipole"][k] == pytest.approx(row["peak_dipole"], rel=1e-12)
+        assert cols["peak_dipole"][k] == pytest.approx(row["peak_dipole"], rel=1e-9)
         assert cols["settling_time"][k] == row["settling_time"]
     md = campaign_report.write_report(out)
     assert "| 1 | config/gains/sigma_120.yaml | failed | RuntimeError: orbit propagation failed (injected) |" in md

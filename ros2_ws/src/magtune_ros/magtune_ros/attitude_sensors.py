@@ -1,7 +1,8 @@
 """Magnetometer and attitude-state publisher node (truth + sensor models; noise-free by default).
 
 Subscribes:
-  sim/truth              nav_msgs/Odometry          (see simulator.py)
+  sim/truth              nav_msgs/Odometry          attitude q (see simulator.py)
+  sim/inertial_rate      geometry_msgs/Vector3Stamped inertial body rate [rad/s], body axes (the gyro's input)
   sim/magnetic_field     sensor_msgs/MagneticField  true body-frame field [T]
   /clock                 rosgraph_msgs/Clock        (use_sim_time)
 Publishes (stamp = truth stamp, frame 'body'):
@@ -21,6 +22,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from geometry_msgs.msg import Vector3Stamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.task import Future
@@ -50,12 +52,13 @@ class AttitudeSensors(Node):
         self.rng = np.random.default_rng(seed)
         self.diag = c.Diagnostics(self, ["samples", "rejected_nonfinite", "rejected_quaternion", "rejected_stamp",
                                          "stale_inputs"])
-        self.gate = c.StampGate(self, 2 * c.sec_to_ns(ts))
-        self.sync = c.PairSync()
+        self.gate = c.StampGate(self, 2 * c.sec_to_ns(ts), n=3)
+        self.sync = c.PairSync(3)  # field, truth (attitude), inertial rate: same stamp t_k
         self.pub_mag = self.create_publisher(MagneticField, c.TOPIC_MAG, c.LOCKSTEP_QOS)
         self.pub_att = self.create_publisher(Imu, c.TOPIC_ATTITUDE, c.LOCKSTEP_QOS)
         self.create_subscription(Odometry, c.TOPIC_TRUTH, self.on_truth, c.LOCKSTEP_QOS)
         self.create_subscription(MagneticField, c.TOPIC_TRUE_FIELD, self.on_field, c.LOCKSTEP_QOS)
+        self.create_subscription(Vector3Stamped, c.TOPIC_INERTIAL_RATE, self.on_rate, c.LOCKSTEP_QOS)
         self.msg_mag = MagneticField()
         self.msg_mag.header.frame_id = c.FRAME_BODY
         cov = self.mag_std**2 + self.mag_q**2 / 12.0
@@ -75,6 +78,12 @@ class AttitudeSensors(Node):
             return self.diag.count("rejected_quaternion", "truth quaternion not unit")
         self._input(1, msg)
 
+    def on_rate(self, msg: Vector3Stamped):
+        w = msg.vector
+        if not c.finite(w.x, w.y, w.z):
+            return self.diag.count("rejected_nonfinite", "non-finite inertial rate")
+        self._input(2, msg)
+
     def on_field(self, msg: MagneticField):
         b = msg.magnetic_field
         if not c.finite(b.x, b.y, b.z):
@@ -90,7 +99,7 @@ class AttitudeSensors(Node):
         if pair:
             self.publish(*pair)
 
-    def publish(self, field: MagneticField, truth: Odometry):
+    def publish(self, field: MagneticField, truth: Odometry, rate: Vector3Stamped):
         stamp = truth.header.stamp
         b = field.magnetic_field
         bx, by, bz = b.x, b.y, b.z
@@ -103,7 +112,7 @@ class AttitudeSensors(Node):
         m = self.msg_mag
         m.header.stamp = stamp
         m.magnetic_field.x, m.magnetic_field.y, m.magnetic_field.z = bx, by, bz
-        o, w = truth.pose.pose.orientation, truth.twist.twist.angular
+        o, w = truth.pose.pose.orientation, rate.vector  # the gyro measures the inertial rate
         a = self.msg_att
         a.header.stamp = stamp
         if self.att_std > 0:  # q_meas = q (x) exp(dtheta / 2), dtheta ~ N(0, std^2 I) in body axes

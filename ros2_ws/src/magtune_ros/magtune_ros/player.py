@@ -241,8 +241,8 @@ class Player(Node):
                 t = m.log_time if a.order == "log" else m.publish_time
                 if t > sel.end_ns:
                     break
-                if anchor_bag is None:
-                    anchor_bag = t
+                if anchor_bag is None:  # timing starts at the first message (reading and the
+                    anchor_bag, anchor_wall = t, time.monotonic()  # integrity check come before it)
                 stepped = False
                 with st.cond:
                     while True:
@@ -371,7 +371,8 @@ def main(argv=None):
                "wall_s": round(elapsed, 3), "complete": bool(report.get("complete", True))}
         if not out["complete"]:
             out["unreadable"] = {k: report.get(k) for k in (
-                "chunks_bad", "unreadable_tail_bytes", "problem", "messages_recovered")}
+                "chunks_bad", "unreadable_tail_bytes", "problem", "messages_recovered",
+                "messages_expected", "messages_in_damaged_chunks")}
             node.get_logger().warning(f"bag is damaged; replayed what was readable: {out['unreadable']}")
         print(json.dumps(out), flush=True)
         spinner.join(2.0)

@@ -4,7 +4,8 @@ Usage (``ros2 run magtune_ros recorder`` or ``install/magtune_ros/lib/magtune_ro
 
     recorder -o bags/NAME [--topics /a /b:pkg/msg/Type ...] [--all] [--custom-data k=v ...]
              [--chunk-size BYTES] [--flush-period S] [--depth N] [--wall-time]
-             [--max-messages N] [--duration S]
+             [--max-messages N] [--duration S] [-e REGEX] [-x REGEX]
+             [--max-bag-size BYTES] [--max-bag-duration S]
     recorder --ros-args -p path:=bags/NAME [-p topics:="['/a', ...]"] [-p custom_data:="['sigma=60']"]
 
 Every option is also a ROS parameter of the same name (``path`` for ``-o``; dashes become
@@ -17,7 +18,13 @@ Design:
 * subscriptions are ``raw=True`` (the callback gets the serialized CDR bytes; nothing is
   deserialized); QoS adapted to the publishers' offers (reliable when they all are), KEEP_LAST
   with a deep queue (``--depth``, default 10000: seconds of backlog at full SIL speed);
-* log time = receive time in sim time (unless ``--wall-time``): the recorder always listens to
+* log time of a message with a header (every project topic but ``/clock``) = its header stamp
+  in sim-time mode: so a bag's log time is never earlier than the stamp nor later by any amount,
+  whatever the load (the lockstep publishers stamp each sample with the sim time of the step it
+  belongs to, which is the sim time at which it was sent). Under CPU load the mapping below
+  drifted by up to +-100 s (issue #10), which made replayed inputs stale;
+* otherwise (``/clock``, headerless types) log time = receive time in sim time (unless
+  ``--wall-time``): the recorder always listens to
   ``/clock`` and keeps a table (DDS receive wall time of each ``/clock`` sample -> its sim
   time); a message gets the sim time of the last ``/clock`` that DDS delivered before the
   message itself (``MessageInfo.received_timestamp``). So the log time does not depend on how
@@ -43,6 +50,7 @@ import argparse
 import bisect
 import collections
 import json
+import re
 import struct
 import sys
 import threading
@@ -58,7 +66,9 @@ from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
+from magtune_core.bags import msgdefs
 from magtune_core.bags.msgdefs import normalize_type
+from magtune_core.bags.timing import has_header, stamp_from_cdr
 from magtune_core.bags.writer import DEFAULT_CHUNK_SIZE, BagWriter
 from magtune_core.base.topics import project_topic, topic_specs
 
@@ -85,6 +95,14 @@ def parse_args(argv):
     p.add_argument("--wall-time", action="store_true", default=None, help="log wall time, not sim time")
     p.add_argument("--max-messages", type=int, default=None, help="stop after N messages (0: never)")
     p.add_argument("--duration", type=float, default=None, help="stop after S wall seconds (0: never)")
+    p.add_argument("-e", "--regex", default=None, metavar="REGEX",
+                   help="also record every discovered topic matching REGEX (as ros2 bag record -e)")
+    p.add_argument("-x", "--exclude", default=None, metavar="REGEX",
+                   help="never record topics matching REGEX (applies to --topics, --regex and --all)")
+    p.add_argument("-b", "--max-bag-size", type=int, default=None, metavar="BYTES",
+                   help="split: start NAME_<i+1>.mcap when the file holds BYTES (at a chunk boundary; 0: never)")
+    p.add_argument("-d", "--max-bag-duration", type=float, default=None, metavar="S",
+                   help="split: start a new file every S seconds of log time (0: never)")
     p.add_argument("--overwrite", action="store_true", default=None)
     return p.parse_args(argv)
 
@@ -92,7 +110,8 @@ def parse_args(argv):
 #: option -> default; each is also a ROS parameter (``output`` is the parameter ``path``)
 DEFAULTS = {"output": "", "topics": [], "all": False, "include_hidden": False, "custom_data": [],
             "chunk_size": DEFAULT_CHUNK_SIZE, "flush_period": 1.0, "depth": 10000,
-            "wall_time": False, "max_messages": 0, "duration": 0.0, "overwrite": False}
+            "wall_time": False, "max_messages": 0, "duration": 0.0, "overwrite": False,
+            "regex": "", "exclude": "", "max_bag_size": 0, "max_bag_duration": 0.0}
 
 
 def resolve_options(node: Node, args) -> argparse.Namespace:
@@ -109,7 +128,14 @@ def resolve_options(node: Node, args) -> argparse.Namespace:
         out[key] = cli if cli is not None else value
     if not out["output"]:
         raise SystemExit("recorder: no output bag given (-o bags/NAME or -p path:=bags/NAME)")
-    if not out["topics"] and not out["all"]:
+    for key in ("regex", "exclude"):
+        try:
+            out[key] = re.compile(out[key]) if out[key] else None
+        except re.error as exc:
+            raise ValueError(f"--{key} {out[key]!r} is not a regular expression ({exc})") from None
+    if out["max_bag_size"] < 0 or out["max_bag_duration"] < 0:
+        raise ValueError("--max-bag-size and --max-bag-duration must be >= 0 (0: no split)")
+    if not out["topics"] and not out["all"] and out["regex"] is None:
         out["topics"] = topic_specs()
     return argparse.Namespace(**out)
 
@@ -139,7 +165,17 @@ class SimClockMap:
 
     def sim_at(self, wall_ns: int) -> int:
         i = bisect.bisect_right(self.walls, wall_ns) - 1
-        return self.sims[i] if i >= 0 else 0
+        # received before the first /clock: the earliest sim time known (the run's start; 0 or the
+        # scenario epoch), not 0, which would put an epoch-stamped bag's start in 1970
+        return self.sims[i] if i >= 0 else (self.sims[0] if self.sims else 0)
+
+
+def _has_header(typ: str) -> bool:
+    """True if the type's first field is a std_msgs/Header (False for unknown types)."""
+    try:
+        return has_header(msgdefs.full_definition(typ))
+    except Exception:  # noqa: BLE001 - a type the typestore does not know: no stamp used
+        return False
 
 
 def clock_from_cdr(data: bytes) -> int:
@@ -171,8 +207,9 @@ class BagWriterThread(threading.Thread):
 
     def _ready(self, wall_ns: int) -> bool:
         cm = self.clock_map
+        # (nothing is written before the first /clock: its sim time is the run's start)
         return (cm is None or self._halt.is_set() or cm.last_wall > wall_ns
-                or time.time_ns() - wall_ns > self.hold_ns)
+                or (bool(cm.walls) and time.time_ns() - wall_ns > self.hold_ns))
 
     def run(self):
         last_flush = time.monotonic()
@@ -193,6 +230,9 @@ class BagWriterThread(threading.Thread):
                             t, tp = item[1], item[3]
                         else:
                             t, tp = cm.sim_at(item[1]), cm.source.sim_at(item[3])
+                            s = stamp_from_cdr(item[2]) if item[4] else None
+                            if s:  # stamped message: logged at its header stamp (see module doc)
+                                t = s
                         w.write(item[0], item[2], t, tp)
                         n += 1
                     q.popleft()
@@ -210,9 +250,16 @@ class BagWriterThread(threading.Thread):
             self.error = exc
 
     def finish(self):
+        """Stop, write what is queued, close the bag. After a write error (disk full) the bag
+        is left as it is: every chunk completed before the error is readable and
+        ``magtune bag recover`` rebuilds it (closing could not succeed on a full disk)."""
         self._halt.set()
         self.join()
-        self.writer.close()
+        if self.error is None:
+            try:
+                self.writer.close()
+            except Exception as exc:  # noqa: BLE001 - reported by the node on exit
+                self.error = exc
 
 
 class Recorder(Node):
@@ -223,7 +270,8 @@ class Recorder(Node):
         self.args = args = resolve_options(self, cli_args)
         custom = dict(kv.split("=", 1) for kv in args.custom_data)
         self.bag = BagWriter(args.output, chunk_size=args.chunk_size, custom_data=custom,
-                             overwrite=args.overwrite)
+                             overwrite=args.overwrite, max_bytes=args.max_bag_size,
+                             max_duration_ns=int(args.max_bag_duration * 1e9))
         self.clock_map = None if args.wall_time else SimClockMap()
         if self.clock_map is not None:
             self.clock_map.source = SimClockMap()
@@ -235,6 +283,8 @@ class Recorder(Node):
             name = "/" + name.lstrip("/")
             if not typ and project_topic(name):  # also under a namespace: /sat1/sim/truth
                 typ = project_topic(name)[0]
+            if args.exclude is not None and args.exclude.search(name):
+                continue
             self.wanted[name] = normalize_type(typ) if typ else None
         self.subs = {}
         self.types: dict[str, str] = {}
@@ -255,8 +305,11 @@ class Recorder(Node):
         self._discover()
 
     def _selected(self, name: str) -> bool:
-        return name in self.wanted or (self.args.all and (
-            self.args.include_hidden or name not in HIDDEN_TOPICS))
+        a = self.args
+        if a.exclude is not None and a.exclude.search(name):
+            return False
+        return name in self.wanted or ((a.all or (a.regex is not None and a.regex.search(name))) and (
+            a.include_hidden or name not in HIDDEN_TOPICS))
 
     def _report_matches(self):
         """Print ``magtune-recorder matched /topic`` once per topic when its first publisher is
@@ -309,6 +362,7 @@ class Recorder(Node):
         q = self.thread.queue
         record = self._selected(name)
         cm = self.clock_map if name == CLOCK else None
+        stamped = name != CLOCK and _has_header(typ)
 
         def handle(data: bytes, info: dict):
             wall = info["received_timestamp"]
@@ -326,7 +380,7 @@ class Recorder(Node):
                 offered = [qos_profile_dict(i.qos_profile)
                            for i in self.get_publishers_info_by_topic(name)]
                 q.append((None, name, typ, offered))
-            q.append((name, wall, data, info["source_timestamp"]))
+            q.append((name, wall, data, info["source_timestamp"], stamped))
             self.counts[name] += 1
             self.received += 1
 
@@ -366,10 +420,10 @@ def main(argv=None):
             if args.duration and time.monotonic() - t0 >= args.duration:
                 break
             if node.thread.error:
-                raise node.thread.error
+                break
         # drain what DDS has already delivered: spin until 3 idle rounds of 50 ms
         idle = 0
-        while idle < 3 and not (args.max_messages and node.received >= args.max_messages):
+        while idle < 3 and not node.thread.error and not (args.max_messages and node.received >= args.max_messages):
             before = node.received
             executor.spin_once(timeout_sec=0.05)
             idle = idle + 1 if node.received == before else 0
@@ -382,8 +436,13 @@ def main(argv=None):
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
-    if node.thread.error:
-        raise SystemExit(f"recorder: writer failed: {node.thread.error}")
+    err = node.thread.error
+    if err is not None:
+        why = getattr(err, "strerror", None) or str(err)
+        print(f"recorder: writing {node.bag.dir} failed ({why}) after {node.thread.written} messages; "
+              f"the chunks written before are readable: magtune bag recover {node.bag.dir}",
+              file=sys.stderr, flush=True)
+        return 1
     return 0
 
 

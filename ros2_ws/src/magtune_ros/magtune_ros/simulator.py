@@ -10,10 +10,13 @@ nominal orbit period becomes the actual orbit's, which the controller must be gi
 
 Publishes (all stamped with simulated time t_k = k * ts):
   /clock                       rosgraph_msgs/Clock        (this node is the time source)
-  sim/truth                    nav_msgs/Odometry          frame 'orbital', child 'body':
+  sim/truth                    nav_msgs/Odometry          frame 'orbital', child 'body' (REP-105):
                                pose.orientation = q (body w.r.t. orbital axes; ROS x,y,z,w order),
-                               twist.angular = inertial body rate w [rad/s] in body axes,
-                               pose.position / twist.linear = 0 (circular-orbit attitude model)
+                               twist.angular = rate of the body w.r.t. the orbital frame [rad/s] in
+                               body axes, w - R(q)^T w_oi(t) (w_oi = [0, 0, -W0] on the circular orbit),
+                               pose.position / twist.linear = 0 (attitude only)
+  sim/inertial_rate            geometry_msgs/Vector3Stamped  inertial body rate w [rad/s], body axes
+                               (the paper's w, what a gyro measures; the sensors' input)
   sim/magnetic_field           sensor_msgs/MagneticField  true field b = R(q)^T b_orb(t) [T], body axes
   sim/magnetic_torque          geometry_msgs/WrenchStamped  m x b at t_k [N m], body axes
   sim/disturbance_torque       geometry_msgs/WrenchStamped  gravity gradient + residual dipole (+ drag, SRP) at t_k
@@ -54,7 +57,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from magtune_core.base.rotations import cross, matrix_to_quat
 from magtune_core.design.law import DEFAULT_DIPOLE_LIMIT, linear_state, saturate
-from magtune_core.sim.simulate import DW0, SimResult, initial_state
+from magtune_core.sim.simulate import DIVERGED_EXIT, DW0, SimResult, divergence, initial_state
 
 from . import common as c
 
@@ -178,6 +181,7 @@ class Simulator(Node):
         self.progress_every = max(1, self.n // 10)
         self.t_progress = time.perf_counter()
         self.started = False
+        self.clock_held = 0   # timer ticks /clock was held at time_origin_ns with the peers listening
         self.finished = False
         # recorded run (same layout as SimResult)
         self.Y = np.zeros((self.n + 1, 7))
@@ -189,6 +193,7 @@ class Simulator(Node):
                                          "saturated_commands"])
         self.pub_clock = self.create_publisher(ClockMsg, "/clock", c.CLOCK_QOS)
         self.pub_truth = self.create_publisher(Odometry, c.TOPIC_TRUTH, c.LOCKSTEP_QOS)
+        self.pub_rate = self.create_publisher(Vector3Stamped, c.TOPIC_INERTIAL_RATE, c.LOCKSTEP_QOS)
         self.pub_field = self.create_publisher(MagneticField, c.TOPIC_TRUE_FIELD, c.LOCKSTEP_QOS)
         self.pub_tmag = self.create_publisher(WrenchStamped, c.TOPIC_MAG_TORQUE, c.LOCKSTEP_QOS)
         self.pub_tdist = self.create_publisher(WrenchStamped, c.TOPIC_DIST_TORQUE, c.LOCKSTEP_QOS)
@@ -203,6 +208,8 @@ class Simulator(Node):
         self.msg_truth = Odometry()
         self.msg_truth.header.frame_id = c.FRAME_ORBITAL
         self.msg_truth.child_frame_id = c.FRAME_BODY
+        self.msg_rate = Vector3Stamped()
+        self.msg_rate.header.frame_id = c.FRAME_BODY
         self.msg_field = MagneticField()
         self.msg_field.header.frame_id = c.FRAME_BODY
         self.msg_tmag = WrenchStamped()
@@ -224,6 +231,7 @@ class Simulator(Node):
     def peers_ready(self) -> bool:
         return (not self.wait_peers) or (
             self.pub_truth.get_subscription_count() >= self.min_subs and self.pub_field.get_subscription_count() > 0
+            and self.pub_rate.get_subscription_count() > 0
             and self.sub_cmd.get_publisher_count() > 0)
 
     def on_timer(self):
@@ -231,6 +239,17 @@ class Simulator(Node):
         if self.finished:
             return
         if not self.started:
+            if self.time_origin_ns:
+                # epoch-stamped run: hold every node's clock at the origin while waiting, so the first
+                # samples (stamped 2026-...) are not "in the future" of a clock still at 0
+                self.msg_clock.clock = c.ns_to_stamp(self.t_ns[0])
+                self.pub_clock.publish(self.msg_clock)
+                # start once the sensors and the controller take /clock and had 0.5 s to follow it
+                takers = {i.node_name for i in self.get_subscriptions_info_by_topic(self.pub_clock.topic_name)}
+                if {"attitude_sensors", "controller"} <= takers or not self.wait_peers:
+                    self.clock_held += 1
+                if self.clock_held < 10:
+                    return
             if self.peers_ready():
                 self.started = True
                 self.wall0 = self.t_progress = time.perf_counter()
@@ -264,13 +283,17 @@ class Simulator(Node):
         o = m.pose.pose.orientation
         o.w, o.x, o.y, o.z = float(y[0]), float(y[1]), float(y[2]), float(y[3])
         a = m.twist.twist.angular
-        a.x, a.y, a.z = float(y[4]), float(y[5]), float(y[6])
+        a.x, a.y, a.z = (float(v) for v in self.dyn.relative_rate(k * self.ts, y[:4], y[4:]))
+        r = self.msg_rate
+        r.header.stamp = stamp
+        r.vector.x, r.vector.y, r.vector.z = float(y[4]), float(y[5]), float(y[6])
         f = self.msg_field
         f.header.stamp = stamp
         f.magnetic_field.x, f.magnetic_field.y, f.magnetic_field.z = float(b[0]), float(b[1]), float(b[2])
         self.awaiting = True
         self.t_publish = time.perf_counter()
         self.pub_truth.publish(m)
+        self.pub_rate.publish(r)
         self.pub_field.publish(f)
         if self.pub_tf is not None:
             self.publish_tf(k, stamp, o)
@@ -330,6 +353,11 @@ class Simulator(Node):
             self.publish_markers(k, m)
         self.y = self.dyn.step(k * self.ts, self.y, self.ts, m, self.substeps)
         self.k = k + 1
+        why = divergence(self.y)
+        if why:  # stop at once: stepping a NaN state would "succeed" with garbage
+            self.get_logger().error(f"simulation diverged at step {self.k} (t={self.k * self.ts:.3f} s): {why}")
+            self.finish_run(DIVERGED_EXIT)
+            return
         if self.rtf > 0 and self.lockstep:
             lag = self.wall0 + self.k * self.ts / self.rtf - time.perf_counter()
             if lag > 0:
@@ -422,7 +450,7 @@ class Simulator(Node):
         if self.min_subs >= 2:  # a recorder listens: let it acknowledge the last samples first
             from rclpy.duration import Duration
             deadline = time.monotonic() + 5.0
-            for pub in (self.pub_truth, self.pub_field, self.pub_tmag, self.pub_tdist, self.pub_clock):
+            for pub in (self.pub_truth, self.pub_rate, self.pub_field, self.pub_tmag, self.pub_tdist, self.pub_clock):
                 left = deadline - time.monotonic()
                 if left <= 0 or not pub.wait_for_all_acked(Duration(seconds=left)):
                     self.get_logger().warning(f"{pub.topic_name}: not every sample acknowledged before exit")

@@ -1,0 +1,161 @@
+"""Bad input anywhere: one line naming the field and the fix, exit status 2, before any work.
+
+Each case is a probe of issue #10 that ended in a traceback, a wrong success or a silent
+acceptance. The CLI is called in-process (``magtune_core.cli.main``), so no node is started;
+``magtune sil`` validates everything before it looks for the ROS workspace.
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from magtune_core.base.errors import ConfigError
+from magtune_core.base.schema import Field, parse
+from magtune_core.cli import main as cli_main
+from magtune_core.design.gains import Gains, load_gains
+from magtune_core.design.params import SpacecraftParams, check_sample_period
+
+ROOT = Path(__file__).resolve().parents[2]
+GAINS = ROOT / "config" / "gains" / "sigma_60.yaml"
+SPACECRAFT = ROOT / "config" / "spacecraft.yaml"
+
+
+def _edit(tmp_path, src: Path, name: str, **changes) -> Path:
+    doc = yaml.safe_load(src.read_text())
+    section = next(iter(doc))
+    doc[section]["ros__parameters"].update(changes)
+    out = tmp_path / name
+    out.write_text(yaml.safe_dump(doc))
+    return out
+
+
+def _one_line_exit2(capsys, argv) -> str:
+    code = cli_main(argv)
+    err = capsys.readouterr().err
+    assert code == 2, (argv, err)
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    return err
+
+
+def test_bounds_are_checked_per_element():
+    f = Field("b", "float[]", "field [T]", size=3, bounds=(-1e-3, 1e-3), unit="T")
+    assert parse({"b": [1e-5, 0.0, -1e-5]}, [f], "x.yaml")["b"].tolist() == [1e-5, 0.0, -1e-5]
+    with pytest.raises(ConfigError, match=r"field 'b': expected numbers in \[-0.001, 0.001\] T"):
+        parse({"b": [1e-5, 1e308, 0.0]}, [f], "x.yaml")
+
+
+@pytest.mark.parametrize("key, value", [("sigma", 1e300), ("ts", 1e300), ("gain", [1e300] * 18)])
+def test_huge_gains_values_are_rejected(tmp_path, capsys, key, value):
+    """Why #5: huge but finite values ended in tracebacks."""
+    bad = _edit(tmp_path, GAINS, "g.yaml", **{key: value})
+    err = _one_line_exit2(capsys, ["analyze", str(bad)])
+    assert f"field '{key}'" in err
+
+
+@pytest.mark.parametrize("key, value", [("orbit_period", 1e300), ("constant_field", [1e308, 0.0, 0.0]),
+                                        ("inertia", [1e300, 17.0, 25.0]), ("wheel_speed", -1e300)])
+def test_huge_spacecraft_values_are_rejected(tmp_path, capsys, key, value):
+    """Why #5/#7: orbit_period near 1e300, a 1e308 T field accepted and not counted."""
+    bad = _edit(tmp_path, SPACECRAFT, "sc.yaml", **{key: value})
+    err = _one_line_exit2(capsys, ["--config", str(bad), "analyze", str(GAINS)])
+    assert f"field '{key}'" in err and "expected" in err
+
+
+def test_min_field_bound_and_misspelling(tmp_path):
+    """Why #5/#7: min_field near 1e300 crashed; misspelled min_feild was kept as provenance."""
+    with pytest.raises(ConfigError, match=r"field 'min_field': expected a number in"):
+        load_gains(_edit(tmp_path, GAINS, "a.yaml", min_field=1e300))
+    with pytest.raises(ConfigError, match="field 'min_feild': unknown parameter; did you mean 'min_field'"):
+        load_gains(_edit(tmp_path, GAINS, "b.yaml", min_feild=1e-6))
+    with pytest.raises(ConfigError, match="field 'orbit_perod': unknown parameter; did you mean 'orbit_period'"):
+        SpacecraftParams.from_mapping(dict(yaml.safe_load(SPACECRAFT.read_text())["/**"]["ros__parameters"],
+                                           orbit_perod=5600.0), "sc.yaml", strict=True)
+    ok = load_gains(_edit(tmp_path, GAINS, "c.yaml", min_field=2e-7, dipole_limit=[10.0, 10.0, 10.0]))
+    assert set(ok.provenance) <= set(Gains.PROVENANCE)  # node options are not provenance
+
+
+def test_shipped_files_pass_the_strict_checks():
+    for f in sorted((ROOT / "config" / "gains").glob("*.yaml")):
+        assert load_gains(f).provenance, f
+    with pytest.raises(ValueError, match="add it there"):   # what we write we can read back
+        from magtune_core.design.gains import save_gains
+        save_gains(Path("/nonexistent/never.yaml"), Gains(np.zeros((3, 6)), 1.0, 1.0, {"bogus": 1}))
+
+
+def test_sample_period_must_resolve_nutation():
+    """Why #6: --ts 100 made RK4 diverge and sil exited 0. The paper's spacecraft nutates with
+    2 pi sqrt(Ixx Iyy) / (J |W|) = 2 pi sqrt(35 * 17) / 2 = 76.63 s; ts must be below half."""
+    p = SpacecraftParams()
+    assert p.nutation_period == pytest.approx(2 * np.pi * np.sqrt(35.0 * 17.0) / 2.0, rel=1e-12)
+    check_sample_period(30.0, p)  # the sampling study's largest Ts
+    with pytest.raises(ConfigError, match="does not resolve the nutation period 76.6 s; use ts < 38.3 s"):
+        check_sample_period(100.0, p)
+
+
+@pytest.mark.parametrize("extra, words", [
+    (["--orbits", "-1"], "--orbits"), (["--orbits", "nan"], "--orbits"), (["--steps", "0"], "--steps"),
+    (["--ts", "100"], "nutation"), (["--ts", "-1"], "sample period"), (["--substeps", "0"], "--substeps"),
+    (["--timeout", "-5"], "--timeout"), (["--rtf", "inf"], "--rtf"),
+    (["--results", "/proc/no/such.npz"], "--results"), (["--log-dir", "/proc/version/logs"], "--log-dir"),
+])
+def test_sil_rejects_bad_arguments_before_starting(tmp_path, capsys, extra, words):
+    """Why #5/#6: --orbits -1 'timed out after 0 s'; an unwritable --results/--log-dir was
+    discovered after the whole run. Now: exit 2 at once, nothing created."""
+    err = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--log-dir", str(tmp_path / "logs"), *extra])
+    assert words in err
+    if "--log-dir" not in extra:
+        assert not (tmp_path / "logs").exists()  # rejected before any work
+
+
+def test_sil_bad_gains_file_exits_2(tmp_path, capsys):
+    """Why #7: sil exited 1 on a bad gains file where the README promises 2."""
+    err = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(_edit(tmp_path, GAINS, "g.yaml", sigma=-60.0))])
+    assert "field 'sigma'" in err
+    err = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(tmp_path / "missing.yaml")])
+    assert "file not found" in err
+
+
+def test_huge_gain_analyzes_as_unstable(tmp_path, capsys):
+    """Why #5: a gain of 10 per entry crashed analyze (overflow in the monodromy). It is a valid
+    (if absurd) gain: the loop is reported unstable with rho = inf."""
+    g = _edit(tmp_path, GAINS, "g10.yaml", gain=[10.0] * 18)
+    assert cli_main(["analyze", "--json", str(g)]) == 0
+    out = capsys.readouterr().out
+    d = json.loads(out.strip().splitlines()[-1])
+    assert d["stable"] is False and d["rho"] == float("inf")
+
+
+def test_same_error_same_exit_code_everywhere(tmp_path, capsys):
+    """A missing input file is exit 2 in every command that reads one."""
+    missing = str(tmp_path / "nope")
+    for argv in (["analyze", missing], ["sil", "--quiet", "--gains", missing], ["bag", "info", missing],
+                 ["bag", "recover", missing], ["replay", missing]):
+        err = _one_line_exit2(capsys, argv)
+        assert re.search(r"nope", err), err
+
+
+def test_node_parameter_list_matches_the_nodes():
+    """NODE_PARAMETERS (what a spacecraft/gains file may set besides the schema) is exactly what
+    the SIL nodes declare (read from their sources: no rclpy needed)."""
+    from magtune_core.design.params import NODE_PARAMETERS
+
+    src = "".join(p.read_text() for p in (ROOT / "ros2_ws" / "src" / "magtune_ros" / "magtune_ros").glob("*.py")
+                  if p.stem in ("simulator", "attitude_sensors", "controller", "common"))
+    declared = set(re.findall(r'declare\((?:self|node), "([a-z_0-9]+)"', src))
+    declared |= set(re.findall(r'declare_parameter\("([a-z_0-9]+)"', src))
+    assert declared <= set(NODE_PARAMETERS), declared - set(NODE_PARAMETERS)
+
+
+def test_example_files_pass_the_strict_checks():
+    for f in sorted((ROOT / "config").rglob("*.yaml")):
+        text = f.read_text()
+        if "gain:" in text:
+            load_gains(f)
+        elif "inertia:" in text:
+            from magtune_core.design.params import load_spacecraft
+            load_spacecraft(f)
