@@ -92,8 +92,10 @@ def test_paper_method_seed0_still_gives_the_shipped_gains():
     model = AttitudeLTP.from_params(SpacecraftParams())
     res = tune(model, 240.0, seed=0)
     assert res.method == "paper" and res.iterations == 2
-    # same arithmetic as when the file was written: equal to the last bits printed (repr round trip)
-    np.testing.assert_allclose(res.K, PAPER_SEED0_SIGMA240, rtol=1e-12, atol=0)
+    # the same candidates are drawn and chosen: any other choice moves K by ~mu = 1e-3 x a unit
+    # draw. Measured difference 2e-10 relative (1e-13 absolute): the LQ start's last bits, which
+    # later changes of the LQ/averaging arithmetic moved; 1e-8 leaves room for libm differences.
+    np.testing.assert_allclose(res.K, PAPER_SEED0_SIGMA240, rtol=1e-8, atol=1e-15)
 
 
 def test_tune_and_front_commands(tmp_path):
