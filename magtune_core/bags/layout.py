@@ -64,8 +64,9 @@ class TopicInfo:
         }
 
 
-def mcap_file_name(bag_dir: Path) -> str:
-    return f"{Path(bag_dir).name}_0.mcap"
+def mcap_file_name(bag_dir: Path, index: int = 0) -> str:
+    """``NAME_<index>.mcap``: rosbag2's name of the index-th file of a (split) bag."""
+    return f"{Path(bag_dir).name}_{int(index)}.mcap"
 
 
 def build_metadata(bag_dir: Path, topics: list[TopicInfo], start_ns: int, end_ns: int,
@@ -75,6 +76,8 @@ def build_metadata(bag_dir: Path, topics: list[TopicInfo], start_ns: int, end_ns
     duration = max(0, end_ns - start_ns) if count else 0
     start = start_ns if count else 0
     files = files or [mcap_file_name(bag_dir)]
+    if files and isinstance(files[0], dict):   # split bag: per-file {path, start_ns, end_ns, count}
+        return _with_files(bag_dir, topics, start_ns, end_ns, custom_data, files)
     return {"rosbag2_bagfile_information": {
         "version": METADATA_VERSION,
         "storage_identifier": STORAGE_ID,
@@ -91,6 +94,16 @@ def build_metadata(bag_dir: Path, topics: list[TopicInfo], start_ns: int, end_ns
         "custom_data": {str(k): str(v) for k, v in (custom_data or {}).items()},
         "ros_distro": ROS_DISTRO,
     }}
+
+
+def _with_files(bag_dir, topics, start_ns, end_ns, custom_data, stats: list[dict]) -> dict:
+    """Metadata of a split bag: one ``files`` entry per file with its own start, duration, count."""
+    doc = build_metadata(bag_dir, topics, start_ns, end_ns, custom_data, [f["path"] for f in stats])
+    info = doc["rosbag2_bagfile_information"]
+    info["files"] = [{"path": f["path"], "starting_time": {"nanoseconds_since_epoch": int(f["start_ns"] if f["count"] else 0)},
+                      "duration": {"nanoseconds": int(max(0, f["end_ns"] - f["start_ns"]) if f["count"] else 0)},
+                      "message_count": int(f["count"])} for f in stats]
+    return doc
 
 
 def write_metadata(bag_dir: Path, doc: dict) -> Path:
@@ -116,6 +129,30 @@ class BagMessage(NamedTuple):
     log_time: int
     publish_time: int
     data: bytes
+
+
+def resolve_mcaps(bag) -> list[Path]:
+    """Every ``.mcap`` file of a bag, in order (a split bag has several: ``relative_file_paths``
+    of metadata.yaml, else ``NAME_<i>.mcap`` by index); a file path gives itself."""
+    p = Path(bag)
+    if p.is_file():
+        return [p]
+    meta = p / "metadata.yaml"
+    if meta.is_file():
+        try:
+            files = [p / f for f in (read_metadata(p).get("relative_file_paths") or [])]
+            if files and all(f.is_file() for f in files):
+                return files
+        except (yaml.YAMLError, KeyError, TypeError):
+            pass
+    cands = list(p.glob("*.mcap"))
+    if not cands:
+        raise FileNotFoundError(f"no .mcap file in {p}")
+
+    def index(f: Path):
+        tail = f.stem.rpartition("_")[2]
+        return (0, int(tail), f.name) if tail.isdigit() else (1, 0, f.name)
+    return sorted(cands, key=index)
 
 
 def resolve_mcap(bag) -> Path:

@@ -1,13 +1,15 @@
 """Reading bags: messages in time order, topics, summary (damaged files through :mod:`.scan`)."""
 from __future__ import annotations
 
+import heapq
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Iterator
 
 import yaml
 from mcap.reader import make_reader
 
-from .layout import BagMessage, TopicInfo, has_summary, read_metadata, resolve_mcap
+from .layout import STORAGE_ID, BagMessage, TopicInfo, has_summary, read_metadata, resolve_mcap, resolve_mcaps
 from .scan import scan
 from .timing import TimingCheck, has_header
 
@@ -29,6 +31,17 @@ def iter_messages(bag, topics=None, start_ns: int | None = None, report: dict | 
         return
     if order != "log":
         raise ValueError(f"order must be 'log' or 'publish', not {order!r}")
+    files = resolve_mcaps(bag)
+    if len(files) > 1:   # split bag: the files' streams merged by log time (stable: file order on ties)
+        reports = [{} for _ in files]
+        yield from heapq.merge(*(iter_messages(f, topics, start_ns, r) for f, r in zip(files, reports)),
+                               key=lambda m: m.log_time)
+        if report is not None:
+            report.update({"complete": all(r.get("complete", True) for r in reports)})
+            bad = [r for r in reports if not r.get("complete", True)]
+            if bad:
+                report.update({k: v for k, v in bad[0].items() if k != "complete"})
+        return
     path = resolve_mcap(bag)
     wanted = set(topics) if topics is not None else None
     if wanted is not None and not wanted:
@@ -43,6 +56,16 @@ def iter_messages(bag, topics=None, start_ns: int | None = None, report: dict | 
 
 def topics_of(bag) -> dict[str, TopicInfo]:
     """Topics (name -> :class:`TopicInfo` with counts) from the MCAP itself."""
+    files = resolve_mcaps(bag)
+    if len(files) > 1:   # split bag: counts summed over the files
+        out: dict[str, TopicInfo] = {}
+        for f in files:
+            for name, t in topics_of(f).items():
+                if name in out:
+                    out[name].message_count += t.message_count
+                else:
+                    out[name] = t
+        return out
     path = resolve_mcap(bag)
     if has_summary(path):
         with open(path, "rb") as f:
@@ -60,7 +83,8 @@ def topics_of(bag) -> dict[str, TopicInfo]:
 
 
 def info(bag, ts: float | None = None) -> dict:
-    """Summary of a bag for ``magtune bag info``: counts, times, topics, integrity, timing.
+    """Summary of a bag for ``magtune bag info``: counts, times, topics, integrity, timing, and as
+    ``ros2 bag info``: start/end as UTC dates, storage id, ROS distro, every file of a split bag.
 
     ``ts`` (s): tolerance of the timing check (default: ``ts`` of metadata.yaml custom_data,
     else the /clock period).
@@ -69,23 +93,56 @@ def info(bag, ts: float | None = None) -> dict:
     -------
     dict
         path, complete, size, counts, times, chunks, topics, ``integrity`` (the scan summary:
-        damaged chunks and the messages they held) and ``timing``
-        (:meth:`magtune_core.bags.timing.TimingCheck.report`: /clock gaps, log time vs stamp).
+        damaged chunks and the messages they held; per file for a split bag) and ``timing``
+        (:meth:`magtune_core.bags.timing.TimingCheck.report`: /clock gaps, log time vs stamp, over
+        all files), ``start_utc``/``end_utc``, ``storage_identifier``, ``ros_distro``, ``files``.
     """
-    path = resolve_mcap(bag)
+    files = resolve_mcaps(bag)
     if ts is None:
         ts = _metadata_ts(bag)
     check = TimingCheck()
-    res = scan(path, visit=lambda m: check.add(m.topic, m.log_time, m.data))
-    count, start, end = res.message_count, res.start_ns, res.end_ns
-    integ = res.summary()
-    integ.pop("per_topic", None)
-    return {"path": str(path), "complete": res.complete, "size_bytes": path.stat().st_size,
-            "message_count": count, "start_ns": start, "end_ns": end,
-            "duration_s": (end - start) / 1e9 if count else 0.0, "chunks": res.chunks_ok,
-            "topics": {n: {"type": t.type, "count": t.message_count}
-                       for n, t in sorted(res.topics.items())},
-            "integrity": integ, "timing": check.report(ts, _stamped_topics(res))}
+    parts, stamped = [], set()
+    for f in files:
+        res = scan(f, visit=lambda m: check.add(m.topic, m.log_time, m.data))
+        integ = res.summary()
+        integ.pop("per_topic", None)
+        stamped.update(_stamped_topics(res))
+        parts.append({"path": str(f), "complete": res.complete, "size_bytes": f.stat().st_size,
+                      "message_count": res.message_count, "start_ns": res.start_ns, "end_ns": res.end_ns,
+                      "chunks": res.chunks_ok, "integrity": integ, "topics": res.topics})
+    used = [p for p in parts if p["message_count"]]
+    count = sum(p["message_count"] for p in parts)
+    start = min((p["start_ns"] for p in used), default=0)
+    end = max((p["end_ns"] for p in used), default=0)
+    topics: dict = {}
+    for p in parts:
+        for n, t in p["topics"].items():
+            e = topics.setdefault(n, {"type": t.type, "count": 0})
+            e["count"] += t.message_count
+    meta = {}
+    if Path(bag).is_dir():
+        try:
+            meta = read_metadata(Path(bag))
+        except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError):
+            meta = {}
+    single = len(parts) == 1
+    return {"path": parts[0]["path"] if single else str(Path(bag)), "complete": all(p["complete"] for p in parts),
+            "size_bytes": sum(p["size_bytes"] for p in parts), "message_count": count, "start_ns": start,
+            "end_ns": end, "duration_s": (end - start) / 1e9 if count else 0.0,
+            "chunks": sum(p["chunks"] for p in parts), "topics": dict(sorted(topics.items())),
+            "integrity": parts[0]["integrity"] if single else {"files": [p["integrity"] for p in parts]},
+            "timing": check.report(ts, stamped),
+            "storage_identifier": meta.get("storage_identifier", STORAGE_ID),
+            "ros_distro": meta.get("ros_distro", ""),
+            "start_utc": _utc(start) if count else "", "end_utc": _utc(end) if count else "",
+            "files": [{"path": p["path"], "size_bytes": p["size_bytes"], "complete": p["complete"],
+                       "message_count": p["message_count"], "start_ns": p["start_ns"], "end_ns": p["end_ns"]}
+                      for p in parts]}
+
+
+def _utc(ns: int) -> str:
+    """ns since 1970 as an ISO 8601 UTC date (a sim-time bag starts at 1970-01-01)."""
+    return datetime.fromtimestamp(ns / 1e9, tz=timezone.utc).isoformat(timespec="milliseconds")
 
 
 def _metadata_ts(bag) -> float | None:

@@ -49,10 +49,18 @@ def run_info(args) -> int:
     print(f"bag:      {inf['path']} ({inf['size_bytes']} bytes, {state})")
     print(f"messages: {inf['message_count']} in {inf['chunks']} chunks, "
           f"{inf['duration_s']:.3f} s from {inf['start_ns'] * 1e-9:.3f} s")
+    print(f"start:    {inf['start_utc'] or '-'} ({inf['start_ns'] * 1e-9:.9f} s)")
+    print(f"end:      {inf['end_utc'] or '-'} ({inf['end_ns'] * 1e-9:.9f} s)")
+    print(f"storage:  {inf['storage_identifier']}   ROS distro: {inf['ros_distro'] or '-'}")
+    print(f"files:    {len(inf['files'])}")
+    for f in inf["files"]:
+        print(f"  {f['path']}  {f['size_bytes']} bytes  {f['message_count']} messages"
+              + ("" if f["complete"] else "  UNFINISHED/DAMAGED"))
     for name, t in inf["topics"].items():
         print(f"  {name:32s} {t['type']:40s} {t['count']:8d}")
-    for line in integrity_lines(integ):
-        print(f"warning: {line}")
+    for part in integ.get("files", [integ]):   # a split bag: one integrity summary per file
+        for line in integrity_lines(part):
+            print(f"warning: {line}")
     for line in timing["warnings"]:
         print(f"warning: {line}")
     return 0

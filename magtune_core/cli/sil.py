@@ -25,6 +25,16 @@ def register(sub) -> None:
                         "spacecraft's field_model (the full environment keeps IGRF along the orbit)")
     p.add_argument("--rtf", type=float, default=0.0, help="pace at this real-time factor (default 0: max speed)")
     p.add_argument("--bag", default=None, help="record the run to this MCAP bag (needs the recorder node)")
+    p.add_argument("--bag-topics", nargs="+", default=None, metavar="TOPIC",
+                   help="with --bag: record only these topics (/name or /name:pkg/msg/Type; default: every project topic)")
+    p.add_argument("--bag-exclude", default=None, metavar="REGEX",
+                   help="with --bag: leave out the topics matching REGEX (e.g. '^/sim/markers$')")
+    p.add_argument("--epoch-time", action="store_true",
+                   help="stamp the run from the spacecraft file's epoch (real dates in bags and Foxglove) "
+                        "instead of from 0")
+    p.add_argument("--foxglove", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                   help="stream the run live to Foxglove: WebSocket server on localhost:PORT (default 8765); "
+                        "pace with --rtf to watch it")
     p.add_argument("--results", default=None, help="keep the trajectory .npz here")
     p.add_argument("--log-dir", default=None, help="node logs and generated parameters (default: temp dir)")
     p.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: a free one)")
@@ -50,11 +60,15 @@ def run(args) -> int:
     sats = satellites(args.gains)
     if not args.quiet:
         print("magtune sil: starting the nodes (discovery takes a few seconds)", file=sys.stderr, flush=True)
+        if args.foxglove is not None:
+            print(f"magtune sil: Foxglove live view at ws://127.0.0.1:{args.foxglove} (Open connection -> "
+                  "Foxglove WebSocket; layout docs/foxglove_layout.json)", file=sys.stderr, flush=True)
     runs = sil.run_fleet(sats, orbits=args.orbits, steps=args.steps, ts=args.ts, substeps=args.substeps,
                       spacecraft=_spacecraft(args), real_time_factor=args.rtf, bag=args.bag, results=args.results,
                       log_dir=args.log_dir, domain_id=args.domain_id, timeout=args.timeout,
                       environment=args.environment, env_options=environment_options(args), field=args.field,
-                      progress=progress)
+                      progress=progress, epoch_time=args.epoch_time, foxglove=args.foxglove,
+                      bag_topics=args.bag_topics, bag_exclude=args.bag_exclude)
     def as_json(res):
         return dict(res.figures, **{"missed_steps": res.counters.get("missed_steps", 0),
                                     "wall_time": res.wall_time, "real_time_factor": res.real_time_factor,

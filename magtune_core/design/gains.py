@@ -51,7 +51,8 @@ class Gains:
     #: Read-only provenance a gains file may carry (``magtune tune`` writes these); any other
     #: key is rejected with a "did you mean" (a misspelled parameter is never silently kept).
     PROVENANCE = ("J", "c1", "c2", "rho", "J_initial", "seed", "iterations", "converged", "tuner", "design",
-                  "field_model", "analysis_steps", "tune_seconds", "written")
+                  "field_model", "design_field", "start", "analysis_steps", "tune_seconds", "written",
+                  "robust_spec", "robust_models", "robust_worst_model", "worst_J", "worst_c1", "worst_c2", "worst_rho")
 
     @classmethod
     def from_mapping(cls, params: dict, where="gains") -> "Gains":
@@ -82,10 +83,10 @@ NODE_COMMON = ("use_sim_time",)
 
 
 def _spacecraft_names() -> tuple:
-    """A gains file's ``/**`` section may carry the spacecraft parameters the controller reads."""
-    from .params import SpacecraftParams
+    """A gains file's ``/**`` section may carry the spacecraft parameters and the node parameters."""
+    from .params import NODE_PARAMETERS, SpacecraftParams
 
-    return tuple(f.name for f in SpacecraftParams.FIELDS)
+    return tuple(f.name for f in SpacecraftParams.FIELDS) + NODE_PARAMETERS
 
 
 def load_gains(path) -> Gains:

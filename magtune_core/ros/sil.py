@@ -73,6 +73,13 @@ DEFAULT_SPACECRAFT = ROOT / "config" / "spacecraft.yaml"
 DOMAIN_RANGE = range(215, 233)
 
 
+def epoch_ns(epoch) -> int:
+    """A naive UTC ``datetime`` (the spacecraft file's ``epoch``) in integer ns since 1970."""
+    import calendar
+
+    return calendar.timegm(epoch.timetuple()) * 1_000_000_000 + epoch.microsecond * 1000
+
+
 class SilError(RuntimeError):
     """The SIL run could not be started or a node failed."""
 
@@ -171,8 +178,9 @@ def die_with_parent(sig: int = signal.SIGTERM):
 
 
 def start_node(name: str, exe: Path, ros_args: list[str], env: dict, log_dir: Path,
-               keep_fds: tuple = ()) -> NodeProcess:
-    """Start one node in its own process group, dying with the runner (:func:`die_with_parent`).
+               keep_fds: tuple = (), args=()) -> NodeProcess:
+    """Start ``exe [args] --ros-args ros_args`` in its own process group, dying with the runner
+    (:func:`die_with_parent`).
 
     ``keep_fds``: descriptors the node inherits (the domain lock: its flock is then held until
     the runner *and* every node have closed it, so the domain is never handed out while a node
@@ -180,7 +188,7 @@ def start_node(name: str, exe: Path, ros_args: list[str], env: dict, log_dir: Pa
     """
     log = log_dir / f"{name}.log"
     with open(log, "wb") as fh:
-        p = subprocess.Popen([str(exe), "--ros-args", *ros_args], env=env, stdout=fh, stderr=subprocess.STDOUT,
+        p = subprocess.Popen([str(exe), *args, "--ros-args", *ros_args], env=env, stdout=fh, stderr=subprocess.STDOUT,
                              stdin=subprocess.DEVNULL, start_new_session=True, pass_fds=keep_fds,
                              preexec_fn=die_with_parent())
     return NodeProcess(name, p, log)
@@ -406,7 +414,8 @@ def run_fleet(satellites: dict, *, orbits: float = 5.0, steps: int | None = None
               timeout: float | None = None, domain_id: int | None = None, log_dir=None, results=None,
               simulator_params: dict | None = None, sensor_params: dict | None = None,
               controller_params: dict | None = None, on_start=None, environment: str = "paper",
-              env_options=None, field=None, progress=None) -> dict[str, SilRun]:
+              env_options=None, field=None, progress=None, epoch_time: bool = False,
+              foxglove: int | None = None, bag_topics=None, bag_exclude: str | None = None) -> dict[str, SilRun]:
     """Satellites side by side in one ROS domain, one namespace each (``{"/sat1": gains_a,
     "/sat2": gains_b}``; ``""`` is the root namespace), optionally recorded in one bag.
 
@@ -430,6 +439,11 @@ def run_fleet(satellites: dict, *, orbits: float = 5.0, steps: int | None = None
     ``progress(k, n)`` is called with each "step k/n" line the simulators log (every tenth of the run; summed over satellites) and once with
     ``(n, n)`` at the end. ``results``: the trajectory ``.npz`` (``<stem>_<ns><suffix>`` per
     satellite when there are several).
+    ``epoch_time``: stamps and /clock start at the spacecraft file's ``epoch`` (ns since 1970)
+    instead of 0, so bag tools and Foxglove show real dates (the bag's ``custom_data`` keeps
+    ``time_origin_ns``; the trajectory's ``t`` still starts at 0). ``foxglove``: a port (0: any
+    free one) for the ``live_bridge`` node, which streams the run to Foxglove over WebSocket.
+    ``bag_topics`` / ``bag_exclude`` (a regex): what the recorder keeps (default: every project topic).
 
     Returns
     -------
@@ -484,8 +498,21 @@ def run_fleet(satellites: dict, *, orbits: float = 5.0, steps: int | None = None
         if res_paths[ns].exists():
             res_paths[ns].unlink()
 
+    if foxglove is not None and not 0 <= int(foxglove) <= 65535:
+        raise ConfigError("--foxglove", None, f"{foxglove}: expected a TCP port 0..65535 (0: any free port)")
+    if bag_exclude:
+        try:
+            re.compile(bag_exclude)
+        except re.error as exc:
+            raise ConfigError("--bag-exclude", None, f"{bag_exclude!r} is not a regular expression ({exc})") from None
+    if (bag_topics or bag_exclude) and not bag:
+        raise ConfigError("--bag-topics/--bag-exclude", None, "only with --bag")
+    time_origin_ns = epoch_ns(sc_params.epoch) if epoch_time else 0
+    if time_origin_ns and multi:
+        raise ConfigError("--epoch-time", None, "one satellite at a time (the recorder follows one clock)")
+
     common = {"use_sim_time": True}
-    sim = dict(common, substeps=int(substeps), lockstep=bool(lockstep), lockstep_timeout=float(lockstep_timeout),
+    sim = dict(common, time_origin_ns=int(time_origin_ns), substeps=int(substeps), lockstep=bool(lockstep), lockstep_timeout=float(lockstep_timeout),
                startup_timeout=float(startup_timeout), real_time_factor=float(real_time_factor))
     if rec_exe:
         sim["min_truth_subscribers"] = 2  # the recorder must be listening before step 0
@@ -540,8 +567,18 @@ def run_fleet(satellites: dict, *, orbits: float = 5.0, steps: int | None = None
                     f"'{t}'" for t in topic_specs(tuple(sats))) + "]", "-r", f"/clock:={next(iter(sats))}/clock"]
             else:
                 custom = {"gains": sats[""].name, **common_ts[""], "sigma": f"{gains_params[''].sigma:g}"}
+                if time_origin_ns:
+                    custom["time_origin_ns"] = time_origin_ns
                 rargs = recorder_args(bag, custom)
+            if bag_topics:   # replaces the default project topic list
+                rargs += ["-p", "topics:=[" + ", ".join(f"'{t}'" for t in bag_topics) + "]"]
+            if bag_exclude:
+                rargs += ["-p", "exclude:='" + bag_exclude.replace("'", "''") + "'"]  # a YAML string, whatever the regex
             procs.append(start_node("recorder", rec_exe, rargs, env, log_dir, fds))
+        if foxglove is not None:
+            topics = [t for t in topic_specs(tuple(sats) if multi else ("",))]
+            procs.append(start_node("live_bridge", resolve_executable("live_bridge"), [], env, log_dir, fds,
+                                    args=["--port", str(int(foxglove)), "--topics", *topics]))
         for ns, g in sats.items():
             remap = ["-r", f"__ns:={ns}", "-r", f"/clock:={ns}/clock"] if ns else []
             tag = f"{_tag(ns)}_" if ns else ""

@@ -98,10 +98,16 @@ def load_run(path, *, truth=TRUTH, dipole=DIPOLE, orbit_rate: float | None = Non
     d = Decoder()
     report: dict = {}
     t, t_ns, q, w, tm, m, rates = [], [], [], [], [], [], {}
+    # a run recorded with `magtune sil --epoch-time` is stamped from the scenario epoch (ns since
+    # 1970); times here are seconds from the start of the run, as the offline simulation's
+    try:
+        origin = int((baglib.read_metadata(path).get("custom_data") or {}).get("time_origin_ns", 0))
+    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError):
+        origin = 0
     for msg in baglib.iter_messages(path, topics=[truth, dipole] + ([rate_topic] if has_rate else []), report=report):
         o = d.decode(msg.data, msg.type)
         s = stamp_ns(o)
-        s = msg.log_time if s is None else s
+        s = (msg.log_time if s is None else s) - origin
         if msg.topic == truth:
             p, a = o.pose.pose.orientation, o.twist.twist.angular
             t_ns.append(s)
@@ -116,6 +122,12 @@ def load_run(path, *, truth=TRUTH, dipole=DIPOLE, orbit_rate: float | None = Non
             m.append((v.x, v.y, v.z))
     if not t:
         raise ValueError(f"{path}: no messages on {truth} (topics: {sorted(baglib.topics_of(path))})")
+    # time series in stamp order: bag order is log-time order, and in a multi-satellite bag the
+    # log times of the other satellites come from the first one's clock (ties, reordering)
+    o = np.argsort(np.array(t_ns), kind="stable")
+    t_ns, t, q, w = [t_ns[i] for i in o], [t[i] for i in o], [q[i] for i in o], [w[i] for i in o]
+    om = np.argsort(np.array(tm), kind="stable")
+    tm, m = [tm[i] for i in om], [m[i] for i in om]
     q_arr = np.array(q)
     # the exact inertial rate at each truth stamp when recorded (a damaged bag may miss some)
     w = [rates.get(k) or _inertial(qi, wi, w0, twist) for k, qi, wi in zip(t_ns, q_arr, w)]

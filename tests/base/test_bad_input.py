@@ -137,3 +137,25 @@ def test_same_error_same_exit_code_everywhere(tmp_path, capsys):
                  ["bag", "recover", missing], ["replay", missing]):
         err = _one_line_exit2(capsys, argv)
         assert re.search(r"nope", err), err
+
+
+def test_node_parameter_list_matches_the_nodes():
+    """NODE_PARAMETERS (what a spacecraft/gains file may set besides the schema) is exactly what
+    the SIL nodes declare (read from their sources: no rclpy needed)."""
+    from magtune_core.design.params import NODE_PARAMETERS
+
+    src = "".join(p.read_text() for p in (ROOT / "ros2_ws" / "src" / "magtune_ros" / "magtune_ros").glob("*.py")
+                  if p.stem in ("simulator", "attitude_sensors", "controller", "common"))
+    declared = set(re.findall(r'declare\((?:self|node), "([a-z_0-9]+)"', src))
+    declared |= set(re.findall(r'declare_parameter\("([a-z_0-9]+)"', src))
+    assert declared <= set(NODE_PARAMETERS), declared - set(NODE_PARAMETERS)
+
+
+def test_example_files_pass_the_strict_checks():
+    for f in sorted((ROOT / "config").rglob("*.yaml")):
+        text = f.read_text()
+        if "gain:" in text:
+            load_gains(f)
+        elif "inertia:" in text:
+            from magtune_core.design.params import load_spacecraft
+            load_spacecraft(f)

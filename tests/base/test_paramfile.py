@@ -103,3 +103,20 @@ def test_gains_files_old_and_new_keys(tmp_path):
     other.write_text(text.replace("\n/**:\n", "\n/**/simulator:\n"))
     with pytest.raises(ConfigError, match="'gain'"):
         load_gains(other)
+
+
+def test_written_gains_load_again(tmp_path):
+    """save_gains of an LQ design (provenance design, design_field, start) writes a /**-keyed
+    file that load_gains accepts (the strict provenance check must know every key written)."""
+    from magtune_core.design.gains import save_gains
+    from magtune_core.design.lq import lq_gains
+    from magtune_core.design.model import AttitudeLTP
+    from magtune_core.design.params import SpacecraftParams
+
+    g = lq_gains(AttitudeLTP.from_params(SpacecraftParams()), 60.0, 1.0)
+    g.provenance["start"] = "LQ of sigma 60"
+    f = tmp_path / "g.yaml"
+    save_gains(f, g)
+    assert "\n/**:\n" in f.read_text()
+    back = load_gains(f)
+    assert (back.K == g.K).all() and back.provenance["design_field"] == g.provenance["design_field"]

@@ -221,8 +221,9 @@ def test_controller_rejects_bad_inputs(live_controller, gains60):
     send(18.5)                                     # older than the last accepted stamp
     send(30.0)                                     # 10 s in the future > 2 Ts
     send(19.5, w=(math.inf, 0.0, 0.0))             # Inf rate: rejected
+    send(19.7, b=(1e308, 0.0, 0.0))                # finite but not physical (issue #10): rejected, counted
     want = {"rejected_nonfinite": 2, "weak_field": 1, "rejected_quaternion": 1, "stale_inputs": 2,
-            "rejected_stamp": 4, "commands": 3}
+            "rejected_stamp": 4, "commands": 3, "rejected_implausible": 1}
     ok = spin(lambda: all(int(diags.get(k, -1)) == v for k, v in want.items()), 10.0)
     assert ok, f"diagnostics {diags} != expected {want}"
     stamps = sorted(c.stamp_to_ns(m.header.stamp) for m in cmds)

@@ -304,17 +304,28 @@ def now_wall() -> float:
 
 # ---------------------------------------------------------------- input checks
 class PairSync:
-    """Matches ``n`` input topics (default 2) by identical header stamps (the latest of each is kept)."""
+    """Matches ``n`` input topics (default 2) by identical header stamps.
 
-    def __init__(self, n: int = 2):
-        self.slots = [None] * n  # (ns, msg)
+    Each slot keeps its last ``depth`` messages by stamp, so a set completes even when another
+    topic already delivered the next step (free-running at a high real-time factor, or a
+    loaded machine); a completed stamp drops itself and everything older in every slot.
+    """
+
+    def __init__(self, n: int = 2, depth: int = 16):
+        self.slots: list[dict] = [{} for _ in range(n)]  # stamp ns -> msg, insertion (= stamp) order
+        self.depth = depth
 
     def add(self, slot: int, ns: int, msg):
-        """Store ``msg``; return (msg0, msg1, ...) when every slot holds the same stamp, else None."""
-        self.slots[slot] = (ns, msg)
-        if all(x is not None and x[0] == ns for x in self.slots):
-            out = tuple(x[1] for x in self.slots)
-            self.slots = [None] * len(self.slots)
+        """Store ``msg``; return (msg0, msg1, ...) when every slot holds stamp ``ns``, else None."""
+        mine = self.slots[slot]
+        mine[ns] = msg
+        if len(mine) > self.depth:
+            del mine[next(iter(mine))]
+        if all(ns in x for x in self.slots):
+            out = tuple(x[ns] for x in self.slots)
+            for x in self.slots:
+                for k in [k for k in x if k <= ns]:
+                    del x[k]
             return out
         return None
 

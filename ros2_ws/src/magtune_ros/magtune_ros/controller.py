@@ -13,7 +13,7 @@ Subscribes (LOCKSTEP_QOS):
 Publishes:
   controller/dipole_command  geometry_msgs/Vector3Stamped [A m^2], stamped with the input stamp;
                              one per input pair; recomputed every ``ts`` of sim time, held between.
-  /diagnostics  counters: samples, commands, weak_field, saturated, rejected_nonfinite,
+  /diagnostics  counters: samples, commands, weak_field, saturated, rejected_nonfinite, rejected_implausible,
                 rejected_quaternion, rejected_stamp, stale_inputs, stale_data
 Inputs are paired by identical stamps. Bad inputs are rejected with a logged reason and
 counted; |b| < min_field gives a zero dipole (counted as weak_field); if no valid input for
@@ -36,6 +36,11 @@ from magtune_core.design.gains import CONTROLLER_FIELDS, Gains
 from magtune_core.design.law import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD, ProjectionController, linear_state
 
 from . import common as c
+
+#: Largest plausible magnetometer reading per axis [T]: the geomagnetic field is below 7e-5 T,
+#: the spacecraft schema bounds constant_field the same way; a larger (finite) value is rejected
+#: and counted (rejected_implausible), never fed to the projection.
+MAX_FIELD = 1e-3
 
 
 class Controller(Node):
@@ -65,6 +70,7 @@ class Controller(Node):
         self.last_input_ns = None
         self.m = np.zeros(3)
         self.diag = c.Diagnostics(self, ["samples", "commands", "weak_field", "saturated", "rejected_nonfinite",
+                                         "rejected_implausible",
                                          "rejected_quaternion", "rejected_stamp", "stale_inputs", "stale_data"])
         self.pub = self.create_publisher(Vector3Stamped, c.TOPIC_DIPOLE, c.LOCKSTEP_QOS)
         self.create_subscription(MagneticField, c.TOPIC_MAG, self.on_mag, c.LOCKSTEP_QOS)
@@ -78,6 +84,8 @@ class Controller(Node):
         b = msg.magnetic_field
         if not c.finite(b.x, b.y, b.z):
             return self.diag.count("rejected_nonfinite", "non-finite magnetic field")
+        if max(abs(b.x), abs(b.y), abs(b.z)) > MAX_FIELD:  # e.g. 1e308 T: finite, not physical
+            return self.diag.count("rejected_implausible", f"|b| component above {MAX_FIELD:g} T")
         self._input(0, msg)
 
     def on_attitude(self, msg: Imu):

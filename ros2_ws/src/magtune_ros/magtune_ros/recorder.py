@@ -4,7 +4,8 @@ Usage (``ros2 run magtune_ros recorder`` or ``install/magtune_ros/lib/magtune_ro
 
     recorder -o bags/NAME [--topics /a /b:pkg/msg/Type ...] [--all] [--custom-data k=v ...]
              [--chunk-size BYTES] [--flush-period S] [--depth N] [--wall-time]
-             [--max-messages N] [--duration S]
+             [--max-messages N] [--duration S] [-e REGEX] [-x REGEX]
+             [--max-bag-size BYTES] [--max-bag-duration S]
     recorder --ros-args -p path:=bags/NAME [-p topics:="['/a', ...]"] [-p custom_data:="['sigma=60']"]
 
 Every option is also a ROS parameter of the same name (``path`` for ``-o``; dashes become
@@ -49,6 +50,7 @@ import argparse
 import bisect
 import collections
 import json
+import re
 import struct
 import sys
 import threading
@@ -93,6 +95,14 @@ def parse_args(argv):
     p.add_argument("--wall-time", action="store_true", default=None, help="log wall time, not sim time")
     p.add_argument("--max-messages", type=int, default=None, help="stop after N messages (0: never)")
     p.add_argument("--duration", type=float, default=None, help="stop after S wall seconds (0: never)")
+    p.add_argument("-e", "--regex", default=None, metavar="REGEX",
+                   help="also record every discovered topic matching REGEX (as ros2 bag record -e)")
+    p.add_argument("-x", "--exclude", default=None, metavar="REGEX",
+                   help="never record topics matching REGEX (applies to --topics, --regex and --all)")
+    p.add_argument("-b", "--max-bag-size", type=int, default=None, metavar="BYTES",
+                   help="split: start NAME_<i+1>.mcap when the file holds BYTES (at a chunk boundary; 0: never)")
+    p.add_argument("-d", "--max-bag-duration", type=float, default=None, metavar="S",
+                   help="split: start a new file every S seconds of log time (0: never)")
     p.add_argument("--overwrite", action="store_true", default=None)
     return p.parse_args(argv)
 
@@ -100,7 +110,8 @@ def parse_args(argv):
 #: option -> default; each is also a ROS parameter (``output`` is the parameter ``path``)
 DEFAULTS = {"output": "", "topics": [], "all": False, "include_hidden": False, "custom_data": [],
             "chunk_size": DEFAULT_CHUNK_SIZE, "flush_period": 1.0, "depth": 10000,
-            "wall_time": False, "max_messages": 0, "duration": 0.0, "overwrite": False}
+            "wall_time": False, "max_messages": 0, "duration": 0.0, "overwrite": False,
+            "regex": "", "exclude": "", "max_bag_size": 0, "max_bag_duration": 0.0}
 
 
 def resolve_options(node: Node, args) -> argparse.Namespace:
@@ -117,7 +128,14 @@ def resolve_options(node: Node, args) -> argparse.Namespace:
         out[key] = cli if cli is not None else value
     if not out["output"]:
         raise SystemExit("recorder: no output bag given (-o bags/NAME or -p path:=bags/NAME)")
-    if not out["topics"] and not out["all"]:
+    for key in ("regex", "exclude"):
+        try:
+            out[key] = re.compile(out[key]) if out[key] else None
+        except re.error as exc:
+            raise ValueError(f"--{key} {out[key]!r} is not a regular expression ({exc})") from None
+    if out["max_bag_size"] < 0 or out["max_bag_duration"] < 0:
+        raise ValueError("--max-bag-size and --max-bag-duration must be >= 0 (0: no split)")
+    if not out["topics"] and not out["all"] and out["regex"] is None:
         out["topics"] = topic_specs()
     return argparse.Namespace(**out)
 
@@ -147,7 +165,9 @@ class SimClockMap:
 
     def sim_at(self, wall_ns: int) -> int:
         i = bisect.bisect_right(self.walls, wall_ns) - 1
-        return self.sims[i] if i >= 0 else 0
+        # received before the first /clock: the earliest sim time known (the run's start; 0 or the
+        # scenario epoch), not 0, which would put an epoch-stamped bag's start in 1970
+        return self.sims[i] if i >= 0 else (self.sims[0] if self.sims else 0)
 
 
 def _has_header(typ: str) -> bool:
@@ -187,8 +207,9 @@ class BagWriterThread(threading.Thread):
 
     def _ready(self, wall_ns: int) -> bool:
         cm = self.clock_map
+        # (nothing is written before the first /clock: its sim time is the run's start)
         return (cm is None or self._halt.is_set() or cm.last_wall > wall_ns
-                or time.time_ns() - wall_ns > self.hold_ns)
+                or (bool(cm.walls) and time.time_ns() - wall_ns > self.hold_ns))
 
     def run(self):
         last_flush = time.monotonic()
@@ -249,7 +270,8 @@ class Recorder(Node):
         self.args = args = resolve_options(self, cli_args)
         custom = dict(kv.split("=", 1) for kv in args.custom_data)
         self.bag = BagWriter(args.output, chunk_size=args.chunk_size, custom_data=custom,
-                             overwrite=args.overwrite)
+                             overwrite=args.overwrite, max_bytes=args.max_bag_size,
+                             max_duration_ns=int(args.max_bag_duration * 1e9))
         self.clock_map = None if args.wall_time else SimClockMap()
         if self.clock_map is not None:
             self.clock_map.source = SimClockMap()
@@ -261,6 +283,8 @@ class Recorder(Node):
             name = "/" + name.lstrip("/")
             if not typ and project_topic(name):  # also under a namespace: /sat1/sim/truth
                 typ = project_topic(name)[0]
+            if args.exclude is not None and args.exclude.search(name):
+                continue
             self.wanted[name] = normalize_type(typ) if typ else None
         self.subs = {}
         self.types: dict[str, str] = {}
@@ -281,8 +305,11 @@ class Recorder(Node):
         self._discover()
 
     def _selected(self, name: str) -> bool:
-        return name in self.wanted or (self.args.all and (
-            self.args.include_hidden or name not in HIDDEN_TOPICS))
+        a = self.args
+        if a.exclude is not None and a.exclude.search(name):
+            return False
+        return name in self.wanted or ((a.all or (a.regex is not None and a.regex.search(name))) and (
+            a.include_hidden or name not in HIDDEN_TOPICS))
 
     def _report_matches(self):
         """Print ``magtune-recorder matched /topic`` once per topic when its first publisher is

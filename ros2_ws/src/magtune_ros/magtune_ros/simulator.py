@@ -181,6 +181,7 @@ class Simulator(Node):
         self.progress_every = max(1, self.n // 10)
         self.t_progress = time.perf_counter()
         self.started = False
+        self.clock_held = 0   # timer ticks /clock was held at time_origin_ns with the peers listening
         self.finished = False
         # recorded run (same layout as SimResult)
         self.Y = np.zeros((self.n + 1, 7))
@@ -238,6 +239,17 @@ class Simulator(Node):
         if self.finished:
             return
         if not self.started:
+            if self.time_origin_ns:
+                # epoch-stamped run: hold every node's clock at the origin while waiting, so the first
+                # samples (stamped 2026-...) are not "in the future" of a clock still at 0
+                self.msg_clock.clock = c.ns_to_stamp(self.t_ns[0])
+                self.pub_clock.publish(self.msg_clock)
+                # start once the sensors and the controller take /clock and had 0.5 s to follow it
+                takers = {i.node_name for i in self.get_subscriptions_info_by_topic(self.pub_clock.topic_name)}
+                if {"attitude_sensors", "controller"} <= takers or not self.wait_peers:
+                    self.clock_held += 1
+                if self.clock_held < 10:
+                    return
             if self.peers_ready():
                 self.started = True
                 self.wall0 = self.t_progress = time.perf_counter()
