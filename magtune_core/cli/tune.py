@@ -36,6 +36,9 @@ def register(sub) -> None:
     p.add_argument("--patience", type=int, default=1,
                    help="stop at the P-th consecutive iteration with r >= r_max (1 = the paper's rule)")
     t.add_argument("--ts", type=float, default=1.0, help="controller sampling period written to the file [s]")
+    t.add_argument("--robust", metavar="SPEC", default=None,
+                   help="robust tuning: minimize the worst J over the model set of this robust spec "
+                        "(magtune_core/design/robust.py; CMA-ES tuner)")
     field_model_argument(t)
     t.add_argument("--out", help="gains file to write (default config/gains/sigma_<sigma>.yaml of the "
                                  "repository; an existing file is kept unless --force)")
@@ -58,6 +61,8 @@ def run(args) -> int:
     _check_args(args)
     out = check_output(args.out or repo_path(f"config/gains/sigma_{args.sigma:g}.yaml"), force=args.force)
     model = load_model(args)
+    if args.robust:
+        return _run_robust(args, model, out)
     # start gain and Magnus steps resolved for this model (design/resolution.py): the paper's LQ
     # start and 64 steps for the paper's satellite; more steps / a milder LQ start for stiff loops
     try:
@@ -107,4 +112,38 @@ def run(args) -> int:
     print(f"sigma={args.sigma:g} [{res.method}]  J: {res.J0:.3f} ({start}, {steps} Magnus steps) -> {fig.J:.3f} in "
           f"{res.evaluations} evaluations, {res.seconds:.1f} s, {state}; c1={fig.c1:.3f} c2={fig.c2:.2f} "
           f"rho={fig.rho:.5f} ({analysis_steps} steps); wrote {out}")
+    return 0
+
+
+def _run_robust(args, model, out) -> int:
+    """``tune --robust SPEC``: worst-case J over the spec's model set (design.robust.tune_robust)."""
+    from ..design.robust import load_robust_spec, model_set, robust_figures, tune_robust
+
+    skipped: list = []
+    models = model_set(model, load_robust_spec(args.robust), args.robust, skipped=skipped)
+    try:
+        from ..design.cmaes import CmaSettings
+
+        settings = CmaSettings(**{k: getattr(args, a) for k, a in (("popsize", "popsize"), ("max_evals", "max_evals"),
+                                                                   ("certify", "restarts"), ("workers", "workers"))
+                                  if hasattr(args, a)})
+        res, sigma0, steps = tune_robust(models, args.sigma, seed=args.seed, settings=settings)
+    except ImportError:
+        raise CommandError("--robust needs the CMA-ES tuner (magtune_core.design.cmaes), not installed here") from None
+    except ValueError as exc:
+        raise CommandError(f"{exc}; try a larger --sigma") from None
+    analysis_steps, _ = resolved_steps([m.model for m in models], res.K, args.sigma, ANALYSIS_STEPS)
+    rf = robust_figures(models, res.K, args.sigma, steps=analysis_steps)
+    nom, worst = rf.nominal(), rf.worst()
+    prov = {**(nom.as_dict() if nom else {}), **res.provenance(), "design_field": model.field.name,
+            "analysis_steps": analysis_steps, "tune_seconds": round(res.seconds, 1),
+            "robust_spec": str(args.robust), "robust_models": len(models), "robust_worst_model": rf.worst_name,
+            **{f"worst_{k}": v for k, v in worst.items()}}
+    prov.pop("stable", None)
+    if sigma0 != args.sigma:
+        prov["start"] = f"LQ of sigma {sigma0:g} (the LQ gain of sigma {args.sigma:g} does not stabilize every model)"
+    save_gains(out, Gains(res.K, args.sigma, args.ts, prov),
+               header=f"magtune tune --sigma {args.sigma:g} --seed {args.seed} --robust {args.robust}")
+    print(f"sigma={args.sigma:g} robust over {len(models)} models: worst J {res.J0:.3f} (start) -> {worst['J']:.3f} "
+          f"({rf.worst_name}); nominal J {nom.J if nom else float('nan'):.3f}; {res.seconds:.1f} s; wrote {out}")
     return 0

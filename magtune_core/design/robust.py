@@ -21,8 +21,9 @@ larger than the sum of the other two: not a rigid body) are left out and reporte
 satellite, 35/17/25 kg m^2, loses the corner [1.1, 0.9, 0.9] of +-10 %).
 
 Robust J = max over the models of J_k(K) (paper eq. 21 per model; inf if any closed loop is
-unstable). The optimizer minimizes it (:mod:`magtune_core.design.objective`); this module builds
-the set and reports per-model and worst-case figures (:func:`robust_figures`).
+unstable). :func:`tune_robust` minimizes it with the CMA-ES tuner on the batched objective
+(:mod:`magtune_core.design.objective`, :mod:`magtune_core.design.cmaes`); this module builds the set
+and reports per-model and worst-case figures (:func:`robust_figures`).
 """
 from __future__ import annotations
 
@@ -210,3 +211,28 @@ def robust_figures(models, K, sigma: float, steps: int = DEFAULT_STEPS) -> Robus
         Figures per model (``figures(model, K, sigma, steps)``), the worst case and the worst model.
     """
     return RobustFigures([m.name for m in models], [figures(m.model, K, sigma, steps=steps) for m in models])
+
+
+def tune_robust(models, sigma: float, seed: int = 0, settings=None, progress=None):
+    """Minimize the worst J over ``models`` (a model set of :func:`model_set`) with the CMA-ES tuner.
+
+    The objective is :class:`magtune_core.design.objective.HinfObjective` over every model of the set
+    (batched over candidates and models), the optimizer :func:`magtune_core.design.cmaes.tune_cma`;
+    the start gain and the Magnus steps are resolved on the whole set
+    (:func:`magtune_core.design.resolution.start_gain`).
+
+    Returns
+    -------
+    (TuneResult, float, int)
+        The tuner's result (``K``, worst-case ``J``), the LQ weight of the start gain and the steps used.
+    """
+    from .cmaes import CmaSettings, tune_cma  # the converging tuner (imported here: optional until it lands)
+    from .objective import HinfObjective
+    from .resolution import start_gain
+
+    lt = [m.model for m in models]
+    K0, sigma0, steps, _ = start_gain(lt, sigma)
+    s = replace(settings or CmaSettings(), steps=steps)
+    with HinfObjective(lt, sigma, steps=steps, rtol=s.rtol, workers=s.workers) as objective:
+        res = tune_cma(objective, K0, sigma, seed=seed, settings=s, progress=progress)
+    return res, sigma0, steps
