@@ -31,13 +31,16 @@ def main():
     ap.add_argument("--gains", default=None, help="gains file (default: LQ sigma=60 test gain)")
     ap.add_argument("--no-check", action="store_true", help="skip the offline comparison")
     ap.add_argument("--environment", choices=("paper", "full"), default="paper")
+    ap.add_argument("--no-visuals", action="store_true",
+                    help="simulator without /tf and sim/markers (publish_tf/publish_markers false): their cost")
     a = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="magtune_bench_"))
     gains = a.gains
     if gains is None:
         gains = tmp / "sigma_60.yaml"
         save_gains(gains, lq_gains(AttitudeLTP.from_params(SpacecraftParams()), 60.0, 1.0))
-    run = sil.run_sil(gains, orbits=a.orbits, ts=1.0, log_dir=tmp, environment=a.environment)
+    run = sil.run_sil(gains, orbits=a.orbits, ts=1.0, log_dir=tmp, environment=a.environment,
+                      simulator_params=dict(publish_tf=False, publish_markers=False) if a.no_visuals else None)
     print(f"environment {a.environment}")
     print(run.summary())
     print(f"RTF {run.real_time_factor:.0f}x over {run.result.t[-1]:.0f} s sim "

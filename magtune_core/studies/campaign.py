@@ -404,9 +404,10 @@ def run_batch(spec: CampaignSpec, jobs: list, steps: int, record_every: int) -> 
     """One Dask task: the runs ``jobs`` [(gains index, run index)] advanced together.
 
     A batch that raises is re-run one run at a time, so one bad run is reported as failed
-    (with its message) without losing the others. Returns ``{"rows", "hist", "jobs", "wall"}``.
+    (with its message) without losing the others. Returns ``{"rows", "hist", "jobs", "wall", "cpu"}``
+(``cpu``: the task's process CPU time [s], what sizing a cluster needs, independent of the load).
     """
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         rows, hist = _simulate_rows(spec, jobs, steps, record_every)
         keep = list(range(len(jobs)))
@@ -427,7 +428,8 @@ def run_batch(spec: CampaignSpec, jobs: list, steps: int, record_every: int) -> 
     for row in rows:
         ok, why = verdict(row, spec.criteria, row["orbit_period"])
         row["passed"], row["fail_reasons"] = ok, why
-    return dict(rows=rows, hist=hist, jobs=[jobs[k] for k in keep], wall=time.perf_counter() - t0)
+    return dict(rows=rows, hist=hist, jobs=[jobs[k] for k in keep], wall=time.perf_counter() - t0,
+                cpu=time.process_time() - c0)
 
 
 # --- execution -----------------------------------------------------------------------------------
@@ -506,7 +508,8 @@ def _run_dask(spec, batches, steps, every, scheduler, workers, bar):
             try:
                 res = fut.result()
             except Exception as exc:  # noqa: BLE001 - a lost task: every run of the batch is reported failed
-                res = dict(rows=[_failed_row(spec, g, i, exc) for g, i in batches[j]], hist=None, jobs=[], wall=math.nan)
+                res = dict(rows=[_failed_row(spec, g, i, exc) for g, i in batches[j]], hist=None, jobs=[], wall=math.nan,
+                           cpu=math.nan)
                 for row in res["rows"]:
                     row["passed"], row["fail_reasons"] = False, "failed"
             results.append((j, res))
@@ -546,6 +549,9 @@ def write_results(spec: CampaignSpec, runs: int, out: Path, results: list, batch
                 campaign=_plain(spec.campaign), dispersions=_plain(spec.dispersions), criteria=_plain(spec.criteria),
                 **info)
     meta["runs_per_second"] = len(rows) / info["wall"] if info.get("wall") else math.nan
+    # CPU time of the tasks (load-independent): per run, and what a wall-clock rate would be on idle cores
+    meta["task_cpu_s"] = float(np.nansum([res.get("cpu", math.nan) for _, res in results]))
+    meta["cpu_s_per_run"] = meta["task_cpu_s"] / len(rows)
     (out / "campaign.json").write_text(json.dumps(meta, indent=1, default=str))
     (out / "spec.yaml").write_text(yaml.safe_dump(spec.raw, sort_keys=False))
     return meta

@@ -65,7 +65,8 @@ def write_report(out) -> str:
              f"file(s) = {n} runs; environment **{meta['environment']}**, {meta['orbits']:g} orbits, Ts = "
              f"{meta['ts']:g} s ({meta['substeps']} RK4 steps per Ts), {meta['steps']} controller steps per run.",
              f"Executed on {meta.get('scheduler')} with {meta.get('workers')} worker(s), {meta['batches']} batches of "
-             f"<= {meta['batch_size']} runs, {meta['wall']:.1f} s wall ({meta['runs_per_second']:.2f} runs/s).", "",
+             f"<= {meta['batch_size']} runs, {meta['wall']:.1f} s wall ({meta['runs_per_second']:.2f} runs/s; task CPU "
+             f"{meta.get('cpu_s_per_run', float('nan')):.3f} s per run).", "",
              "## Outcome", "", "| status | runs |", "|---|---|"]
     for s in STATUSES:
         lines.append(f"| {s} | {int(np.sum(status == s))} |")
@@ -172,7 +173,8 @@ def summary_lines(meta: dict, cols: dict) -> list:
     ok = status == "ok"
     n = len(status)
     out = [f"{n} runs in {meta['wall']:.1f} s ({meta['runs_per_second']:.2f} runs/s, {meta.get('workers')} worker(s), "
-           f"{meta['batches']} batches): " + ", ".join(f"{s} {int(np.sum(status == s))}" for s in STATUSES)
+           f"{meta['batches']} batches, task CPU {meta.get('cpu_s_per_run', float('nan')):.3f} s per run): "
+           + ", ".join(f"{s} {int(np.sum(status == s))}" for s in STATUSES)
            + f"; passed {int(cols['passed'].astype(bool).sum())} ({100.0 * cols['passed'].astype(bool).mean():.1f} %)"]
     for key, unit in (("settling_time", "s"), ("max_pointing_deg", "deg"), ("peak_dipole", "A m^2")):
         v = cols[key][ok].astype(float)

@@ -184,8 +184,9 @@ class Player(Node):
             st.next_requests += 1
             st.version += 1
             st.cond.notify_all()
-            # answer once the loop has published it (or gave up: end of the window)
-            end = time.monotonic() + 5.0
+            # answer once the loop has published it (or gave up: end of the window); the loop may
+            # still be waiting for subscribers (--wait-subscribers) before its first message
+            end = time.monotonic() + 5.0 + self.args.wait_subscribers
             while st.next_requests > 0 and time.monotonic() < end and not self.stop.is_set():
                 st.cond.wait(0.05)
             res.success = st.next_requests == 0 and not st.exhausted
