@@ -35,7 +35,8 @@ if [ -d "$root/ros2_ws/src" ] && [ -n "$(ls -A "$root/ros2_ws/src" 2>/dev/null)"
     # wheels' CMake configs through AMENT_PREFIX_PATH/CMAKE_PREFIX_PATH = the venv
     (cd "$root/ros2_ws" && PATH="$venv/bin:$PATH" AMENT_PREFIX_PATH="$venv${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}" \
         CMAKE_PREFIX_PATH="$venv${CMAKE_PREFIX_PATH:+:$CMAKE_PREFIX_PATH}" "$venv/bin/colcon" build \
-        --event-handlers console_cohesion- summary- console_stderr- >/dev/null) \
+        --event-handlers console_cohesion- summary- console_stderr- >/dev/null \
+        2> >(grep -v "doesn't contain any 'local_setup" >&2 || true)) \
       || { echo "bootstrap: colcon build failed; see ros2_ws/log/latest_build" >&2; exit 1; }
     echo "$wwant" > "$wstamp"
   fi

@@ -127,7 +127,8 @@ def _run_robust(args, model, out) -> int:
         settings = CmaSettings(**{k: getattr(args, a) for k, a in (("popsize", "popsize"), ("max_evals", "max_evals"),
                                                                    ("certify", "restarts"), ("workers", "workers"))
                                   if hasattr(args, a)})
-        res, sigma0, steps = tune_robust(models, args.sigma, seed=args.seed, settings=settings)
+        K0 = load_gains(args.start).K if getattr(args, "start", None) else None
+        res, sigma0, steps = tune_robust(models, args.sigma, seed=args.seed, settings=settings, K0=K0)
     except ImportError:
         raise CommandError("--robust needs the CMA-ES tuner (magtune_core.design.cmaes), not installed here") from None
     except ValueError as exc:
@@ -140,7 +141,9 @@ def _run_robust(args, model, out) -> int:
             "robust_spec": str(args.robust), "robust_models": len(models), "robust_worst_model": rf.worst_name,
             **{f"worst_{k}": v for k, v in worst.items()}}
     prov.pop("stable", None)
-    if sigma0 != args.sigma:
+    if getattr(args, "start", None):
+        prov["start"] = str(args.start)
+    elif sigma0 != args.sigma:
         prov["start"] = f"LQ of sigma {sigma0:g} (the LQ gain of sigma {args.sigma:g} does not stabilize every model)"
     save_gains(out, Gains(res.K, args.sigma, args.ts, prov),
                header=f"magtune tune --sigma {args.sigma:g} --seed {args.seed} --robust {args.robust}")

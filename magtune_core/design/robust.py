@@ -213,13 +213,13 @@ def robust_figures(models, K, sigma: float, steps: int = DEFAULT_STEPS) -> Robus
     return RobustFigures([m.name for m in models], [figures(m.model, K, sigma, steps=steps) for m in models])
 
 
-def tune_robust(models, sigma: float, seed: int = 0, settings=None, progress=None):
+def tune_robust(models, sigma: float, seed: int = 0, settings=None, progress=None, K0=None):
     """Minimize the worst J over ``models`` (a model set of :func:`model_set`) with the CMA-ES tuner.
 
     The objective is :class:`magtune_core.design.objective.HinfObjective` over every model of the set
     (batched over candidates and models), the optimizer :func:`magtune_core.design.cmaes.tune_cma`;
-    the start gain and the Magnus steps are resolved on the whole set
-    (:func:`magtune_core.design.resolution.start_gain`).
+    the start gain (``K0``, default :func:`magtune_core.design.resolution.start_gain`) and the
+    Magnus steps are resolved on the whole set.
 
     Returns
     -------
@@ -231,7 +231,15 @@ def tune_robust(models, sigma: float, seed: int = 0, settings=None, progress=Non
     from .resolution import start_gain
 
     lt = [m.model for m in models]
-    K0, sigma0, steps, _ = start_gain(lt, sigma)
+    if K0 is None:
+        K0, sigma0, steps, _ = start_gain(lt, sigma)
+    else:  # a given start (e.g. the nominal gains): steps resolved on it, over the whole set
+        from .resolution import resolved_steps
+
+        K0, sigma0 = np.asarray(K0, dtype=float).reshape(3, 6), sigma
+        steps, J0 = resolved_steps(lt, K0, sigma)
+        if not np.isfinite(J0):
+            raise ValueError("the start gain does not stabilize every model of the set")
     s = replace(settings or CmaSettings(), steps=steps)
     with HinfObjective(lt, sigma, steps=steps, rtol=s.rtol, workers=s.workers) as objective:
         res = tune_cma(objective, K0, sigma, seed=seed, settings=s, progress=progress)
