@@ -29,8 +29,8 @@ def test_runtime_imports_are_declared():
     proj = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     runtime = {_name(r) for r in proj["dependencies"]}
     module_to_dist = {"yaml": "pyyaml", "pyIGRF14": "pyigrf14", "numpy": "numpy", "scipy": "scipy", "tqdm": "tqdm",
-                      "mcap": "mcap", "rosbags": "rosbags", "matplotlib": "matplotlib",
-                      "dask": "dask", "distributed": "distributed", "pyarrow": "pyarrow",
+                      "mcap": "mcap", "rosbags": "rosbags", "matplotlib": "matplotlib", "cma": "cma",
+                      "threadpoolctl": "threadpoolctl", "dask": "dask", "distributed": "distributed", "pyarrow": "pyarrow",
                       "foxglove": "foxglove-sdk"}
     seen = set()
     for p in (ROOT / "magtune_core").rglob("*.py"):

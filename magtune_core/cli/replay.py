@@ -17,9 +17,10 @@ from ..ros.replay import DEFAULT_WAIT_SUBSCRIBERS, ReplayOptions, run_player
 
 def register(sub) -> None:
     p = sub.add_parser("replay", help="republish a recorded bag (player node) with /clock",
-                       description="Republish a recorded bag with /clock (the player node); control services "
-                                   "/magtune_player/{pause,resume,toggle_paused,is_paused,get_rate,set_rate,"
-                                   "play_next,seek} with the rosbag2_interfaces types of ros2 bag play.")
+                       description="Republish a recorded bag with /clock (the player node). Control services "
+                                   "of the node /magtune_player, with the rosbag2_interfaces types of ros2 bag "
+                                   "play: pause, resume, toggle_paused, is_paused, get_rate, set_rate, play_next, "
+                                   "seek.")
     p.add_argument("bag", help="bag directory (bags/NAME) or .mcap file")
     p.add_argument("--rate", type=float, default=1.0, help="speed factor > 0 (0: as fast as acknowledged)")
     p.add_argument("--topics", nargs="+", default=None, help="only these topics (each must be in the bag)")

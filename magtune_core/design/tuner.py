@@ -62,11 +62,14 @@ class TuneResult:
     history: list = field(default_factory=list)  # (iteration, J, r, mu, better) per step
     seconds: float = 0.0
     converged: bool = False
+    method: str = "paper"
+    evaluations: int = 0  # gains evaluated (paper: candidates gamma-tested; cma: full J evaluations)
 
     def provenance(self) -> dict:
         s = asdict(self.settings)
         s.pop("workers")
-        return {"seed": int(self.seed), "iterations": int(self.iterations), "converged": bool(self.converged),
+        return {"method": self.method, "seed": int(self.seed), "iterations": int(self.iterations),
+                "evaluations": int(self.evaluations), "converged": bool(self.converged),
                 "J_initial": float(self.J0), "tuner": {k: (float(v) if isinstance(v, float) else v) for k, v in s.items()}}
 
 
@@ -154,13 +157,14 @@ def tune(model: AttitudeLTP, sigma: float, seed: int = 0, settings: TunerSetting
     history = []
     ev = CandidateEvaluator(model, sigma, s.steps, s.workers)
     converged = False
-    it = strikes = 0
+    it = strikes = evaluations = 0
     try:
         while it < s.max_iter and mu > s.mu_min:
             drift = 0.0 if dK is None or not np.any(dK) else dK / np.linalg.norm(dK)
             eta = rng.standard_normal((s.samples, 3, 6))
             Ks = K + mu * (eta + drift)  # eq. (23)
             better = ev.passes(Ks, np.full((s.samples, 1), J))[:, 0]
+            evaluations += s.samples
             r = 1.0 - better.mean()  # eq. (25): fraction of candidates worse than K(i)
             if better.any():
                 idx = np.flatnonzero(better)
@@ -191,4 +195,5 @@ def tune(model: AttitudeLTP, sigma: float, seed: int = 0, settings: TunerSetting
     finally:
         ev.close()
     J = float(hinfnorm(performance_system(model, K, sigma), rtol=1e-8, steps=s.steps, guess=J))
-    return TuneResult(K, J, K0_, J0, sigma, seed, it, s, history, time.perf_counter() - t_start, converged)
+    return TuneResult(K, J, K0_, J0, sigma, seed, it, s, history, time.perf_counter() - t_start, converged,
+                      method="paper", evaluations=evaluations)

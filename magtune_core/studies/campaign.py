@@ -456,8 +456,7 @@ def run_campaign(spec: CampaignSpec, runs: int, out, *, scheduler: str | None = 
     thread each), ``"tcp://HOST:PORT"`` (an existing Dask cluster) or ``"synchronous"`` (in this
     process, no Dask: debugging and the reference of the tests).
     """
-    out = Path(out)
-    (out / "histories").mkdir(parents=True, exist_ok=True)
+    out = Path(out)  # created only when there are results to write (a failed connection leaves nothing)
     steps, every = spec.steps(), spec.record_every()
     batches = plan(spec, runs)
     total = sum(len(b) for b in batches)
@@ -526,6 +525,7 @@ def write_results(spec: CampaignSpec, runs: int, out: Path, results: list, batch
     import pyarrow as pa
     import pyarrow.parquet as pq
 
+    (out / "histories").mkdir(parents=True, exist_ok=True)
     results = sorted(results, key=lambda r: r[0])
     rows = []
     for j, res in results:

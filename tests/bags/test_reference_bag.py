@@ -19,6 +19,9 @@ from magtune_core.sim.simulate import simulate
 
 REF = Path(__file__).resolve().parents[2] / "bags" / "reference_sigma60_1orbit"
 STEPS = 5616  # one orbit at Ts = 1 s: t = 0 .. 5615 s
+#: The gains the bag was recorded with: the sigma = 60 gains of the paper's algorithm, shipped as
+#: config/gains/sigma_60.yaml until the converging tuner replaced them (kept in paper_method/).
+BAG_GAINS = Path(__file__).resolve().parents[2] / "config" / "gains" / "paper_method" / "sigma_60.yaml"
 
 
 def test_reference_bag_reads_with_rosbags_and_matches_offline_simulation():
@@ -43,7 +46,7 @@ def test_reference_bag_reads_with_rosbags_and_matches_offline_simulation():
     assert types["/sim/truth"] == "nav_msgs/msg/Odometry"
     assert types["/controller/dipole_command"] == "geometry_msgs/msg/Vector3Stamped"
 
-    g = load_gains(Path(__file__).resolve().parents[2] / "config" / "gains" / "sigma_60.yaml")
+    g = load_gains(BAG_GAINS)
     p = load_spacecraft(Path(__file__).resolve().parents[2] / "config" / "spacecraft.yaml")
     res = simulate(g.K, p, ts=1.0, steps=STEPS - 1)
     ks = np.array(sorted(truth))
@@ -78,7 +81,7 @@ def test_report_reads_the_pre_0_3_reference_bag_with_inertial_twist():
     from magtune_core.studies.report import load_run
 
     p = load_spacecraft(Path(__file__).resolve().parents[2] / "config" / "spacecraft.yaml")
-    g = load_gains(Path(__file__).resolve().parents[2] / "config" / "gains" / "sigma_60.yaml")
+    g = load_gains(BAG_GAINS)
     res = simulate(g.K, p, ts=1.0, steps=STEPS - 1)
     run = load_run(REF, twist="inertial", orbit_rate=p.orbit_rate)
     np.testing.assert_allclose(run.x, res.x, rtol=0, atol=1e-12)  # same float64 values through CDR

@@ -1,0 +1,144 @@
+"""Tuner benchmark: the methods against each other, and the cost of one J(K), in one run.
+
+    python bench/bench_tuner.py [--sigmas 60,120,240] [--methods cma,paper] [--seeds 0] [--max-evals 30000]
+                                [--workers 2] [--skip-norm] [--skip-methods]
+
+Prints, with the machine's load average (the machine is shared: read every time against it):
+
+1. J(K) single-gain time at 1e-4 relative accuracy (bisection bracket) for 32/64/128 Magnus steps,
+   the discretization error of each against a 512-step reference, and the per-gain time in a
+   batch of 500 gains (HinfObjective, one process and ``--workers`` processes);
+2. per method, sigma and seed: evaluations and wall time until the best J is within 1 % and
+   0.2 % of the best known J (the lowest of the shipped gains' J and the issue's values), the
+   final J and whether the method's stopping rule fired. Evaluations: full J evaluations for
+   cma, candidates gamma-tested (one level each) for the paper's method.
+
+Timings are wall-clock; nothing is asserted.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from magtune_core.design.cmaes import CmaSettings, tune_cma
+from magtune_core.design.gains import load_gains
+from magtune_core.design.lq import lq_gain
+from magtune_core.design.model import AttitudeLTP
+from magtune_core.design.objective import HinfObjective
+from magtune_core.design.params import SpacecraftParams
+from magtune_core.design.problem import performance_system
+from magtune_core.design.tuner import TunerSettings, tune
+from magtune_core.ltp import hinfnorm
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Best J found before this benchmark existed (issue 9: CMA-ES from the shipped gains, 64 steps).
+ISSUE_BEST = {60: 267.76, 120: 379.25, 240: 600.53}
+
+
+def load() -> str:
+    return "load average " + " ".join(open("/proc/loadavg").read().split()[:3])
+
+
+def best_known(sigma: float) -> float:
+    vals = [ISSUE_BEST.get(int(sigma), np.inf)]
+    p = ROOT / "config" / "gains" / f"sigma_{sigma:g}.yaml"
+    if p.exists():
+        vals.append(float(load_gains(p).provenance.get("J", np.inf)))
+    return float(min(vals))
+
+
+def bench_norm(model, sigma, workers):
+    K = load_gains(ROOT / "config" / "gains" / f"sigma_{sigma:g}.yaml").K
+    sys_ = performance_system(model, K, sigma)
+    ref = float(hinfnorm(sys_, rtol=1e-9, steps=512))
+    print(f"\n## J(K) cost, sigma = {sigma:g}, shipped gain; reference J = {ref:.6f} (512 Magnus steps); {load()}")
+    print("| Magnus steps | rel. error vs 512 | single J(K), rtol 1e-4 [ms] | batch of 500, 1 process [ms/gain] |")
+    print("|---|---|---|---|")
+    rng = np.random.default_rng(0)
+    Ks = K * (1 + 0.02 * rng.standard_normal((500, 3, 6)))
+    for steps in (32, 64, 128):
+        ts = []
+        for _ in range(5):
+            t = time.perf_counter()
+            J = float(hinfnorm(sys_, rtol=1e-4, steps=steps))
+            ts.append(time.perf_counter() - t)
+        batch = ""
+        if steps <= 64:
+            obj = HinfObjective(model, sigma, steps=steps, rtol=1e-4)
+            t = time.perf_counter()
+            obj(Ks, guess=ref, spread=1.05)
+            batch = f"{1e3 * (time.perf_counter() - t) / len(Ks):.1f}"
+        print(f"| {steps} | {abs(J - ref) / ref:.1e} | {1e3 * np.median(ts):.1f} | {batch} |")
+    if workers > 1:
+        with HinfObjective(model, sigma, steps=64, rtol=1e-4, workers=workers) as obj:
+            obj(Ks[:2 * workers])  # start the workers
+            t = time.perf_counter()
+            obj(Ks, guess=ref, spread=1.05)
+            print(f"batch of 500, 64 steps, {workers} processes: {1e3 * (time.perf_counter() - t) / len(Ks):.1f} ms/gain ({load()})")
+
+
+def run_method(model, sigma, method, seed, max_evals, workers):
+    """(rows of (evaluations, seconds, J_best), result) of one tuning run."""
+    rows = []
+    t0 = time.perf_counter()
+    if method == "paper":
+        s = TunerSettings(workers=workers)
+
+        def prog(it, J, r, mu, nb):
+            rows.append((it * s.samples, time.perf_counter() - t0, J))
+
+        res = tune(model, sigma, seed=seed, settings=s, progress=prog)
+    else:
+        s = CmaSettings(max_evals=max_evals, workers=workers)
+
+        def prog(ev, J, gen, step, restart):
+            rows.append((ev, time.perf_counter() - t0, J))
+
+        with HinfObjective(model, sigma, steps=s.steps, rtol=s.rtol, workers=workers) as obj:
+            res = tune_cma(obj, lq_gain(model, sigma), sigma, seed=seed, settings=s, progress=prog)
+    return rows, res
+
+
+def reach(rows, target):
+    for ev, t, J in rows:
+        if J <= target:
+            return f"{ev} / {t:.0f} s"
+    return "not reached"
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sigmas", default="60,120,240")
+    ap.add_argument("--methods", default="cma,paper")
+    ap.add_argument("--seeds", default="0")
+    ap.add_argument("--max-evals", type=int, default=30000)
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--skip-norm", action="store_true")
+    ap.add_argument("--skip-methods", action="store_true")
+    args = ap.parse_args()
+    model = AttitudeLTP.from_params(SpacecraftParams())
+    sigmas = [float(s) for s in args.sigmas.split(",")]
+    print(f"# magtune tuner benchmark ({os.cpu_count()} cores; {load()})")
+    if not args.skip_norm:
+        bench_norm(model, sigmas[0], args.workers)
+    if args.skip_methods:
+        return
+    print(f"\n## Methods: evaluations / wall time to reach J within 1 % and 0.2 % of the best known ({args.workers} workers)")
+    print("| sigma | method | seed | best known J | to 1 % | to 0.2 % | final J | evaluations | time [s] | stop rule fired | load at end |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for sigma in sigmas:
+        bk = best_known(sigma)
+        for method in args.methods.split(","):
+            for seed in (int(s) for s in args.seeds.split(",")):
+                rows, res = run_method(model, sigma, method, seed, args.max_evals, args.workers)
+                print(f"| {sigma:g} | {method} | {seed} | {bk:.2f} | {reach(rows, 1.01 * bk)} | {reach(rows, 1.002 * bk)} | "
+                      f"{res.J:.3f} | {res.evaluations} | {res.seconds:.0f} | {res.converged} | "
+                      f"{open('/proc/loadavg').read().split()[0]} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()

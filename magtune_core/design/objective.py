@@ -1,0 +1,163 @@
+"""The tuning objective J(K) = max over design models of ||G_zTd^sigma(K)||_inf, batched.
+
+Paper eq. (21) for one model; for several models (issue 11: robust tuning over field models)
+the worst case over them. Every optimizer of :mod:`magtune_core.design` calls an objective as
+``J = objective(Ks)`` with a population ``Ks`` of shape (n, 3, 6) and gets J of shape (n,), so
+the evaluation is one batched Riccati gamma-test bisection per model (``ltp.hinfnorm``), not n
+separate ones, and is spread over ``workers`` processes when asked.
+
+Conventions (documented in README, tested in tests/design/test_objective.py):
+
+* a gain whose closed loop is not exponentially stable (max |characteristic multiplier| >= 1
+  for any model, paper Theorem 2.1 / eq. 30) gets J = inf; it is screened by the cheap
+  monodromy test first, so unstable candidates cost no bisection;
+* J is computed to relative accuracy ``rtol`` (bracket of the bisection) with ``steps`` Magnus
+  intervals per period; ``evaluations`` counts gains evaluated (one gain against every model
+  counts once), the unit of the benchmarks.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+from ..ltp import DEFAULT_STEPS, hinfnorm, spectral_radius
+from .model import AttitudeLTP
+from .problem import attitude_system, performance_system
+
+
+def _one_blas_thread() -> None:
+    """Worker initializer: BLAS/OpenMP pools of a worker use one thread (the workers are the parallelism)."""
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=1)
+
+
+def model_norms(model: AttitudeLTP, sigma: float, Ks: np.ndarray, steps: int, rtol: float,
+                guess=None, spread: float | None = None) -> np.ndarray:
+    """||G_zTd^sigma(K)||_inf for a batch of gains (n, 3, 6) on one model; inf where unstable.
+
+    Returns
+    -------
+    ndarray (n,)
+        The H-inf norm per gain (relative accuracy ``rtol``), inf where the closed loop is unstable.
+    """
+    Ks = np.asarray(Ks, dtype=float).reshape(-1, 3, 6)
+    out = np.full(len(Ks), np.inf)
+    if len(Ks) == 0:
+        return out
+    with np.errstate(all="ignore"):
+        rho = spectral_radius(attitude_system(model, Ks), steps)
+    ok = np.isfinite(rho) & (rho < 1.0)
+    if not ok.any():
+        return out
+    g = None
+    if guess is not None:  # a starting level per gain; unusable entries take the largest usable one
+        g = np.broadcast_to(np.asarray(guess, dtype=float), (len(Ks),))[ok]
+        good = np.isfinite(g) & (g > 0)
+        g = np.where(good, g, g[good].max()) if good.any() else None
+    out[ok] = hinfnorm(performance_system(model, Ks[ok], sigma), rtol=rtol, steps=steps, guess=g, grid=1,
+                       spread=spread if g is not None else None)
+    return out
+
+
+def _norms_job(models, sigma, Ks, steps, rtol, guess, spread):
+    """Worker body: the (n, n_models) matrix of norms of one slice of the population."""
+    cols = [model_norms(m, sigma, Ks, steps, rtol, None if guess is None else guess[:, i], spread)
+            for i, m in enumerate(models)]
+    return np.stack(cols, axis=-1)
+
+
+class HinfObjective:
+    """J(K) = max over ``models`` of ||G_zTd^sigma(K)||_inf (paper eq. 21), for batches of gains.
+
+    Parameters
+    ----------
+    models : AttitudeLTP or sequence of AttitudeLTP
+        One design model (paper) or several (robust design: the worst case counts).
+    sigma : float
+        Control-effort weight of z = [Z x; sigma K x] (paper eq. 20).
+    steps : int
+        Magnus intervals per period of every norm evaluation.
+    rtol : float
+        Relative accuracy of each norm (bisection bracket).
+    workers : int
+        Processes the population is split over (1 = in this process). Workers have their BLAS
+        pinned to one thread; use the objective as a context manager or call :meth:`close`.
+
+    Calling the objective with ``Ks`` (n, 3, 6) returns J (n,); :meth:`per_model` returns the
+    (n, n_models) matrix and :meth:`worst` the index of the model attaining the max.
+    """
+
+    def __init__(self, models: AttitudeLTP | Sequence[AttitudeLTP], sigma: float, steps: int = DEFAULT_STEPS,
+                 rtol: float = 1e-4, workers: int = 1):
+        self.models = (models,) if isinstance(models, AttitudeLTP) else tuple(models)
+        if not self.models:
+            raise ValueError("HinfObjective: at least one model is needed")
+        self.sigma, self.steps, self.rtol = float(sigma), int(steps), float(rtol)
+        self.workers = max(1, int(workers))
+        self.evaluations = 0
+        self._pool = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+            self._pool = None
+
+    def _get_pool(self):
+        if self._pool is None:
+            self._pool = ProcessPoolExecutor(self.workers, initializer=_one_blas_thread)
+        return self._pool
+
+    def per_model(self, Ks, guess=None, spread: float | None = None) -> np.ndarray:
+        """||G_zTd||_inf of each gain on each model.
+
+        ``guess`` (scalar, (n,) or (n, n_models)) is a starting level for the bisection (e.g. the
+        incumbent's J) and ``spread`` how far from it the norms are expected (ratio, e.g. 1.05);
+        both only affect speed.
+
+        Returns
+        -------
+        ndarray (n, n_models)
+            The norm per gain and model; inf where that closed loop is unstable.
+        """
+        Ks = np.asarray(Ks, dtype=float).reshape(-1, 3, 6)
+        n, nm = len(Ks), len(self.models)
+        self.evaluations += n
+        if guess is not None:
+            guess = np.broadcast_to(np.asarray(guess, dtype=float).reshape((-1, nm) if np.ndim(guess) == 2 else (-1, 1)),
+                                    (n, nm))
+        if self.workers == 1 or n < 2 * self.workers:
+            return _norms_job(self.models, self.sigma, Ks, self.steps, self.rtol, guess, spread)
+        parts = np.array_split(np.arange(n), self.workers)
+        pool = self._get_pool()
+        futs = [pool.submit(_norms_job, self.models, self.sigma, Ks[p], self.steps, self.rtol,
+                            None if guess is None else np.ascontiguousarray(guess[p]), spread) for p in parts]
+        return np.concatenate([f.result() for f in futs], axis=0)
+
+    def __call__(self, Ks, guess=None, spread: float | None = None) -> np.ndarray:
+        """J per gain: the max over models of the norm (n,); inf where any closed loop is unstable.
+
+        Returns
+        -------
+        ndarray (n,)
+            J(K) for each gain of ``Ks`` (n, 3, 6).
+        """
+        return self.per_model(Ks, guess, spread).max(axis=-1)
+
+    def worst(self, Ks) -> np.ndarray:
+        """Index (into ``models``) of the model with the largest norm, per gain (n,).
+
+        Returns
+        -------
+        ndarray of int (n,)
+            argmax over models of the norm (0 for a single model).
+        """
+        return np.argmax(self.per_model(Ks), axis=-1)

@@ -1,0 +1,128 @@
+"""The converging tuner (design/cmaes.py): a known optimum, determinism, and the paper method kept."""
+import numpy as np
+import pytest
+from scipy.linalg import solve_continuous_are
+
+from magtune_core.design.cmaes import CmaSettings, gain_scale, tune_cma
+from magtune_core.design.lq import lq_gain
+from magtune_core.design.model import Z_ATT, AttitudeLTP
+from magtune_core.design.objective import HinfObjective
+from magtune_core.design.params import SpacecraftParams
+from magtune_core.design.tuner import tune
+
+SIGMA = 60.0
+
+#: K of the gains shipped before the converging tuner existed: ``magtune tune --method paper
+#: --sigma 240 --seed 0`` (2 iterations; the published algorithm must keep giving exactly this).
+PAPER_SEED0_SIGMA240 = np.array([
+    -0.0008048349235071871, -0.003951925280812875, 6.833457713800863e-05, -0.03815311827819637,
+    0.00305165125392073, 0.000548773800469451, 0.005713507020921349, 0.0008686678486420144,
+    -0.0010529612628141516, 0.006338363750353365, -0.053081191642538265, -0.0010215618190719663,
+    -0.0013476671684697354, 0.0007146170712238449, -0.007247926119558277, 0.0005682879857561659,
+    -0.003362146704624579, -0.33206751464225176]).reshape(3, 6)
+
+
+@pytest.fixture(scope="module")
+def lti_model():
+    p = SpacecraftParams(field_model="constant", constant_field=np.array([2e-5, 1e-5, 1.5e-5]))
+    return AttitudeLTP.from_params(p)
+
+
+def riccati_gain(model, sigma, gamma):
+    """Central full-information H-inf gain -B'X/sigma^2 of the constant-field (LTI) loop at level
+    gamma, independently of magtune's Riccati code (scipy ARE with indefinite R; Doyle, Glover,
+    Khargonekar & Francis 1989): X solves A'X + XA + X (B_T B_T'/gamma^2 - B B'/sigma^2) X + Z'Z = 0.
+    None unless X is stabilizing and >= 0 (then the loop's norm is < gamma)."""
+    A, B1, B2, Q = model.A, model.BT, model.B(0.0), Z_ATT.T @ Z_ATT
+    R = np.diag([-gamma ** 2] * 3 + [sigma ** 2] * 3)
+    try:
+        X = solve_continuous_are(A, np.hstack([B1, B2]), Q, R)
+    except (np.linalg.LinAlgError, ValueError):
+        return None
+    if not np.all(np.isfinite(X)) or np.linalg.eigvalsh(0.5 * (X + X.T))[0] < -1e-9 * np.abs(X).max():
+        return None
+    Acl = A + (B1 @ B1.T / gamma ** 2 - B2 @ B2.T / sigma ** 2) @ X
+    return -B2.T @ X / sigma ** 2 if np.max(np.linalg.eigvals(Acl).real) < 0 else None
+
+
+def state_feedback_optimum(model, sigma):
+    """Optimal H-inf level of state feedback (static gains reach any level above it): the smallest
+    gamma with a :func:`riccati_gain`, by bisection."""
+    lo, hi = 1.0, 1e5
+    while hi / lo > 1 + 1e-9:
+        mid = np.sqrt(lo * hi)
+        lo, hi = (lo, mid) if riccati_gain(model, sigma, mid) is not None else (mid, hi)
+    return hi
+
+
+@pytest.mark.slow
+def test_cma_reaches_the_lti_state_feedback_optimum(lti_model):
+    """Known optimum: the constant-field loop. Its infimum gopt is reached only with unbounded
+    gains (X blows up as gamma -> gopt: the Riccati gain is 30x the LQ gain at 0.2 % above gopt,
+    of the LQ's size at 5 % above), so the check is against the Riccati gain of the LQ's size."""
+    gopt = state_feedback_optimum(lti_model, SIGMA)
+    obj = HinfObjective(lti_model, SIGMA, steps=4, rtol=1e-7)  # Magnus is exact for constant A
+    K5 = riccati_gain(lti_model, SIGMA, 1.05 * gopt)
+    J5 = float(obj(K5[None])[0])
+    assert gopt < J5 < 1.05 * gopt  # theory: the central gain keeps the norm below its level
+    assert np.abs(K5).max() < 2 * np.abs(lq_gain(lti_model, SIGMA)).max()
+    res = tune_cma(obj, lq_gain(lti_model, SIGMA), SIGMA, seed=3, settings=CmaSettings(max_evals=2500))
+    assert res.J0 > 1.5 * gopt  # the LQ start is far from it (measured 434.7 vs 282.75)
+    # nothing beats the optimum (up to the 1e-7 brackets and the ARE bisection's 1e-9) ...
+    assert res.J >= gopt * (1 - 1e-6)
+    # ... and the tuner, from the LQ start, does as well as the Riccati gain of the same size
+    # (measured 295.31 vs 296.33; the certified stop fired after 2450 evaluations)
+    assert res.J <= J5 * (1 + 1e-3)
+
+
+def test_cma_is_deterministic_for_a_seed(lti_model):
+    s = CmaSettings(popsize=6, max_evals=30)
+    K0 = lq_gain(lti_model, SIGMA)
+    runs = [tune_cma(HinfObjective(lti_model, SIGMA, steps=4), K0, SIGMA, seed=sd, settings=s) for sd in (5, 5, 6)]
+    np.random.seed(1)  # the package's global generator is not used: touching it changes nothing
+    again = tune_cma(HinfObjective(lti_model, SIGMA, steps=4), K0, SIGMA, seed=5, settings=s)
+    assert np.array_equal(runs[0].K, runs[1].K) and np.array_equal(runs[0].K, again.K)
+    assert not np.array_equal(runs[0].K, runs[2].K)
+    assert runs[0].J < runs[0].J0 and runs[0].method == "cma" and runs[0].evaluations >= 30
+    Js = [h[1] for h in runs[0].history]
+    assert all(a >= b for a, b in zip(Js, Js[1:]))  # the incumbent never gets worse
+
+
+def test_gain_scale_covers_zero_entries():
+    K = np.zeros((3, 6))
+    K[0, 0], K[1, 3] = 2.0, -0.5
+    S = gain_scale(K)
+    assert S[0, 0] == 2.0 and S[1, 0] == pytest.approx(0.2) and S[1, 3] == 0.5
+    assert np.all(S > 0)  # a column of zeros still gets a step
+
+
+@pytest.mark.slow
+def test_paper_method_seed0_still_gives_the_shipped_gains():
+    model = AttitudeLTP.from_params(SpacecraftParams())
+    res = tune(model, 240.0, seed=0)
+    assert res.method == "paper" and res.iterations == 2
+    # the same candidates are drawn and chosen: any other choice moves K by ~mu = 1e-3 x a unit
+    # draw. Measured difference 2e-10 relative (1e-13 absolute): the LQ start's last bits, which
+    # later changes of the LQ/averaging arithmetic moved; 1e-8 leaves room for libm differences.
+    np.testing.assert_allclose(res.K, PAPER_SEED0_SIGMA240, rtol=1e-8, atol=1e-15)
+
+
+def test_tune_and_front_commands(tmp_path):
+    """``magtune tune`` (default method cma) and ``magtune front`` on the constant-field model, tiny budgets."""
+    import json
+
+    from magtune_core.cli import main
+    from magtune_core.design.gains import load_gains
+
+    out = tmp_path / "g.yaml"
+    assert main(["tune", "--sigma", "60", "--field-model", "constant", "--popsize", "4", "--max-evals", "12",
+                 "--out", str(out), "--quiet"]) == 0
+    g = load_gains(out)
+    assert g.provenance["method"] == "cma" and g.provenance["evaluations"] >= 12 and g.provenance["J"] > 0
+    assert main(["tune", "--sigma", "60", "--workers", "0", "--out", str(tmp_path / "x.yaml")]) == 2
+    assert main(["front", "--sigmas", "60,120", "--field-model", "constant", "--popsize", "4", "--max-evals", "8",
+                 "--workers", "1", "--out-dir", str(tmp_path)]) == 0
+    pts = json.loads((tmp_path / "front.json").read_text())["points"]
+    assert [p["sigma"] for p in pts] == [60.0, 120.0] and (tmp_path / "front.png").stat().st_size > 10000
+    # the outputs exist now: a second run refuses before any work
+    assert main(["front", "--sigmas", "60", "--field-model", "constant", "--out-dir", str(tmp_path)]) == 2
