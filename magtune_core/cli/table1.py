@@ -15,7 +15,7 @@ def register(sub) -> None:
     tb.add_argument("--gains-dir", default=repo_path("config/gains"),
                     help="holds sigma_60/120/240.yaml (default: config/gains of the repository)")
     tb.add_argument("--paper-gains-dir", default=repo_path("config/gains/paper_method"),
-                    help="gains of `magtune tune --method paper` (sigma_60/120/240.yaml) for the extra rows; "
+                    help="gains of 'magtune tune --method paper' (sigma_60/120/240.yaml) for the extra rows; "
                          "skipped when absent (default: config/gains/paper_method of the repository)")
     tb.add_argument("--out", default=repo_path("docs/table1.md"),
                     help="markdown output (default: docs/table1.md of the repository; an existing file is kept "
