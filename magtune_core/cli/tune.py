@@ -47,7 +47,19 @@ def register(sub) -> None:
     t.set_defaults(func=run)
 
 
+#: Options that only one method reads, with their defaults: given to the other method they would be
+#: silently ignored (a paper-style ``--samples 200 --max-iter 6`` does not shorten a CMA-ES run).
+METHOD_ONLY = {"cma": {"popsize": 16, "max_evals": 30000, "restarts": 2},
+               "paper": {"samples": 540, "r_max": 0.995, "mu": 1e-3, "max_iter": 300, "patience": 1}}
+
+
 def _check_args(args) -> None:
+    for method, options in METHOD_ONLY.items():
+        if args.method != method:
+            for name, default in options.items():
+                if getattr(args, name) != default:
+                    raise ConfigError("--" + name.replace("_", "-"), None,
+                                      f"is an option of --method {method}; add --method {method} or drop it")
     for name in ("workers", "popsize", "max_evals", "restarts", "samples", "max_iter", "patience"):
         if getattr(args, name) < 1:
             raise ConfigError("--" + name.replace("_", "-"), None, f"must be a positive integer, got {getattr(args, name)}")

@@ -67,11 +67,22 @@ def test_tune_refuses_to_overwrite_shipped_gains(capsys):
     shipped = ROOT / "config" / "gains" / "sigma_60.yaml"
     before, status = shipped.read_bytes(), _git_status(shipped)
     t0 = time.perf_counter()
-    assert cli_main(["tune", "--sigma", "60", "--samples", "50"]) == 2
+    assert cli_main(["tune", "--sigma", "60", "--method", "paper", "--samples", "50"]) == 2
     assert time.perf_counter() - t0 < 5.0  # refused before the tuner started (a tune takes ~20 s)
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "sigma_60.yaml: exists; pass --force" in err, err
     assert shipped.read_bytes() == before and _git_status(shipped) == status
+
+
+@pytest.mark.parametrize("argv, option, method", [
+    (["--samples", "50"], "--samples", "paper"),  # the default method is cma: --samples would be ignored
+    (["--method", "paper", "--max-evals", "100"], "--max-evals", "cma"),
+])
+def test_tune_refuses_options_of_the_other_method(argv, option, method, capsys):
+    """An option the chosen method does not read is refused (one line, exit 2), not silently ignored."""
+    assert cli_main(["tune", "--sigma", "60", "--out", "/nonexistent-dir/x.yaml", *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and option in err and f"--method {method}" in err, err
 
 
 @pytest.mark.parametrize("argv, name", [

@@ -58,7 +58,7 @@ def test_pipeline_fit_tune_analyze_sil(tmp_path):
     magtune("fit-field", "--altitude", "550", "--inclination", "97.6", "--epoch", "2027-01-01", "--raan", "258.8",
             "--days", "1", "--step", "60", "--out", str(field))
     out = magtune("tune", "--sigma", "120", "--field", str(field), "--config", f"{EX}/spacecraft.yaml",
-                  "--samples", "200", "--max-iter", "6", "--quiet", "--out", str(gains))
+                  "--method", "paper", "--samples", "200", "--max-iter", "6", "--quiet", "--out", str(gains))
     assert "wrote" in out
     fig = json.loads(magtune("analyze", str(gains), "--field", str(field), "--config", f"{EX}/spacecraft.yaml",
                              "--json"))
