@@ -24,6 +24,12 @@ The algorithm (decisions documented in README, section "Tuning to the optimum"):
    in a ball of relative radius ``restart_sigma`` around the incumbent found a better gain, the
    result is declared converged. ``max_evals`` bounds the work (``converged`` is then False).
 
+5. **ranking resolution**: each generation's J are computed to a relative accuracy of
+   ``rtol_spread`` x (median - best) / best of the previous generation, between ``rtol`` and
+   ``rtol_max``: a widely spread population needs fewer bisection levels per gain, and near
+   the optimum the accuracy tightens to ``rtol``; the returned J is re-evaluated at the
+   objective's own accuracy.
+
 Every random draw comes from ``numpy.random.default_rng(seed)`` (passed to cma as its ``randn``;
 the package's global seeding is switched off), so a seed gives the same gains.
 """
@@ -50,7 +56,9 @@ class CmaSettings:
     rtol_certify: float = 2e-4
     max_evals: int = 30000
     steps: int = 64  # Magnus intervals per period in every norm evaluation
-    rtol: float = 1e-5  # relative accuracy of each J (ranking resolution)
+    rtol: float = 1e-5  # relative accuracy of each J near convergence (ranking resolution)
+    rtol_max: float = 1e-3  # ... and while the population's J are widely spread (rtol_spread x spread)
+    rtol_spread: float = 0.05
     workers: int = 1
 
 
@@ -99,12 +107,13 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
                 "CMA_diagonal": False}
         es = cma.CMAEvolutionStrategy(best_x.copy(), step0, opts)
         guess, spread = best_J, 1.5 if restart == 0 else 1.1
+        rtol = s.rtol_max if restart == 0 else s.rtol
         last_gain = 0  # generation of the last improvement > rtol_stall in this run
         gen = 0
         while not es.stop():
             X = np.asarray(es.ask())
             Ks = K0 + S * X.reshape(-1, 3, 6)
-            J = objective(Ks, guess=guess, spread=spread)
+            J = objective(Ks, guess=guess, spread=spread, rtol=rtol)
             fin = np.isfinite(J)
             worst = J[fin].max() if fin.any() else 10 * best_J
             f = np.where(fin, J, 10 * worst * (1 + np.linalg.norm(X - best_x, axis=1)))  # ranked below every stable gain
@@ -122,6 +131,10 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
             if fin.any():
                 guess = float(np.median(J[fin]))
                 spread = float(np.clip(J[fin].max() / J[fin].min(), 1.02, 1.5))
+                # ranking resolution: a small fraction of the spread of the better half (CMA-ES
+                # uses only ranks, and ranks closer than that are noise-level to it anyway)
+                rel = (np.median(J[fin]) - J[fin].min()) / J[fin].min()
+                rtol = float(np.clip(s.rtol_spread * rel, s.rtol, s.rtol_max))
             evals = objective.evaluations - ev0
             history.append((evals, best_J, gen_total, float(es.sigma), restart))
             if progress is not None:

@@ -116,12 +116,13 @@ class HinfObjective:
             self._pool = ProcessPoolExecutor(self.workers, initializer=_one_blas_thread)
         return self._pool
 
-    def per_model(self, Ks, guess=None, spread: float | None = None) -> np.ndarray:
+    def per_model(self, Ks, guess=None, spread: float | None = None, rtol: float | None = None) -> np.ndarray:
         """||G_zTd||_inf of each gain on each model.
 
         ``guess`` (scalar, (n,) or (n, n_models)) is a starting level for the bisection (e.g. the
         incumbent's J) and ``spread`` how far from it the norms are expected (ratio, e.g. 1.05);
-        both only affect speed.
+        both only affect speed. ``rtol`` overrides the objective's accuracy for this call (an
+        optimizer that only ranks a widely spread population asks for less).
 
         Returns
         -------
@@ -134,15 +135,16 @@ class HinfObjective:
         if guess is not None:
             guess = np.broadcast_to(np.asarray(guess, dtype=float).reshape((-1, nm) if np.ndim(guess) == 2 else (-1, 1)),
                                     (n, nm))
+        rtol = self.rtol if rtol is None else float(rtol)
         if self.workers == 1 or n < 2 * self.workers:
-            return _norms_job(self.models, self.sigma, Ks, self.steps, self.rtol, guess, spread)
+            return _norms_job(self.models, self.sigma, Ks, self.steps, rtol, guess, spread)
         parts = np.array_split(np.arange(n), self.workers)
         pool = self._get_pool()
-        futs = [pool.submit(_norms_job, self.models, self.sigma, Ks[p], self.steps, self.rtol,
+        futs = [pool.submit(_norms_job, self.models, self.sigma, Ks[p], self.steps, rtol,
                             None if guess is None else np.ascontiguousarray(guess[p]), spread) for p in parts]
         return np.concatenate([f.result() for f in futs], axis=0)
 
-    def __call__(self, Ks, guess=None, spread: float | None = None) -> np.ndarray:
+    def __call__(self, Ks, guess=None, spread: float | None = None, rtol: float | None = None) -> np.ndarray:
         """J per gain: the max over models of the norm (n,); inf where any closed loop is unstable.
 
         Returns
@@ -150,7 +152,7 @@ class HinfObjective:
         ndarray (n,)
             J(K) for each gain of ``Ks`` (n, 3, 6).
         """
-        return self.per_model(Ks, guess, spread).max(axis=-1)
+        return self.per_model(Ks, guess, spread, rtol).max(axis=-1)
 
     def worst(self, Ks) -> np.ndarray:
         """Index (into ``models``) of the model with the largest norm, per gain (n,).

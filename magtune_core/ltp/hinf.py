@@ -79,8 +79,9 @@ def scattering(phi: np.ndarray):
 def star(a, b):
     """Redheffer star product of an earlier segment a and a later segment b; also the junction check.
 
-    Returns ((E, G, Hs, F), ok) where ok is False where the junction has a conjugate point
-    (an eigenvalue of G_a Hs_b at or beyond 1) or the numbers are no longer finite.
+    Returns ((E, G, Hs, F), ok, kappa) where ok is False where the junction has a conjugate
+    point (an eigenvalue of G_a Hs_b at or beyond 1) or the numbers are no longer finite, and
+    kappa is that largest eigenvalue (how close the junction is to a conjugate point).
     """
     Ea, Ga, Ha, Fa = a
     Eb, Gb, Hb, Fb = b
@@ -94,9 +95,10 @@ def star(a, b):
     Hs = Ha + FaHb @ SinvEa
     F = Fa @ Fb + FaHb @ SinvGaFb
     Hs = _sym(Hs)
-    ok = _finite(E, G, Hs, F) & (_max_eig_product(Ga, Hb) < 1.0)
+    kappa = _max_eig_product(Ga, Hb)
+    ok = _finite(E, G, Hs, F) & (kappa < 1.0)
     ok = ok & _psd(np.where(ok[..., None, None], Hs, 0.0))
-    return (E, G, Hs, F), ok
+    return (E, G, Hs, F), ok, kappa
 
 
 def _max_eig_product(G, H):
@@ -157,21 +159,25 @@ def _take(blocks, sl):
 
 
 def period_scattering(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS):
-    """Scattering blocks of one period of the Hamiltonian flow, and where they exist."""
+    """Scattering blocks of one period of the Hamiltonian flow, where they exist, and the
+    largest junction eigenvalue kappa met on the way (``star``)."""
     M1, M2, h = generator_at_nodes(lambda t: hamiltonian(sys, gamma, t), sys.period, steps)
     with np.errstate(all="ignore"):
         blocks = scattering(magnus_exponentials(M1, M2, h))  # (..., steps, n, n) each
         ok = _finite(*blocks).all(axis=-1)
+        kappa = np.full(ok.shape, -np.inf)
         while blocks[0].shape[-3] > 1:  # pairwise star products, earlier interval first
             k = blocks[0].shape[-3]
             if k % 2:
-                tail, ok_t = star(_take(blocks, slice(-2, -1)), _take(blocks, slice(-1, None)))
+                tail, ok_t, kap = star(_take(blocks, slice(-2, -1)), _take(blocks, slice(-1, None)))
                 blocks = tuple(np.concatenate([x[..., :-2, :, :], y], axis=-3) for x, y in zip(blocks, tail))
                 ok = ok & ok_t[..., 0]
+                kappa = np.fmax(kappa, kap[..., 0])
                 continue
-            blocks, ok_l = star(_take(blocks, slice(0, None, 2)), _take(blocks, slice(1, None, 2)))
+            blocks, ok_l, kap = star(_take(blocks, slice(0, None, 2)), _take(blocks, slice(1, None, 2)))
             ok = ok & ok_l.all(axis=-1)
-    return tuple(x[..., 0, :, :] for x in blocks), ok
+            kappa = np.fmax(kappa, kap.max(axis=-1))
+    return tuple(x[..., 0, :, :] for x in blocks), ok, kappa
 
 
 def gamma_test(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS, return_decay: bool = False):
@@ -189,9 +195,38 @@ def gamma_test(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS, return_decay: 
     rho : ndarray of float, same shape (only with ``return_decay``)
         Decay of the Hamiltonian closed loop over one period; NaN where the test fails.
     """
+    if not return_decay:
+        return _gamma_test(sys, gamma, steps, margins=False)
+    passed, rho, _ = _gamma_test(sys, gamma, steps, margins=True)
+    return passed, rho
+
+
+def gamma_margins(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS):
+    """The gamma-test with the two margins that say how far gamma is above the norm.
+
+    The test fails at the norm by one of two events (module docstring): a pair of Hamiltonian
+    multipliers reaching the unit circle (then the decay rho -> 1, with (ln rho)^2 ~ linear in
+    gamma: a frequency peak), or a conjugate point inside the period (then the largest junction
+    eigenvalue kappa -> 1, with 1 - kappa ~ linear in gamma: the finite-horizon Riccati solution
+    escapes). ``hinfnorm`` extrapolates both to place its levels.
+
+    Returns
+    -------
+    passed : ndarray of bool
+        As :func:`gamma_test`.
+    rho : ndarray of float
+        Decay of the Hamiltonian closed loop over one period; NaN where the test fails.
+    kappa : ndarray of float
+        Largest junction eigenvalue of G_a Hs_b over the period tree and the doublings (< 1 where
+        the test passes); NaN where the test fails.
+    """
+    return _gamma_test(sys, gamma, steps, margins=True)
+
+
+def _gamma_test(sys: LTPSystem, gamma, steps: int, margins: bool):
     gamma = np.asarray(gamma, dtype=float)
     dmax = feedthrough_bound(sys)
-    blocks, ok = period_scattering(sys, gamma, steps)
+    blocks, ok, kappa = period_scattering(sys, gamma, steps)
     one_period = blocks
     ok = ok & (gamma > dmax)
     done = np.zeros(ok.shape, dtype=bool)
@@ -201,17 +236,18 @@ def gamma_test(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS, return_decay: 
             done = done | (ok & (decay < _CONVERGED))
             if np.all(done | ~ok):
                 break
-            blocks, ok_d = star(blocks, blocks)  # horizon 2^k periods -> 2^(k+1)
+            blocks, ok_d, kap = star(blocks, blocks)  # horizon 2^k periods -> 2^(k+1)
             ok = ok & (ok_d | done)
+            kappa = np.where(done, kappa, np.fmax(kappa, kap))
         passed = done & ok
-        if not return_decay:
+        if not margins:
             return passed
         E, G = one_period[0], one_period[1]
         n = E.shape[-1]
         psi = _safe_solve(np.eye(n) - G @ blocks[2], E)
         fin = np.all(np.isfinite(psi), axis=(-1, -2)) & passed
         rho = np.max(np.abs(np.linalg.eigvals(np.where(fin[..., None, None], psi, 0.0))), axis=-1)
-    return passed, np.where(fin, rho, np.nan)
+    return passed, np.where(fin, rho, np.nan), np.where(passed, kappa, np.nan)
 
 
 def feedthrough_bound(sys: LTPSystem, samples: int = 256) -> np.ndarray:
@@ -253,10 +289,11 @@ def hinfnorm(sys: LTPSystem, rtol: float = 1e-6, steps: int = DEFAULT_STEPS, gue
     centre = np.broadcast_to(np.asarray(guess, dtype=float), batch).copy()
     lo, hi = dlo.copy(), np.full(batch, np.inf)
     lo_ok = np.zeros(batch, dtype=bool)  # lo is a level known to fail (or the D bound)
-    rho_hi = np.full(batch, np.nan)  # Hamiltonian closed-loop decay at hi
+    m_hi = np.full(batch + (2,), np.nan)  # margins at hi: (ln rho)^2 and 1 - kappa (gamma_margins)
+    prev = np.full(batch + (3,), np.nan)  # the passing level before hi, with its margins
     # Bracket [lo, hi], lo failing and hi passing: grids of ratio 4 around a centre that moves
     # by 4^grid until the test changes (the test is monotone in gamma).
-    ratio = (2.0 if grid == 1 else 4.0) if spread is None else float(spread)  # one system: guess within 2x
+    ratio = (1.25 if grid == 1 else 4.0) if spread is None else float(spread)  # the step squares: far guesses are reached fast
     factors = ratio ** (np.arange(grid) - grid // 2)
     step = np.full(batch, ratio)
     for _ in range(24):
@@ -265,12 +302,13 @@ def hinfnorm(sys: LTPSystem, rtol: float = 1e-6, steps: int = DEFAULT_STEPS, gue
             break
         todo = ~bracketed
         gam = centre[..., None] * factors
-        passed, rho = _test_some(sys, gam, steps, todo)
+        passed, marg = _test_some(sys, gam, steps, todo)
         anyp, allp = passed.any(-1), passed.all(-1)
         first = np.argmax(passed, axis=-1)
         g_first = np.take_along_axis(gam, first[..., None], -1)[..., 0]
         lower = todo & anyp & (g_first < hi)
-        rho_hi = np.where(lower, np.take_along_axis(rho, first[..., None], -1)[..., 0], rho_hi)
+        prev = np.where((lower & np.isfinite(hi))[..., None], np.concatenate([hi[..., None], m_hi], axis=-1), prev)
+        m_hi = np.where(lower[..., None], np.take_along_axis(marg, first[..., None, None], -2)[..., 0, :], m_hi)
         g_prev = np.take_along_axis(gam, np.maximum(first - 1, 0)[..., None], -1)[..., 0]
         hi = np.where(todo & anyp, np.minimum(hi, g_first), hi)
         fail_top = np.where(anyp, g_prev, gam[..., -1])
@@ -283,43 +321,45 @@ def hinfnorm(sys: LTPSystem, rtol: float = 1e-6, steps: int = DEFAULT_STEPS, gue
     found_hi = bracketed
     lo = np.maximum(lo, dlo)
     lo = np.maximum(lo, 1e-300)
-    # Refinement. Levels come from a model of the Hamiltonian closed-loop decay rho(gamma)
-    # of the passing levels: (ln rho)^2 is nearly linear in gamma near the norm (a pair of
-    # multipliers leaving the unit circle), so two passing levels predict where it reaches 0,
-    # and the two levels tested straddle that prediction. Whenever a prediction is
-    # unavailable, implausible or did not halve the bracket, a plain (geometric) bisection
-    # step is taken instead, so the bracket always shrinks and the result never depends on
-    # the model being right.
-    hist = np.full(batch + (2, 2), np.nan)  # last two passing (gamma, (ln rho)^2), newest first
-    hist[..., 0, 0], hist[..., 0, 1] = hi, np.log(rho_hi) ** 2
+    # Refinement. Levels come from a model of the two margins of the passing levels
+    # (gamma_margins): the norm is where the first of them vanishes as gamma falls, the decay
+    # margin (ln rho)^2 (a frequency peak) or the conjugate-point margin 1 - kappa (an escape of
+    # the Riccati solution inside the period). ``margin_zero`` extrapolates each from the last
+    # passing levels and the norm is predicted at the higher zero (a margin that is not the
+    # binding one extrapolates to a lower gamma). Two levels straddle the prediction by its
+    # expected error (the change from the previous prediction, at least rtol / 3): both
+    # failing or both passing still shrink the bracket, and a passing level near the norm
+    # makes the next prediction much better. Whenever a prediction is unavailable or outside
+    # the bracket, or the last one did not shrink the bracket enough, a plain (geometric)
+    # bisection level is tested instead, so the bracket always shrinks and the result never
+    # depends on the model being right.
+    hist = np.full(batch + (3, 3), np.nan)  # last three passing (gamma, (ln rho)^2, 1 - kappa), newest first
+    hist[..., 0, 0], hist[..., 0, 1:] = hi, m_hi
+    hist[..., 1, :] = prev
     trust = np.ones(batch, dtype=bool)
+    last_est = np.full(batch, np.nan)
     while True:
         active = found_hi & (hi - lo > rtol * hi)
         if not active.any():
             break
-        g1, d1, g2, d2 = hist[..., 0, 0], hist[..., 0, 1], hist[..., 1, 0], hist[..., 1, 1]
+        est = margin_zero(hist[..., 0], hist[..., 1:], lo, line=np.log(hi / lo) < 0.01).max(axis=-1)
+        plausible = active & trust & np.isfinite(est) & (est > lo) & (est < hi)
         with np.errstate(all="ignore"):
-            est = g1 - d1 * (g2 - g1) / (d2 - d1)
-        plausible = trust & np.isfinite(est) & (d2 > d1) & (est > lo) & (est < hi)
+            err = np.where(np.isfinite(last_est), 2.0 * np.abs(est - last_est) / est, 0.1 * np.log(hi / lo))
+        delta = np.clip(err, rtol / 3.0, 0.25 * np.log(hi / lo))
+        last_est = np.where(plausible, est, last_est)
         frac = np.arange(1, grid + 1) / (grid + 1)
         bis = lo[..., None] * (hi / lo)[..., None] ** frac
-        delta = rtol / 3.0
-        # below the prediction by rtol / 3, and above it by a tenth of the way to hi: the
-        # prediction is usually within that, and a passing level close to the norm makes the
-        # next prediction much better (its error is quadratic in the distance to the norm)
-        above = np.maximum(est * (1.0 + delta), est + 0.1 * (hi - est))
-        pred = np.clip(np.stack([est * (1.0 - delta), above], axis=-1), lo[..., None], hi[..., None])
-        width = max(grid, 2) if plausible.any() else grid  # no duplicate levels when all bisect
-        bis = np.concatenate([bis, np.repeat(bis[..., -1:], width - grid, axis=-1)], axis=-1)
-        if width >= 2:
-            pred = np.concatenate([pred, np.repeat(pred[..., -1:], width - 2, axis=-1)], axis=-1)
-            gam = np.where(plausible[..., None], np.sort(pred, axis=-1), bis)
-        else:
-            gam = bis
-        # one passing level known: probe 3% below it for a second, close one
-        probe = np.isfinite(g1) & np.isfinite(d1) & ~np.isfinite(g2) & (0.97 * g1 > lo)
-        gam = np.where(probe[..., None], (0.97 * g1)[..., None], gam)
-        passed, rho = _test_some(sys, gam, steps, active)
+        width = max(grid, 2)
+        pred = np.clip(est[..., None] * (1.0 + np.array([-1.0, 1.0]) * delta[..., None]), lo[..., None], hi[..., None])
+        pad = lambda x: np.concatenate([x, np.repeat(x[..., -1:], width - x.shape[-1], axis=-1)], axis=-1)  # noqa: E731
+        gam = np.where(plausible[..., None], pad(pred), pad(bis))
+        need = (active[..., None] & (gam > lo[..., None]) & (gam < hi[..., None])
+                & np.concatenate([np.ones(batch + (1,), bool), gam[..., 1:] > gam[..., :-1]], axis=-1))
+        passed, marg = _test_some(sys, gam, steps, need)
+        # levels not tested (duplicates, or clipped to the bracket's ends) take the known answer
+        passed = np.where(need, passed, (gam >= hi[..., None]) | np.concatenate(
+            [np.zeros(batch + (1,), bool), passed[..., :-1]], axis=-1))
         first = np.where(passed.any(-1), np.argmax(passed, axis=-1), width)
         g_ext = np.concatenate([lo[..., None], gam, hi[..., None]], axis=-1)
         new_lo = np.take_along_axis(g_ext, first[..., None], -1)[..., 0]
@@ -327,32 +367,76 @@ def hinfnorm(sys: LTPSystem, rtol: float = 1e-6, steps: int = DEFAULT_STEPS, gue
         shrunk = np.log(new_hi / new_lo) <= 0.25 * np.log(hi / lo)
         trust = np.where(active, ~plausible | shrunk, trust)
         got = active & (first < width)
-        rho_first = np.take_along_axis(rho, np.minimum(first, width - 1)[..., None], -1)[..., 0]
-        dnew = np.log(rho_first) ** 2
-        newer = got & np.isfinite(dnew) & (new_hi < np.where(np.isfinite(g1), g1, np.inf))
-        hist[..., 1, :] = np.where(newer[..., None], hist[..., 0, :], hist[..., 1, :])
-        hist[..., 0, 0] = np.where(newer, new_hi, g1)
-        hist[..., 0, 1] = np.where(newer, dnew, d1)
+        m_first = np.take_along_axis(marg, np.minimum(first, width - 1)[..., None, None], -2)[..., 0, :]
+        newer = got & np.any(np.isfinite(m_first), axis=-1) & (new_hi < hist[..., 0, 0])
+        hist[..., 1:, :] = np.where(newer[..., None, None], hist[..., :-1, :], hist[..., 1:, :])
+        hist[..., 0, 0] = np.where(newer, new_hi, hist[..., 0, 0])
+        hist[..., 0, 1:] = np.where(newer[..., None], m_first, hist[..., 0, 1:])
         lo = np.where(active, new_lo, lo)
         hi = np.where(active, new_hi, hi)
     return np.where(found_hi, 0.5 * (lo + hi), np.inf)
 
 
+def margin_zero(g: np.ndarray, m: np.ndarray, lo: np.ndarray, line=True, points: int = 256) -> np.ndarray:
+    """Where margins observed at passing levels extrapolate to zero (hinfnorm's level model).
+
+    ``g`` (*batch, k) holds passing levels, nearest the norm first (NaN where unknown), ``m``
+    (*batch, k, q) q margins at them (:func:`gamma_margins`). With three levels each margin is
+    fitted by m = c (gamma - gamma0)^p (p in [0.25, 2]: 1/2 and 1 are the generic laws of the two
+    events, a non-smooth optimum with several active peaks lies in between); with two, by a line
+    (p = 1), where ``line`` (*batch) allows it (near the norm only: far from it the margins
+    bend). The zero gamma0 of the three-point fit is the root, nearest g[0], of
+    ln(m1/m2) ln((g2 - x)/(g3 - x)) = ln(m2/m3) ln((g1 - x)/(g2 - x)) on a log grid of distances
+    below g[0] (down to ``lo``).
+
+    Returns
+    -------
+    ndarray (*batch, q)
+        The predicted zero per margin; -inf where there is no usable prediction.
+    """
+    g1, g2, g3 = (g[..., i, None] for i in range(3))
+    m1, m2, m3 = (m[..., i, :] for i in range(3))
+    with np.errstate(all="ignore"):
+        lin = g1 - m1 * (g2 - g1) / (m2 - m1)
+        lin = np.where(np.asarray(line)[..., None] & (m2 > m1) & (m1 > 0) & np.isfinite(lin), lin, -np.inf)
+        # three-point power law: scan x = g1 - d, d from 1e-9 g1 to g1 - lo
+        frac = np.logspace(-9, 0, points)
+        span = np.maximum(g1 - lo[..., None], 0.0)
+        x = g1[..., None] - span[..., None] * frac  # (*batch, 1, points)
+        l12, l23 = np.log(m1 / m2)[..., None], np.log(m2 / m3)[..., None]
+        F = l12 * np.log((g2[..., None] - x) / (g3[..., None] - x)) - l23 * np.log((g1[..., None] - x) / (g2[..., None] - x))
+        change = np.sign(F[..., :-1]) * np.sign(F[..., 1:]) < 0
+        i = np.argmax(change, axis=-1)[..., None]
+        xa, xb = np.take_along_axis(np.broadcast_to(x, F.shape), i, -1), np.take_along_axis(np.broadcast_to(x, F.shape), i + 1, -1)
+        Fa, Fb = np.take_along_axis(F, i, -1), np.take_along_axis(F, i + 1, -1)
+        root = (xa - Fa * (xb - xa) / (Fb - Fa))[..., 0]
+        p = (l12[..., 0]) / np.log((g1 - root) / (g2 - root))
+        ok = change.any(axis=-1) & (m1 > 0) & (m2 > m1) & (m3 > m2) & (p >= 0.25) & (p <= 2.0) & np.isfinite(root)
+    return np.where(ok, root, lin)
+
+
 def _test_some(sys, gam, steps, which):
-    """_test_grid (with decay) on the systems where ``which`` is True only; the others get
-    (False, NaN), which the callers ignore (their bracket is closed)."""
-    batch = which.shape
+    """The margins test of the (system, level) pairs of gam (*batch, g) where ``which`` is True.
+
+    ``which`` is (*batch) (whole rows) or (*batch, g) (single pairs); only those pairs are
+    computed, as one flat batch. Returns (passed (*batch, g), margins (*batch, g, 2) =
+    ((ln rho)^2, 1 - kappa)); the other pairs get (False, NaN), which the callers ignore."""
+    batch, g = gam.shape[:-1], gam.shape[-1]
+    which = np.broadcast_to(which if which.ndim == gam.ndim else which[..., None], gam.shape)
     passed = np.zeros(gam.shape, dtype=bool)
-    rho = np.full(gam.shape, np.nan)
-    if which.all():
-        return _test_grid(sys, gam, steps, decay=True)
+    marg = np.full(gam.shape + (2,), np.nan)
     if not which.any():
-        return passed, rho
-    idx = np.flatnonzero(which.reshape(-1))
-    p, r = _test_grid(_subset(sys, batch, idx), gam.reshape((-1,) + gam.shape[-1:])[idx], steps, decay=True)
-    passed.reshape((-1,) + gam.shape[-1:])[idx] = p
-    rho.reshape((-1,) + gam.shape[-1:])[idx] = r
-    return passed, rho
+        return passed, marg
+    if which.all():
+        p, r, k = _test_grid(sys, gam, steps)
+        with np.errstate(all="ignore"):
+            return p, np.stack([np.log(r) ** 2, 1.0 - k], axis=-1)
+    flat = np.flatnonzero(which.reshape(-1))
+    p, r, k = gamma_margins(_subset(sys, batch, flat // g), gam.reshape(-1)[flat], steps)
+    passed.reshape(-1)[flat] = p
+    with np.errstate(all="ignore"):
+        marg.reshape(-1, 2)[flat] = np.stack([np.log(r) ** 2, 1.0 - k], axis=-1)
+    return passed, marg
 
 
 def _subset(sys: LTPSystem, batch: tuple, idx: np.ndarray) -> LTPSystem:
@@ -373,10 +457,9 @@ def _subset(sys: LTPSystem, batch: tuple, idx: np.ndarray) -> LTPSystem:
     return LTPSystem(pick(sys.A), pick(sys.B), pick(sys.C), pick(sys.D), sys.period)
 
 
-def _test_grid(sys, gam, steps, decay=False):
-    """gamma_test on gam (*batch, g): the batch is expanded so every system sees its own row."""
-    g = gam.shape[-1]
-    return gamma_test(_expand(sys, g), gam, steps, return_decay=decay)
+def _test_grid(sys, gam, steps):
+    """gamma_margins on gam (*batch, g): the batch is expanded so every system sees its own row."""
+    return gamma_margins(_expand(sys, gam.shape[-1]), gam, steps)
 
 
 def _expand(sys: LTPSystem, g: int) -> LTPSystem:
