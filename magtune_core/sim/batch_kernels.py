@@ -198,11 +198,12 @@ def _sun(jd):
 
 
 @njit(cache=True, error_model="numpy")
-def env_rows(Y, t, j0, stride, last_node, jd0, C, S, fac, degree, zonal, drag, srp, hp_n, out):
+def env_rows(Y, t, j0, stride, last_node, ia, ib, jd0, C, S, fac, degree, zonal, drag, srp, hp_n, out):
     """Environment rows of one orbit at the grid times ``t`` (n,) into ``out`` (n, 15) (the layout of
     :func:`magtune_core.sim.fullenv.environment_table`, IGRF field). ``Y`` (6, n) ECI position [m] and
     velocity [m/s] at ``t`` (the run's ephemeris: only the nodes are read, the other columns are
-    overwritten), ``jd0`` the epoch's Julian date; ``t[i]`` is grid point ``j0 + i``.
+    overwritten), ``jd0`` the epoch's Julian date; ``t[i]`` is grid point ``j0 + i``; rows ``ia .. ib-1``
+    are filled (the others hold the nodes of their interpolation windows, only partly filled).
 
     The frame, its rate, 3 GM/|r|^3, the wind and the SRP columns (with the shadow) are evaluated at
     every point. The costly smooth inputs -- the IGRF field (~60 % of the work), the Harris-Priester
@@ -229,7 +230,7 @@ def env_rows(Y, t, j0, stride, last_node, jd0, C, S, fac, degree, zonal, drag, s
     band = np.zeros(n, dtype=np.int64)
     w = np.empty(8)
     for p in range(2):  # pass 0: the nodes; pass 1: every point
-        for i in range(n):
+        for i in range(0 if p == 0 else ia, n if p == 0 else ib):
             node = (j0 + i) % stride == 0
             if p == 0 and not node:
                 continue
@@ -238,6 +239,8 @@ def env_rows(Y, t, j0, stride, last_node, jd0, C, S, fac, degree, zonal, drag, s
                 n0 = min(max(j // stride - 3, 0), last_node - 7)
                 _lagrange_weights(j / stride - n0, w)
                 l0 = n0 * stride - j0  # local index of the first node of the window
+                if l0 < 0 or l0 + 7 * stride >= n:
+                    raise IndexError("env_rows: the interpolation window leaves the points passed")
                 for col in range(6):
                     acc = 0.0
                     for k in range(8):
