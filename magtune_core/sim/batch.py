@@ -291,7 +291,7 @@ class _EnvTables:
                     else:
                         Yi[:, ::st] = Y[i]
                     cfg = env.config
-                    env_rows(Yi, t, lo, st, last, float(env.jd0), *self.igrf[i], int(cfg.igrf_degree),
+                    env_rows(Yi, t, lo, st, last, ja - lo, jb - lo + 1, float(env.jd0), *self.igrf[i], int(cfg.igrf_degree),
                              int(cfg.orbit.zonal_degree), bool(cfg.drag), bool(cfg.srp), float(cfg.hp_exponent),
                              out[i])
                 else:

@@ -50,12 +50,12 @@ def igrf_arrays(igrf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             np.array([row + [0] * (len(igrf._fac) - len(row)) for row in igrf._fac], dtype=float))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _cube(x):
     return x * x * x
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _geodetic_height(x, y, z):
     """:func:`magtune_core.env.earth.geodetic_height` (Bowring + 2 fixed-point refinements) of one point."""
     a, f = R_WGS84, F_WGS84
@@ -75,7 +75,7 @@ def _geodetic_height(x, y, z):
     return p / max(cl, 1e-300) - N if abs(cl) > 1e-8 else abs(z) - b
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _hp_bounds(height, hp, which):
     """One of :func:`magtune_core.env.atmosphere.harris_priester_bounds` ((rho_min, rho_max)[which])."""
     h = height / 1e3
@@ -90,7 +90,7 @@ def _hp_bounds(height, hp, which):
     return 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _igrf_field(x, y, z, C, S, fac, degree, V, W, inv):
     """:meth:`magtune_core.env.igrf.IGRF._field` on one ECEF point [m]; returns B [nT] (ECEF)."""
     N = degree + 1
@@ -132,7 +132,7 @@ def _igrf_field(x, y, z, C, S, fac, degree, V, W, inv):
     return -gx, -gy, -gz
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _lagrange_weights(x, w):
     """Weights of the degree-7 Lagrange polynomial through the nodes 0..7 at abscissa ``x`` (into w (8,))."""
     for i in range(8):
@@ -144,7 +144,7 @@ def _lagrange_weights(x, w):
         w[i] = num / den
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _hp_density(rx, ry, rz, rn, sx, sy, sz, hp, hp_n):
     """:func:`magtune_core.env.atmosphere.harris_priester` at one point; (rho [kg/m^3], table interval)."""
     ra = math.atan2(sy, sx) + RA_LAG
@@ -157,7 +157,7 @@ def _hp_density(rx, ry, rz, rn, sx, sy, sz, hp, hp_n):
     return rmin + (rmax - rmin) * (_cube(c_half2) if hp_n == 6.0 else c_half2 ** (hp_n / 2.0)), band
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def orbit_rhs(y, zonal):
     """d/dt of B stacked orbits y (6 B,) = [r, v] per run: :func:`magtune_core.env.orbit.gravity_acceleration`."""
     out = np.empty_like(y)
@@ -186,7 +186,7 @@ def orbit_rhs(y, zonal):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _sun(jd):
     """:func:`magtune_core.env.sun.sun_position` (of date) at one Julian date [m, ECI]."""
     T = (jd - JD_J2000) / 36525.0
@@ -197,12 +197,13 @@ def _sun(jd):
     return rs * math.cos(lam), rs * math.sin(lam) * _CE, rs * math.sin(lam) * _SE
 
 
-@njit(cache=True)
-def env_rows(Y, t, j0, stride, last_node, jd0, C, S, fac, degree, zonal, drag, srp, hp_n, out):
+@njit(cache=True, error_model="numpy")
+def env_rows(Y, t, j0, stride, last_node, ia, ib, jd0, C, S, fac, degree, zonal, drag, srp, hp_n, out):
     """Environment rows of one orbit at the grid times ``t`` (n,) into ``out`` (n, 15) (the layout of
     :func:`magtune_core.sim.fullenv.environment_table`, IGRF field). ``Y`` (6, n) ECI position [m] and
     velocity [m/s] at ``t`` (the run's ephemeris: only the nodes are read, the other columns are
-    overwritten), ``jd0`` the epoch's Julian date; ``t[i]`` is grid point ``j0 + i``.
+    overwritten), ``jd0`` the epoch's Julian date; ``t[i]`` is grid point ``j0 + i``; rows ``ia .. ib-1``
+    are filled (the others hold the nodes of their interpolation windows, only partly filled).
 
     The frame, its rate, 3 GM/|r|^3, the wind and the SRP columns (with the shadow) are evaluated at
     every point. The costly smooth inputs -- the IGRF field (~60 % of the work), the Harris-Priester
@@ -229,7 +230,7 @@ def env_rows(Y, t, j0, stride, last_node, jd0, C, S, fac, degree, zonal, drag, s
     band = np.zeros(n, dtype=np.int64)
     w = np.empty(8)
     for p in range(2):  # pass 0: the nodes; pass 1: every point
-        for i in range(n):
+        for i in range(0 if p == 0 else ia, n if p == 0 else ib):
             node = (j0 + i) % stride == 0
             if p == 0 and not node:
                 continue
@@ -238,6 +239,8 @@ def env_rows(Y, t, j0, stride, last_node, jd0, C, S, fac, degree, zonal, drag, s
                 n0 = min(max(j // stride - 3, 0), last_node - 7)
                 _lagrange_weights(j / stride - n0, w)
                 l0 = n0 * stride - j0  # local index of the first node of the window
+                if l0 < 0 or l0 + 7 * stride >= n:
+                    raise IndexError("env_rows: the interpolation window leaves the points passed")
                 for col in range(6):
                     acc = 0.0
                     for k in range(8):
@@ -337,7 +340,7 @@ def env_rows(Y, t, j0, stride, last_node, jd0, C, S, fac, degree, zonal, drag, s
                 out[i, 14] = SOLAR_PRESSURE_1AU * (AU / dist) ** 2 * lit
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _rhs(E, y, m0, m1, m2, Ib, Jb, hw, mr, gg, drag, srp, A, cp, cd, es, ed, out):
     """dy/dt of one run into ``out`` (7,): :meth:`FullDynamics._rhs` / ``batch._Plant.rhs`` on floats."""
     q0, q1, q2, q3, wx, wy, wz = y[0], y[1], y[2], y[3], y[4], y[5], y[6]
@@ -345,7 +348,7 @@ def _rhs(E, y, m0, m1, m2, Ib, Jb, hw, mr, gg, drag, srp, A, cp, cd, es, ed, out
     if n2 == 1.0:
         a0, a1, a2, a3 = q0, q1, q2, q3
     else:
-        nn = 1.0 / n2**0.5
+        nn = 1.0 / math.sqrt(n2)
         a0, a1, a2, a3 = q0 * nn, q1 * nn, q2 * nn, q3 * nn
     # R(q) body -> orbital, row-major (base.rotations.dcm_floats)
     r00 = a0 * a0 + a1 * a1 - a2 * a2 - a3 * a3
@@ -410,7 +413,7 @@ def _rhs(E, y, m0, m1, m2, Ib, Jb, hw, mr, gg, drag, srp, A, cp, cd, es, ed, out
     out[6] = Jb[2, 0] * e0 + Jb[2, 1] * e1 + Jb[2, 2] * e2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def closed_loop(y, table, idx, kc, ka, kb, n, per, S, h, K, lim, W0, I, J, hw, mres, gg, drag, srp, A, cp, cd, es,
                 ed, noisy, noise, noise_k0, mag_bias, mag_std, quantum, att_std, gyro_bias, gyro_std, min_b2,
                 diverged_rate, sat, weak, diverged, full, ang_all, mn_all, rec_slot, Q, Wr, X, M, Bb):
