@@ -30,7 +30,7 @@ def test_runtime_imports_are_declared():
     runtime = {_name(r) for r in proj["dependencies"]}
     module_to_dist = {"yaml": "pyyaml", "pyIGRF14": "pyigrf14", "numpy": "numpy", "scipy": "scipy", "tqdm": "tqdm",
                       "mcap": "mcap", "rosbags": "rosbags", "matplotlib": "matplotlib", "cma": "cma",
-                      "threadpoolctl": "threadpoolctl", "dask": "dask", "distributed": "distributed", "pyarrow": "pyarrow",
+                      "threadpoolctl": "threadpoolctl", "dask": "dask", "distributed": "distributed", "pyarrow": "pyarrow", "numba": "numba",
                       "foxglove": "foxglove-sdk"}
     seen = set()
     for p in (ROOT / "magtune_core").rglob("*.py"):
