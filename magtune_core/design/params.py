@@ -25,6 +25,7 @@ equatorial orbits at 150 km) plus rounding, narrower than an altitude off by 23 
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from datetime import datetime
 
@@ -32,7 +33,7 @@ import numpy as np
 
 from ..base.errors import ConfigError
 from ..base.paramfile import read_ros_params
-from ..base.schema import Field, parse
+from ..base.schema import Field, parse, parse_value
 from ..env.orbit import DEFAULT_EPOCH, OrbitConfig, keplerian_period, mean_frame_period
 from .field import FIELD_MODELS, FourierField, paper_field
 
@@ -57,14 +58,16 @@ def parse_epoch(text: str, where="spacecraft parameters", name="epoch") -> datet
     return d
 
 
-def check_orbit(altitude: float, inclination_deg: float, where="spacecraft parameters") -> None:
-    """ConfigError unless 150 km <= altitude <= 2000 km and 0 <= inclination <= 180 deg."""
-    lo, hi = ALTITUDE_RANGE
-    if not lo <= altitude <= hi:
-        raise ConfigError(where, "altitude", f"expected {lo:g} .. {hi:g} m (150 .. 2000 km, circular LEO), "
-                                             f"got {altitude:g}")
-    if not 0.0 <= inclination_deg <= 180.0:
-        raise ConfigError(where, "inclination", f"expected 0 .. 180 deg, got {inclination_deg:g}")
+def check_orbit(altitude: float, inclination_deg: float, where="command line") -> None:
+    """ConfigError unless altitude [m] and inclination [deg] are within the bounds of the schema
+    (:attr:`SpacecraftParams.FIELDS`: 150 km .. 2000 km, 0 .. 180 deg), for an orbit given as
+    command-line options (``magtune fit-field``, in km: the message says km)."""
+    fields = {f.name: f for f in SpacecraftParams.FIELDS}
+    lo, hi = fields["altitude"].bounds
+    if not (math.isfinite(altitude) and lo <= altitude <= hi):
+        raise ConfigError(where, "altitude", f"expected {lo / 1e3:g} .. {hi / 1e3:g} km (circular LEO), "
+                                             f"got {altitude / 1e3:g} km")
+    parse_value(fields["inclination"], float(inclination_deg), where)
 
 
 #: Parameters the SIL nodes (simulator, attitude_sensors, controller) declare besides the schema
@@ -106,15 +109,15 @@ class SpacecraftParams:
     FIELDS = (
         # bounds: physically possible values (a typo or a unit error falls outside): a 1 g cubesat
         # to a space station; wheels up to 1e4 rad/s; |b| at most 1e-3 T per axis (the geomagnetic
-        # field is below 7e-5 T); altitude and inclination: check_orbit
+        # field is below 7e-5 T); altitude: ALTITUDE_RANGE
         Field("inertia", "float[]", "principal moments Ixx, Iyy, Izz [kg m^2]", size=3, positive=True,
               bounds=(1e-6, 1e8), unit="kg m^2"),
         Field("wheel_inertia", "float", "pitch wheel inertia J [kg m^2]", positive=True, bounds=(1e-9, 1e4),
               unit="kg m^2"),
         Field("wheel_speed", "float", "nominal wheel speed Wwheel [rad/s]", bounds=(-1e4, 1e4), unit="rad/s"),
         Field("altitude", "float", "circular-orbit altitude above the equatorial radius [m], 150 km .. 2000 km",
-              450e3, positive=True),
-        Field("inclination", "float", "orbit inclination [deg], 0 .. 180", 87.0),
+              450e3, positive=True, bounds=ALTITUDE_RANGE, unit="m"),
+        Field("inclination", "float", "orbit inclination [deg], 0 .. 180", 87.0, bounds=(0.0, 180.0), unit="deg"),
         Field("raan", "float", "right ascension of the ascending node at epoch [deg]", 0.0, bounds=(-360.0, 360.0),
               unit="deg"),
         Field("arg_latitude", "float", "argument of latitude at epoch [deg] (angle from the ascending node)", 0.0,
@@ -143,7 +146,6 @@ class SpacecraftParams:
         Raises ConfigError naming ``where``, the field and what was expected.
         """
         v = parse(params, cls.FIELDS, where, allowed=NODE_PARAMETERS if strict else None)
-        check_orbit(v["altitude"], v["inclination"], where)
         epoch = parse_epoch(v["epoch"], where)
         p = cls(inertia=v["inertia"], wheel_inertia=v["wheel_inertia"], wheel_speed=v["wheel_speed"],
                 altitude=v["altitude"], inclination_deg=v["inclination"], raan_deg=v["raan"],

@@ -74,13 +74,17 @@ def interval_grid(period: float, steps: int):
     return t0, h, t0[:, None] + h * GAUSS_NODES
 
 
-def magnus_exponentials(M1: np.ndarray, M2: np.ndarray, h: float) -> np.ndarray:
-    """exp of the 4th-order Magnus exponent (h/2)(M1 + M2) - (sqrt(3) h^2 / 12) [M1, M2].
+def magnus_exponent(M1: np.ndarray, M2: np.ndarray, h: float) -> np.ndarray:
+    """The 4th-order Magnus exponent (h/2)(M1 + M2) - (sqrt(3) h^2 / 12) [M1, M2] of each interval.
 
     M1, M2: the generator at the two Gauss nodes of each interval, shape (..., k, k).
     """
-    omega = 0.5 * h * (M1 + M2) - (np.sqrt(3.0) / 12.0) * h * h * (M1 @ M2 - M2 @ M1)
-    return expm(omega)
+    return 0.5 * h * (M1 + M2) - (np.sqrt(3.0) / 12.0) * h * h * (M1 @ M2 - M2 @ M1)
+
+
+def magnus_exponentials(M1: np.ndarray, M2: np.ndarray, h: float) -> np.ndarray:
+    """exp of the 4th-order Magnus exponent (:func:`magnus_exponent`) of each interval."""
+    return expm(magnus_exponent(M1, M2, h))
 
 
 def generator_at_nodes(fun: Callable[[np.ndarray], np.ndarray], period: float, steps: int):

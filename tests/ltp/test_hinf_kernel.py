@@ -1,0 +1,73 @@
+"""The compiled gamma-test (ltp/hinf_kernel.py) against the numpy one, and hinfnorm's level model.
+
+The numpy path (``hinf.gamma_test``, used by the paper's tuner) and the compiled kernel
+(``hinf.gamma_margins``, used by ``hinfnorm``) do the same arithmetic in a different summation
+order, so they must agree on pass/fail away from the norm and on the margins to round-off.
+"""
+import numpy as np
+import pytest
+
+from magtune_core.design.lq import lq_gain
+from magtune_core.design.model import AttitudeLTP
+from magtune_core.design.params import SpacecraftParams
+from magtune_core.design.problem import performance_system
+from magtune_core.ltp import hinf
+from magtune_core.ltp.expm import expm
+from magtune_core.ltp.hinf_kernel import _expm
+
+
+@pytest.fixture(scope="module")
+def loops():
+    """Four LQ-based closed loops at sigma = 60 and 240 (perturbed by 5 %, seeded) and their norms."""
+    model = AttitudeLTP.from_params(SpacecraftParams())
+    rng = np.random.default_rng(11)
+    out = []
+    for sigma in (60.0, 240.0):
+        K0 = lq_gain(model, sigma)
+        for _ in range(2):
+            sys_ = performance_system(model, K0 * (1 + 0.05 * rng.standard_normal((3, 6))), sigma)
+            out.append((sys_, float(hinf.hinfnorm(sys_, rtol=1e-9))))
+    return out
+
+
+def test_compiled_expm_equals_numpy_expm():
+    rng = np.random.default_rng(3)
+    for scale in (0.1, 3.0, 80.0):  # no squaring, none at the Pade-13 limit, several (our Hamiltonians: ~80)
+        a = scale * rng.standard_normal((12, 12)) / 12 ** 0.5
+        ref = expm(a)
+        # same algorithm, different summation order: agreement to round-off amplified by the squarings
+        assert np.allclose(_expm(a), ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
+
+
+def test_kernel_agrees_with_numpy_gamma_test(loops):
+    for sys_, J in loops:
+        gam = J * np.array([0.9, 0.999, 1.001, 1.01, 1.3])  # 1e-3 from the norm: far outside round-off
+        p_np, rho_np = hinf.gamma_test(sys_, gam, return_decay=True)
+        p_k, rho_k, kappa = hinf.gamma_margins(sys_, gam)
+        assert list(p_np) == list(p_k) == [False, False, True, True, True]
+        assert np.allclose(rho_k[2:], rho_np[2:], rtol=1e-6)  # decay of a converged doubling
+        assert np.all(np.isnan(kappa[:2])) and np.all((kappa[2:] > 0) & (kappa[2:] < 1))
+        assert kappa[2] > kappa[3] > kappa[4]  # nearer a conjugate point as gamma falls to the norm
+
+
+def test_margins_vanish_at_the_norm(loops):
+    """The level model's premise: as gamma falls to the norm one margin goes to 0 (and the
+    zero extrapolated from three passing levels lands within 1e-3 of the norm)."""
+    for sys_, J in loops:
+        gam = J * (1 + np.array([1e-3, 3e-3, 1e-2]))
+        p, rho, kappa = hinf.gamma_margins(sys_, gam)
+        assert p.all()
+        m = np.stack([np.log(rho) ** 2, 1 - kappa], axis=-1)
+        assert min(m[0]) < 0.5 * min(m[2])  # the binding margin shrinks toward the norm
+        est = hinf.margin_zero(gam[None], m[None], np.array([0.9 * J])).max()
+        assert abs(est - J) < 1e-3 * J
+
+
+@pytest.mark.parametrize("rtol", [1e-4, 1e-7])
+def test_hinfnorm_accuracy_and_guess_independence(loops, rtol):
+    """Within rtol of the 1e-9 reference whatever the starting guess (the levels only change speed)."""
+    for sys_, J in loops:
+        for guess in (None, 0.5 * J, 1.02 * J, 3 * J):
+            got = float(hinf.hinfnorm(sys_, rtol=rtol, guess=guess))
+            # the bracket is rtol wide and the midpoint is returned; 1e-9 for the reference
+            assert abs(got - J) <= rtol * J
