@@ -345,7 +345,8 @@ def env_rows(Y, t, j0, stride, last_node, ia, ib, jd0, C, S, fac, degree, zonal,
 
 @njit(cache=True, error_model="numpy")
 def _rhs(E, y, m0, m1, m2, Ib, Jb, hw, mr, gg, drag, srp, A, cp, cd, es, ed, out):
-    """dy/dt of one run into ``out`` (7,): :meth:`FullDynamics._rhs` / ``batch._Plant.rhs`` on floats."""
+    """dy/dt of one run into ``out`` (7,): :meth:`FullDynamics._rhs` on floats (paper environment: the table
+    w_oi = [0, 0, -W0], k_gg = 3 W0^2, no drag, no SRP, as :meth:`AttitudeDynamics._rhs`)."""
     q0, q1, q2, q3, wx, wy, wz = y[0], y[1], y[2], y[3], y[4], y[5], y[6]
     n2 = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
     if n2 == 1.0:
