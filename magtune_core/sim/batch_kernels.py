@@ -5,10 +5,12 @@ numpy (200 runs x 1 orbit, full environment) spent ~55 % of its time in the atti
 environment (IGRF degree 10 alone ~27 %: ~1,200 array operations per point, each one a pass over memory)
 and ~40 % in the plant right-hand side (~110 numpy calls per RK4 stage on (3, B) arrays). Both are
 hundreds of scalar flops per point or per run-step, i.e. exactly what a compiled loop does 10-30x faster
-than a sequence of numpy temporaries. The formulas are those of the numpy code they replace, term by term
-(same order where it matters), so every run still equals the single-run ``simulate`` to ~1e-12:
+than a sequence of numpy temporaries (measured: 61.6 s -> 6.2 s for that task). The formulas are those of
+the numpy code they replace, term by term (same order where it matters), so every run still equals the
+single-run ``simulate`` to ~1e-12 (state):
 
-* :func:`env_rows` = :func:`magtune_core.sim.fullenv.environment_table` with the IGRF field: J2(+J3, J4)
+* :func:`env_rows` = :func:`magtune_core.sim.fullenv.environment_table` with the IGRF field (field,
+  density, Sun and ephemeris interpolated between the controller instants: see its docstring): J2(+J3, J4)
   orbital-frame rate (:func:`magtune_core.env.orbit.orbital_rate`), ECI -> orbital axes
   (:func:`~magtune_core.env.orbit.eci_to_orbital`), IGRF via ECEF at the GMST angle
   (:class:`magtune_core.env.igrf.IGRF`, Montenbruck & Gill 2000 sec. 3.2 recursion), 3 GM/|r|^3,
@@ -18,8 +20,9 @@ than a sequence of numpy temporaries. The formulas are those of the numpy code t
   eq. 17 with saturation and weak-field guard, sample-and-hold, ``substeps`` classical RK4 steps,
   quaternion renormalization, divergence flag), for each run over a chunk of controller steps.
 
-Compiled on first use and cached on disk (``cache=True``: a few seconds once per installation; the Dask
-workers load the cached machine code).
+Compiled on first use and cached on disk (``cache=True``: ~40 s once per installation, in
+``__pycache__`` next to this file; the Dask workers load the cached machine code). ``error_model="numpy"``:
+a division by zero gives inf/nan as in array code (a diverging run is flagged, not raised).
 """
 from __future__ import annotations
 
@@ -342,7 +345,8 @@ def env_rows(Y, t, j0, stride, last_node, ia, ib, jd0, C, S, fac, degree, zonal,
 
 @njit(cache=True, error_model="numpy")
 def _rhs(E, y, m0, m1, m2, Ib, Jb, hw, mr, gg, drag, srp, A, cp, cd, es, ed, out):
-    """dy/dt of one run into ``out`` (7,): :meth:`FullDynamics._rhs` / ``batch._Plant.rhs`` on floats."""
+    """dy/dt of one run into ``out`` (7,): :meth:`FullDynamics._rhs` on floats (paper environment: the table
+    w_oi = [0, 0, -W0], k_gg = 3 W0^2, no drag, no SRP, as :meth:`AttitudeDynamics._rhs`)."""
     q0, q1, q2, q3, wx, wy, wz = y[0], y[1], y[2], y[3], y[4], y[5], y[6]
     n2 = q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3
     if n2 == 1.0:
