@@ -24,7 +24,7 @@ def register(sub) -> None:
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="processes evaluating each population (default: all cores)")
     p.add_argument("--max-evals", type=int, default=30000, help="evaluation budget per sigma (default 30000)")
-    p.add_argument("--popsize", type=int, default=16, help="candidates per generation (default 16)")
+    p.add_argument("--popsize", type=int, default=8, help="candidates per generation (default 8)")
     p.add_argument("--out-dir", default=repo_path("docs"),
                    help="writes front.md/.png/.json here (default: docs/ of the repository; existing files are "
                         "kept unless --force)")
