@@ -17,10 +17,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-_B13 = np.array([64764752532480000.0, 32382376266240000.0, 7771770303897600.0, 1187353796428800.0,
-                 129060195264000.0, 10559470521600.0, 670442572800.0, 33522128640.0, 1323241920.0,
-                 40840800.0, 960960.0, 16380.0, 182.0, 1.0])
-_THETA13 = 5.371920351148152
+from .expm import _B13, _THETA13  # the same Pade-13 coefficients and scaling threshold
+
 _CONVERGED = 1e-13
 _MAX_DOUBLINGS = 48
 _PSD_RTOL = 1e-9
