@@ -16,13 +16,17 @@ The algorithm (decisions documented in README, section "Tuning to the optimum"):
    (each column of K has its own unit: dq in rad, dw in rad/s); x0 = 0, step ``sigma0``;
 2. a run is stopped when its best J has not improved by more than ``rtol_stall`` (relative) over
    ``stall`` generations, or by the cma package's own criteria (tolx, tolfun, conditioning);
-3. **local restarts** from the best gain so far, with a fresh covariance and the smaller step
-   ``restart_sigma`` (the optimum lies in a narrow valley; a fresh, isotropic population tests
-   the incumbent's neighbourhood in every direction again);
+3. **local restarts** from the best gain so far, with a fresh covariance, in coordinates
+   re-centred on it and rescaled to its entries (S = gain_scale(K_best)): a step is always
+   relative to the gain at hand, however far the search has moved from the start (the sigma = 60
+   optimum has entries 3-35x the LQ start's, ~400 LQ-scaled units away). A restart after a run
+   that still improved J by more than ``travel_rtol`` takes the first run's step ``sigma0`` (the
+   search is still travelling along the valley); otherwise the smaller step ``restart_sigma``
+   (a fresh, isotropic population tests the incumbent's neighbourhood in every direction again);
 4. **certified stop**: when ``certify`` consecutive restarts each fail to improve the best J by
    more than ``rtol_certify`` (relative), i.e. no population of ``certify`` x (run length) draws
-   in a ball of relative radius ``restart_sigma`` around the incumbent found a better gain, the
-   result is declared converged. ``max_evals`` bounds the work (``converged`` is then False).
+   with relative perturbations of ``restart_sigma`` (5 %) of the incumbent's entries found a
+   better gain, the result is declared converged. ``max_evals`` bounds the work (``converged`` is then False).
 
 5. **ranking resolution**: each generation's J are computed to a relative accuracy of
    ``rtol_spread`` x (median - best) / best of the previous generation, between ``rtol`` and
@@ -57,6 +61,8 @@ class CmaSettings:
     popsize: int = 8  # smaller populations adapt faster along the curved valley (bench: J at 4,000 evaluations)
     sigma0: float = 0.3  # first run's step, in units of the per-entry scale S
     restart_sigma: float = 0.05  # local restarts' step (relative radius of the certified neighbourhood)
+    travel_rtol: float = 0.01  # a run that improved J by more than this is followed by a restart with sigma0
+    rescale: bool = True  # restarts re-centre and rescale the coordinates on the incumbent
     stall: int = 40  # generations without an improvement > rtol_stall that end a run
     rtol_stall: float = 1e-5
     certify: int = 2  # consecutive non-improving restarts that certify convergence
@@ -99,7 +105,7 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
     s = settings
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
-    K0 = np.asarray(K0, dtype=float).reshape(3, 6)
+    K0 = Kstart = np.asarray(K0, dtype=float).reshape(3, 6)
     S = gain_scale(K0)
     ev0 = objective.evaluations
     J0 = float(objective(K0[None])[0])
@@ -145,8 +151,9 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
                 # uses only ranks, and ranks closer than that are noise-level to it anyway)
                 rel = (np.median(J[fin]) - J[fin].min()) / J[fin].min()
                 rtol = float(np.clip(s.rtol_spread * rel, s.rtol, s.rtol_max))
-            if gen % s.resolution_every == 0 and _refine_steps(objective, K0 + S * best_x.reshape(3, 6), best_J, s):
-                best_J = float(objective(K0[None] + S * best_x.reshape(1, 3, 6))[0])  # on the finer grid
+            J2 = _refine_steps(objective, K0 + S * best_x.reshape(3, 6), best_J, s) if gen % s.resolution_every == 0 else None
+            if J2 is not None:  # the grid was refined: the incumbent's J on the finer grid
+                best_J = J2
                 run_best, last_gain, guess, spread = best_J, gen, best_J, 1.1
             evals = objective.evaluations - ev0
             history.append((evals, best_J, gen_total, float(es.sigma), restart))
@@ -154,8 +161,9 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
                 progress(evals, best_J, gen_total, float(es.sigma), restart)
             if gen - last_gain >= s.stall or evals >= s.max_evals:
                 break
-        if _refine_steps(objective, K0 + S * best_x.reshape(3, 6), best_J, s):
-            best_J = float(objective(K0[None] + S * best_x.reshape(1, 3, 6))[0])
+        J2 = _refine_steps(objective, K0 + S * best_x.reshape(3, 6), best_J, s)
+        if J2 is not None:
+            best_J = J2
             fails = -1  # the grid changed: the restarts so far certify nothing
         evals = objective.evaluations - ev0
         if restart > 0:
@@ -166,23 +174,33 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
         if evals >= s.max_evals:
             break
         restart += 1
+        step0 = s.sigma0 if run_best_start_J - best_J > s.travel_rtol * run_best_start_J else s.restart_sigma
         run_best_start_J = best_J
-        step0 = s.restart_sigma
+        if s.rescale:  # coordinates relative to the incumbent's entries
+            K0 = K0 + S * best_x.reshape(3, 6)
+            S, best_x = gain_scale(K0), np.zeros(18)
     K = K0 + S * best_x.reshape(3, 6)
     J = float(objective(K[None], guess=best_J, spread=1.01)[0])
-    return TuneResult(K, J, K0, J0, sigma, seed, gen_total, s, history, time.perf_counter() - t0, converged,
-                      method="cma", evaluations=objective.evaluations - ev0)
+    return TuneResult(K, J, Kstart, J0, sigma, seed, gen_total, s, history, time.perf_counter() - t0, converged,
+                      method="cma", evaluations=objective.evaluations - ev0, tuned_steps=getattr(objective, "steps", None))
 
 
-def _refine_steps(objective, K: np.ndarray, J: float, s: CmaSettings) -> bool:
+def _refine_steps(objective, K: np.ndarray, J: float, s: CmaSettings) -> float | None:
     """Double ``objective.steps`` when J(K) at twice the steps differs from J by more than
-    ``s.resolution_rtol`` (relative); True if it did. Objectives without ``steps`` are left alone."""
+    ``s.resolution_rtol`` (relative).
+
+    Returns
+    -------
+    float or None
+        J(K) on the doubled grid if the steps were doubled (the caller's incumbent J from now on),
+        None if the grid still resolves K (or the objective has no ``steps``).
+    """
     steps = getattr(objective, "steps", None)
     if steps is None or steps >= s.max_steps or not np.isfinite(J):
-        return False
+        return None
     objective.steps = 2 * steps
     J2 = float(objective(K[None], guess=J, spread=1.05)[0])
     if np.isfinite(J2) and abs(J2 - J) <= s.resolution_rtol * J2:
         objective.steps = steps
-        return False
-    return True
+        return None
+    return J2

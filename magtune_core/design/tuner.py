@@ -64,13 +64,17 @@ class TuneResult:
     converged: bool = False
     method: str = "paper"
     evaluations: int = 0  # gains evaluated (paper: candidates gamma-tested; cma: full J evaluations)
+    tuned_steps: int | None = None  # Magnus steps at the end of the run (cma: the resolution watch may double them)
 
     def provenance(self) -> dict:
         s = asdict(self.settings)
         s.pop("workers")
-        return {"method": self.method, "seed": int(self.seed), "iterations": int(self.iterations),
-                "evaluations": int(self.evaluations), "converged": bool(self.converged),
-                "J_initial": float(self.J0), "tuner": {k: (float(v) if isinstance(v, float) else v) for k, v in s.items()}}
+        out = {"method": self.method, "seed": int(self.seed), "iterations": int(self.iterations),
+               "evaluations": int(self.evaluations), "converged": bool(self.converged),
+               "J_initial": float(self.J0), "tuner": {k: (float(v) if isinstance(v, float) else v) for k, v in s.items()}}
+        if self.tuned_steps is not None:
+            out["tuned_steps"] = int(self.tuned_steps)
+        return out
 
 
 class CandidateEvaluator:

@@ -88,6 +88,22 @@ def test_cma_is_deterministic_for_a_seed(lti_model):
     assert all(a >= b for a, b in zip(Js, Js[1:]))  # the incumbent never gets worse
 
 
+def test_resolution_watch_refines_a_coarse_grid():
+    """On the paper model the LQ gain's J is 720 at 8 Magnus steps and 386.7 at 16 (389.6 at 64):
+    8 steps do not resolve the loop, so the watch must double the steps, keep tuning on the finer
+    grid, report J on that grid and record it (``tuned_steps``) in the provenance."""
+    model = AttitudeLTP.from_params(SpacecraftParams())
+    K0 = lq_gain(model, SIGMA)
+    s = CmaSettings(popsize=4, max_evals=24, resolution_every=2, steps=8)
+    with HinfObjective(model, SIGMA, steps=8, rtol=1e-5) as obj:
+        res = tune_cma(obj, K0, SIGMA, seed=0, settings=s)
+    assert res.tuned_steps == obj.steps >= 16 and res.provenance()["tuned_steps"] == res.tuned_steps
+    # the reported J is the gain's J on the final grid (1e-4: twice the objective's rtol, both sides)
+    fine = HinfObjective(model, SIGMA, steps=res.tuned_steps, rtol=1e-7)(res.K[None])[0]
+    assert res.J == pytest.approx(fine, rel=1e-4)
+    assert res.J < 400  # not the 8-step value (720) of anything near the start
+
+
 def test_gain_scale_covers_zero_entries():
     K = np.zeros((3, 6))
     K[0, 0], K[1, 3] = 2.0, -0.5
