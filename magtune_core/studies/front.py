@@ -5,8 +5,9 @@ per sigma with the converging tuner (:func:`magtune_core.design.cmaes.tune_cma`)
 (eq. 21), c1 = ||T_d -> dq_R||_inf (eq. 28), c2 = ||T_d -> m||_2 (eq. 29) and rho (eq. 30).
 
 Continuation in sigma: the sigmas are tuned in increasing order and each run starts from the
-better (lower J at the new sigma) of the LQ gain (paper 4.2) and the previous sigma's optimum;
-the front is smooth in sigma, so the warm start saves most of the search. The population of
+best (lowest J at the new sigma) of the LQ gain (paper 4.2), the previous sigma's optimum and any
+gains given as ``starts`` (e.g. the shipped, certified sigma = 60/120/240 gains); the front is
+smooth in sigma, so the warm start saves most of the search. The population of
 every generation is split over ``workers`` processes (all cores by default), since the sigmas
 depend on each other through the warm start.
 
@@ -25,6 +26,7 @@ from ..design.lq import lq_gain
 from ..design.model import AttitudeLTP
 from ..design.objective import HinfObjective
 from ..design.problem import figures
+from ..design.resolution import resolved_steps
 
 #: Paper Table 1 (c1, c2, rho) at sigma = 60, 120, 240, as published.
 PAPER_TABLE1 = {60: (239.19, 12072.45, 0.00283), 120: (283.96, 11039.75, 0.00345), 240: (399.32, 9348.98, 0.00598)}
@@ -53,9 +55,12 @@ class FrontPoint:
 
 
 def run_front(model: AttitudeLTP, sigmas, settings: CmaSettings, seed: int = 0, analysis_steps: int = 128,
-              progress=None) -> list[FrontPoint]:
+              progress=None, starts=()) -> list[FrontPoint]:
     """Tune each sigma (increasing, warm-started) and compute its figures of merit.
 
+    ``starts`` is a sequence of (label, K) candidate start gains tried at every sigma besides the
+    LQ gain and the previous sigma's optimum. Figures are computed at ``analysis_steps`` doubled
+    until resolved (:func:`~magtune_core.design.resolution.resolved_steps`).
     ``progress(i, n, point)`` is called after each sigma.
 
     Returns
@@ -68,14 +73,15 @@ def run_front(model: AttitudeLTP, sigmas, settings: CmaSettings, seed: int = 0, 
     sig = sorted(float(s) for s in sigmas)
     for i, sigma in enumerate(sig):
         t0 = time.perf_counter()
-        with HinfObjective(model, sigma, steps=settings.steps, rtol=settings.rtol, workers=settings.workers) as obj:
-            K0, start = lq_gain(model, sigma), "lq"
-            if prev is not None:
-                J = obj(np.stack([K0, prev]))
-                if J[1] < J[0]:
-                    K0, start = prev, f"sigma={out[-1].sigma:g}"
+        cands = [("lq", lq_gain(model, sigma))] + ([(f"sigma={out[-1].sigma:g}", prev)] if prev is not None else [])
+        cands += [(label, np.asarray(K, dtype=float).reshape(3, 6)) for label, K in starts]
+        # each candidate's J on its own resolved grid (a stiff start may need more steps than 64)
+        Js = [resolved_steps(model, K, sigma, settings.steps) for _, K in cands]
+        best = int(np.argmin([J for _, J in Js]))
+        (start, K0), steps = cands[best], max(Js[best][0], settings.steps)
+        with HinfObjective(model, sigma, steps=steps, rtol=settings.rtol, workers=settings.workers) as obj:
             res = tune_cma(obj, K0, sigma, seed=seed, settings=settings)
-        f = figures(model, res.K, sigma, steps=analysis_steps)
+        f = figures(model, res.K, sigma, steps=resolved_steps(model, res.K, sigma, analysis_steps)[0])
         pt = FrontPoint(sigma, res.K, f.J, f.c1, f.c2, f.rho, res.evaluations, time.perf_counter() - t0,
                         res.converged, start)
         out.append(pt)

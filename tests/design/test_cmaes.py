@@ -142,3 +142,11 @@ def test_tune_and_front_commands(tmp_path):
     assert [p["sigma"] for p in pts] == [60.0, 120.0] and (tmp_path / "front.png").stat().st_size > 10000
     # the outputs exist now: a second run refuses before any work
     assert main(["front", "--sigmas", "60", "--field-model", "constant", "--out-dir", str(tmp_path)]) == 2
+    # --start: the tuned sigma = 60 gain has a lower J at sigma = 60 than the LQ start, so it is chosen
+    # (no candidate can be better than it: the budget of 4 evaluations cannot move far from it)
+    d2 = tmp_path / "with_start"
+    assert main(["front", "--sigmas", "60", "--field-model", "constant", "--popsize", "4", "--max-evals", "4",
+                 "--workers", "1", "--start", str(out), "--out-dir", str(d2)]) == 0
+    pt = json.loads((d2 / "front.json").read_text())["points"][0]
+    assert pt["start"] == "g.yaml" and pt["J"] <= g.provenance["J"] * (1 + 1e-3)  # 1e-3: analysis steps resolution
+    assert main(["front", "--sigmas", "60", "--start", str(tmp_path / "missing.yaml"), "--out-dir", str(tmp_path / "x")]) == 2

@@ -34,8 +34,8 @@ def monodromy_ode(model, K):
 
 def test_paper_model_needs_no_more_than_64_steps():
     model = AttitudeLTP.from_params(load_spacecraft("config/spacecraft.yaml"))
-    steps, J = resolved_steps(model, load_gains("config/gains/sigma_120.yaml").K, 120.0)
-    assert steps == 64 and np.isfinite(J)  # paper tuning and Table 1 unchanged
+    steps, J = resolved_steps(model, load_gains("config/gains/paper_method/sigma_120.yaml").K, 120.0)
+    assert steps == 64 and np.isfinite(J)  # the paper method's tuning and its Table 1 rows unchanged
 
 
 @pytest.mark.slow  # one stiff adaptive ODE monodromy (~20 s idle)
