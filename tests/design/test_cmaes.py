@@ -71,7 +71,8 @@ def test_cma_reaches_the_lti_state_feedback_optimum(lti_model):
     # nothing beats the optimum (up to the 1e-7 brackets and the ARE bisection's 1e-9) ...
     assert res.J >= gopt * (1 - 1e-6)
     # ... and the tuner, from the LQ start, does as well as the Riccati gain of the same size
-    # (measured 295.31 vs 296.33; the certified stop fired after 2450 evaluations)
+    # (measured 287.38 vs 296.33, 1.6 % above gopt; the certified stop fired after 2069 evaluations.
+    # Before the restarts were rescaled to the incumbent: 295.31 after 2450)
     assert res.J <= J5 * (1 + 1e-3)
 
 
