@@ -2,7 +2,9 @@
 or the paper's randomized algorithm (``--method paper``, paper 4.2, eqs. 23-25)."""
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import sys
 
 from ..base.errors import ConfigError
@@ -112,7 +114,8 @@ def run(args) -> int:
             bar.update(1)
             bar.set_postfix_str(f"J={J:.4f} evals={ev} step={step:.2e} restart={restart}")
 
-        with HinfObjective(model, args.sigma, steps=settings.steps, rtol=settings.rtol, workers=args.workers) as obj:
+        with HinfObjective(model, args.sigma, steps=settings.steps, rtol=settings.rtol, workers=args.workers) as obj, \
+                _sigterm_interrupts():
             res = tune_cma(obj, K0, args.sigma, seed=args.seed, settings=settings, progress=progress)
         if obj.steps != steps:
             print(f"tune: the gains stiffened beyond {steps} Magnus steps; tuned on {obj.steps} (resolution watch)")
@@ -124,11 +127,25 @@ def run(args) -> int:
             "analysis_steps": analysis_steps, "tune_seconds": round(res.seconds, 1)}
     prov.pop("stable", None)
     save_gains(out, Gains(res.K, args.sigma, args.ts, prov), header=header)
-    state = "converged" if res.converged else "NOT certified (budget reached)"
+    state = {"certified": "converged", "interrupted": "NOT certified (interrupted: the best gain so far)"}.get(
+        getattr(res, "stop", None), "NOT certified (budget reached)")
     print(f"sigma={args.sigma:g} [{res.method}]  J: {res.J0:.3f} ({start}, {steps} Magnus steps) -> {fig.J:.3f} in "
           f"{res.evaluations} evaluations, {res.seconds:.1f} s, {state}; c1={fig.c1:.3f} c2={fig.c2:.2f} "
           f"rho={fig.rho:.5f} ({analysis_steps} steps); wrote {out}")
-    return 0
+    return 130 if getattr(res, "stop", None) == "interrupted" else 0
+
+
+@contextlib.contextmanager
+def _sigterm_interrupts():
+    """SIGTERM acts as Ctrl-C while the tuner runs: the search stops and the best gain so far is
+    written (``stop: interrupted`` in its provenance), instead of losing a long run."""
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _run_robust(args, model, out) -> int:

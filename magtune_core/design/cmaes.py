@@ -111,78 +111,86 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
     J0 = float(objective(K0[None])[0])
     if not np.isfinite(J0):
         raise ValueError("tune_cma: the initial gain is not stabilizing (infinite H-inf norm)")
-    best_x, best_J = np.zeros(18), J0
+    best_x, best_J, best_K = np.zeros(18), J0, K0  # best_K = K0 + S * best_x, kept whole for an interrupt
     history, gen_total, restart, fails = [], 0, 0, 0
     run_best_start_J = J0  # best J when the current restart began
     converged = False
     step0 = s.sigma0
-    while True:
-        run_best = best_J
-        opts = {"popsize": s.popsize, "seed": np.nan, "verbose": -9, "randn": lambda lam, n: rng.standard_normal((lam, n)),
-                "tolfun": 0.0, "tolfunhist": 0.0, "tolflatfitness": 10 ** 9, "tolx": 1e-9, "maxiter": 10 ** 9,
-                "CMA_diagonal": False}
-        es = cma.CMAEvolutionStrategy(best_x.copy(), step0, opts)
-        guess, spread = best_J, 1.5 if restart == 0 else 1.1
-        rtol = s.rtol_max if restart == 0 else s.rtol
-        last_gain = 0  # generation of the last improvement > rtol_stall in this run
-        gen = 0
-        while not es.stop():
-            X = np.asarray(es.ask())
-            Ks = K0 + S * X.reshape(-1, 3, 6)
-            J = objective(Ks, guess=guess, spread=spread, rtol=rtol)
-            fin = np.isfinite(J)
-            worst = J[fin].max() if fin.any() else 10 * best_J
-            f = np.where(fin, J, 10 * worst * (1 + np.linalg.norm(X - best_x, axis=1)))  # ranked below every stable gain
-            es.tell(list(X), list(f))
-            gen += 1
-            gen_total += 1
-            i = int(np.argmin(J))
-            if J[i] < best_J:
-                if J[i] < run_best * (1 - s.rtol_stall):
-                    last_gain = gen
-                    run_best = J[i]
-                best_x, best_J = X[i].copy(), float(J[i])
-                if on_best is not None:
-                    on_best(K0 + S * best_x.reshape(3, 6), best_J)
-            if fin.any():
-                guess = float(np.median(J[fin]))
-                spread = float(np.clip(J[fin].max() / J[fin].min(), 1.02, 1.5))
-                # ranking resolution: a small fraction of the spread of the better half (CMA-ES
-                # uses only ranks, and ranks closer than that are noise-level to it anyway)
-                rel = (np.median(J[fin]) - J[fin].min()) / J[fin].min()
-                rtol = float(np.clip(s.rtol_spread * rel, s.rtol, s.rtol_max))
-            J2 = _refine_steps(objective, K0 + S * best_x.reshape(3, 6), best_J, s) if gen % s.resolution_every == 0 else None
-            if J2 is not None:  # the grid was refined: the incumbent's J on the finer grid
+    interrupted = False
+    try:  # Ctrl-C / SIGTERM (the CLI maps it) ends the search and keeps the best gain so far
+        while True:
+            run_best = best_J
+            opts = {"popsize": s.popsize, "seed": np.nan, "verbose": -9, "randn": lambda lam, n: rng.standard_normal((lam, n)),
+                    "tolfun": 0.0, "tolfunhist": 0.0, "tolflatfitness": 10 ** 9, "tolx": 1e-9, "maxiter": 10 ** 9,
+                    "CMA_diagonal": False}
+            es = cma.CMAEvolutionStrategy(best_x.copy(), step0, opts)
+            guess, spread = best_J, 1.5 if restart == 0 else 1.1
+            rtol = s.rtol_max if restart == 0 else s.rtol
+            last_gain = 0  # generation of the last improvement > rtol_stall in this run
+            gen = 0
+            while not es.stop():
+                X = np.asarray(es.ask())
+                Ks = K0 + S * X.reshape(-1, 3, 6)
+                J = objective(Ks, guess=guess, spread=spread, rtol=rtol)
+                fin = np.isfinite(J)
+                worst = J[fin].max() if fin.any() else 10 * best_J
+                f = np.where(fin, J, 10 * worst * (1 + np.linalg.norm(X - best_x, axis=1)))  # ranked below every stable gain
+                es.tell(list(X), list(f))
+                gen += 1
+                gen_total += 1
+                i = int(np.argmin(J))
+                if J[i] < best_J:
+                    if J[i] < run_best * (1 - s.rtol_stall):
+                        last_gain = gen
+                        run_best = J[i]
+                    best_K = K0 + S * X[i].reshape(3, 6)
+                    best_x, best_J = X[i].copy(), float(J[i])
+                    if on_best is not None:
+                        on_best(best_K, best_J)
+                if fin.any():
+                    guess = float(np.median(J[fin]))
+                    spread = float(np.clip(J[fin].max() / J[fin].min(), 1.02, 1.5))
+                    # ranking resolution: a small fraction of the spread of the better half (CMA-ES
+                    # uses only ranks, and ranks closer than that are noise-level to it anyway)
+                    rel = (np.median(J[fin]) - J[fin].min()) / J[fin].min()
+                    rtol = float(np.clip(s.rtol_spread * rel, s.rtol, s.rtol_max))
+                J2 = _refine_steps(objective, best_K, best_J, s) if gen % s.resolution_every == 0 else None
+                if J2 is not None:  # the grid was refined: the incumbent's J on the finer grid
+                    best_J = J2
+                    run_best, last_gain, guess, spread = best_J, gen, best_J, 1.1
+                evals = objective.evaluations - ev0
+                history.append((evals, best_J, gen_total, float(es.sigma), restart))
+                if progress is not None:
+                    progress(evals, best_J, gen_total, float(es.sigma), restart)
+                if gen - last_gain >= s.stall or evals >= s.max_evals:
+                    break
+            J2 = _refine_steps(objective, best_K, best_J, s)
+            if J2 is not None:
                 best_J = J2
-                run_best, last_gain, guess, spread = best_J, gen, best_J, 1.1
+                fails = -1  # the grid changed: the restarts so far certify nothing
             evals = objective.evaluations - ev0
-            history.append((evals, best_J, gen_total, float(es.sigma), restart))
-            if progress is not None:
-                progress(evals, best_J, gen_total, float(es.sigma), restart)
-            if gen - last_gain >= s.stall or evals >= s.max_evals:
+            if restart > 0:
+                fails = fails + 1 if run_best_start_J - best_J <= s.rtol_certify * run_best_start_J else 0
+            if fails >= s.certify:
+                converged = True
                 break
-        J2 = _refine_steps(objective, K0 + S * best_x.reshape(3, 6), best_J, s)
-        if J2 is not None:
-            best_J = J2
-            fails = -1  # the grid changed: the restarts so far certify nothing
-        evals = objective.evaluations - ev0
-        if restart > 0:
-            fails = fails + 1 if run_best_start_J - best_J <= s.rtol_certify * run_best_start_J else 0
-        if fails >= s.certify:
-            converged = True
-            break
-        if evals >= s.max_evals:
-            break
-        restart += 1
-        step0 = s.sigma0 if run_best_start_J - best_J > s.travel_rtol * run_best_start_J else s.restart_sigma
-        run_best_start_J = best_J
-        if s.rescale:  # coordinates relative to the incumbent's entries
-            K0 = K0 + S * best_x.reshape(3, 6)
-            S, best_x = gain_scale(K0), np.zeros(18)
-    K = K0 + S * best_x.reshape(3, 6)
-    J = float(objective(K[None], guess=best_J, spread=1.01)[0])
+            if evals >= s.max_evals:
+                break
+            restart += 1
+            step0 = s.sigma0 if run_best_start_J - best_J > s.travel_rtol * run_best_start_J else s.restart_sigma
+            run_best_start_J = best_J
+            if s.rescale:  # coordinates relative to the incumbent's entries
+                K0 = best_K
+                S, best_x = gain_scale(K0), np.zeros(18)
+    except KeyboardInterrupt:
+        interrupted = True
+    K = best_K
+    # re-evaluated at the objective's accuracy; after an interrupt the ranking value is kept (the
+    # worker pool may be gone; the caller recomputes the figures anyway)
+    J = best_J if interrupted else float(objective(K[None], guess=best_J, spread=1.01)[0])
     return TuneResult(K, J, Kstart, J0, sigma, seed, gen_total, s, history, time.perf_counter() - t0, converged,
-                      method="cma", evaluations=objective.evaluations - ev0, tuned_steps=getattr(objective, "steps", None))
+                      method="cma", evaluations=objective.evaluations - ev0, tuned_steps=getattr(objective, "steps", None),
+                      stop="certified" if converged else "interrupted" if interrupted else "budget")
 
 
 def _refine_steps(objective, K: np.ndarray, J: float, s: CmaSettings) -> float | None:

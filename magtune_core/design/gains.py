@@ -52,7 +52,7 @@ class Gains:
     #: key is rejected with a "did you mean" (a misspelled parameter is never silently kept).
     PROVENANCE = ("J", "c1", "c2", "rho", "J_initial", "seed", "iterations", "converged", "tuner", "design",
                   "method", "evaluations", "seeds",
-                  "field_model", "design_field", "start", "analysis_steps", "tuned_steps", "tune_seconds", "written",
+                  "field_model", "design_field", "start", "analysis_steps", "tuned_steps", "stop", "tune_seconds", "written",
                   "robust_spec", "robust_models", "robust_worst_model", "worst_J", "worst_c1", "worst_c2", "worst_rho")
 
     @classmethod

@@ -28,9 +28,14 @@ from .problem import attitude_system, performance_system
 
 
 def _one_blas_thread() -> None:
-    """Worker initializer: BLAS/OpenMP pools of a worker use one thread (the workers are the parallelism)."""
+    """Worker initializer: BLAS/OpenMP pools of a worker use one thread (the workers are the
+    parallelism), and Ctrl-C is left to the parent (a tuner keeps its best gain on an interrupt;
+    the workers end when the parent shuts the pool down)."""
+    import signal
+
     from threadpoolctl import threadpool_limits
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     threadpool_limits(limits=1)
 
 

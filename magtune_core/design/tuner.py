@@ -65,6 +65,7 @@ class TuneResult:
     method: str = "paper"
     evaluations: int = 0  # gains evaluated (paper: candidates gamma-tested; cma: full J evaluations)
     tuned_steps: int | None = None  # Magnus steps at the end of the run (cma: the resolution watch may double them)
+    stop: str | None = None  # cma: why the search ended: "certified", "budget" or "interrupted"
 
     def provenance(self) -> dict:
         s = asdict(self.settings)
@@ -74,6 +75,8 @@ class TuneResult:
                "J_initial": float(self.J0), "tuner": {k: (float(v) if isinstance(v, float) else v) for k, v in s.items()}}
         if self.tuned_steps is not None:
             out["tuned_steps"] = int(self.tuned_steps)
+        if self.stop is not None:
+            out["stop"] = self.stop
         return out
 
 

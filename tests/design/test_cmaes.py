@@ -151,3 +151,45 @@ def test_tune_and_front_commands(tmp_path):
     pt = json.loads((d2 / "front.json").read_text())["points"][0]
     assert pt["start"] == "g.yaml" and pt["J"] <= g.provenance["J"] * (1 + 1e-3)  # 1e-3: analysis steps resolution
     assert main(["front", "--sigmas", "60", "--start", str(tmp_path / "missing.yaml"), "--out-dir", str(tmp_path / "x")]) == 2
+
+
+@pytest.mark.parametrize("sig", ["SIGTERM", "SIGINT"])
+def test_interrupted_tune_keeps_the_best_gain(tmp_path, sig):
+    """A long ``magtune tune`` stopped by SIGTERM (a batch system, ``kill``) or Ctrl-C writes the best
+    gain so far (``stop: interrupted``, ``converged: false``), exits 130 and leaves no worker behind."""
+    import os
+    import re
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from magtune_core.design.gains import load_gains
+
+    out = tmp_path / "g.yaml"
+    proc = subprocess.Popen([sys.executable, "-m", "magtune_core", "tune", "--sigma", "60", "--workers", "2",
+                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        seen, t0, evals = b"", time.monotonic(), 0
+        while evals < 100 and time.monotonic() - t0 < 600:  # a few generations, past any cold compile
+            chunk = os.read(proc.stderr.fileno(), 4096)
+            if not chunk:
+                break
+            seen = (seen + chunk)[-4096:]
+            evals = max([0] + [int(v) for v in re.findall(rb"evals=(\d+)", seen)])
+        assert evals >= 100, seen[-500:]
+        os.kill(proc.pid, getattr(signal, sig))
+        outs, err = proc.communicate(timeout=120)
+        assert proc.returncode == 130, (seen + err)[-800:]
+        assert b"Traceback" not in err and b"interrupted" in outs, outs
+        g = load_gains(out)
+        prov = g.provenance
+        assert prov["stop"] == "interrupted" and prov["converged"] is False and prov["evaluations"] >= 100
+        assert prov["J"] < prov["J_initial"]  # the best gain after 100 evaluations, not the start (389.6 -> ~290)
+        # no worker outlives the command (they ignore SIGINT and end with the pool)
+        time.sleep(0.5)
+        assert subprocess.run(["pgrep", "-s", str(proc.pid)], capture_output=True).stdout == b""
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
