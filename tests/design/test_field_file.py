@@ -34,7 +34,7 @@ def eq26_fit_file(path, harmonics=3, meta=None):
 def test_fit_to_eq26_samples_reproduces_eq26_J(tmp_path):
     path = tmp_path / "eq26_fit.yaml"
     eq26_fit_file(path, harmonics=3)  # extra harmonics fit to ~1e-21 T: "any number of harmonics"
-    K = load_gains("config/gains/sigma_120.yaml").K
+    K = load_gains("config/gains/paper_method/sigma_120.yaml").K
     J = [float(hinfnorm(performance_system(m, K, 120.0), rtol=1e-10, steps=64))
          for m in (AttitudeLTP.from_params(P, "eq26"), AttitudeLTP(P, field_for_spacecraft(path, P)))]
     # same periodic system up to the 7 significant digits of the file (eq. 26's coefficients are
@@ -47,7 +47,7 @@ def test_cli_analyze_with_field_file_equals_eq26(tmp_path, capsys):
     eq26_fit_file(path, harmonics=1)
     out = {}
     for key, extra in (("file", ["--field", str(path)]), ("eq26", ["--field-model", "eq26"])):
-        assert cli_main(["analyze", "config/gains/sigma_120.yaml", "--json", "--steps", "32", *extra]) == 0
+        assert cli_main(["analyze", "config/gains/paper_method/sigma_120.yaml", "--json", "--steps", "32", *extra]) == 0
         out[key] = json.loads(capsys.readouterr().out)
     for k in ("J", "c1", "c2", "rho"):  # same model through the CLI: every figure agrees (file rounding)
         assert out["file"][k] == pytest.approx(out["eq26"][k], rel=1e-6)
