@@ -2,7 +2,6 @@
 or the paper's randomized algorithm (``--method paper``, paper 4.2, eqs. 23-25)."""
 from __future__ import annotations
 
-import contextlib
 import os
 import signal
 import sys
@@ -110,12 +109,15 @@ def run(args) -> int:
         settings = CmaSettings(popsize=args.popsize, max_evals=args.max_evals, certify=args.restarts,
                                workers=args.workers, steps=steps)
 
+        stop = _StopRequest()
+
         def progress(ev, J, gen, step, restart):
             bar.update(1)
             bar.set_postfix_str(f"J={J:.4f} evals={ev} step={step:.2e} restart={restart}")
+            if stop.requested:  # raised here, between generations, never inside compiled code
+                raise KeyboardInterrupt
 
-        with HinfObjective(model, args.sigma, steps=settings.steps, rtol=settings.rtol, workers=args.workers) as obj, \
-                _sigterm_interrupts():
+        with HinfObjective(model, args.sigma, steps=settings.steps, rtol=settings.rtol, workers=args.workers) as obj, stop:
             res = tune_cma(obj, K0, args.sigma, seed=args.seed, settings=settings, progress=progress)
         if obj.steps != steps:
             print(f"tune: the gains stiffened beyond {steps} Magnus steps; tuned on {obj.steps} (resolution watch)")
@@ -135,17 +137,32 @@ def run(args) -> int:
     return 130 if getattr(res, "stop", None) == "interrupted" else 0
 
 
-@contextlib.contextmanager
-def _sigterm_interrupts():
-    """SIGTERM acts as Ctrl-C while the tuner runs: the search stops and the best gain so far is
-    written (``stop: interrupted`` in its provenance), instead of losing a long run."""
-    def handler(signum, frame):
-        raise KeyboardInterrupt
-    previous = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+class _StopRequest:
+    """While active, SIGTERM and the first Ctrl-C only request a stop, which the tuner's progress
+    callback turns into KeyboardInterrupt after the current generation: the search ends and the
+    best gain so far is written (``stop: interrupted``). Raising from the signal handler itself
+    would land inside compiled (numba) code, where it surfaces as a SystemError and loses the
+    run. A second Ctrl-C interrupts at once."""
+
+    def __init__(self):
+        self.requested = False
+        self._previous = {}
+
+    def _handler(self, signum, frame):
+        if self.requested and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.requested = True
+        print("\nmagtune tune: stop requested; finishing the current generation and writing the best gain so far",
+              file=sys.stderr, flush=True)
+
+    def __enter__(self):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._previous[sig] = signal.signal(sig, self._handler)
+        return self
+
+    def __exit__(self, *exc):
+        for sig, h in self._previous.items():
+            signal.signal(sig, h)
 
 
 def _run_robust(args, model, out) -> int:

@@ -153,10 +153,12 @@ def test_tune_and_front_commands(tmp_path):
     assert main(["front", "--sigmas", "60", "--start", str(tmp_path / "missing.yaml"), "--out-dir", str(tmp_path / "x")]) == 2
 
 
-@pytest.mark.parametrize("sig", ["SIGTERM", "SIGINT"])
-def test_interrupted_tune_keeps_the_best_gain(tmp_path, sig):
+@pytest.mark.parametrize("sig,workers", [("SIGTERM", 1), ("SIGINT", 2)])
+def test_interrupted_tune_keeps_the_best_gain(tmp_path, sig, workers):
     """A long ``magtune tune`` stopped by SIGTERM (a batch system, ``kill``) or Ctrl-C writes the best
-    gain so far (``stop: interrupted``, ``converged: false``), exits 130 and leaves no worker behind."""
+    gain so far (``stop: interrupted``, ``converged: false``), exits 130 and leaves no worker behind.
+    With one worker the J evaluations run in the command's own process, mostly in compiled code: an
+    exception raised there by a signal handler became a SystemError and lost the run (seen)."""
     import os
     import re
     import signal
@@ -167,7 +169,7 @@ def test_interrupted_tune_keeps_the_best_gain(tmp_path, sig):
     from magtune_core.design.gains import load_gains
 
     out = tmp_path / "g.yaml"
-    proc = subprocess.Popen([sys.executable, "-m", "magtune_core", "tune", "--sigma", "60", "--workers", "2",
+    proc = subprocess.Popen([sys.executable, "-m", "magtune_core", "tune", "--sigma", "60", "--workers", str(workers),
                              "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
     try:
         seen, t0, evals = b"", time.monotonic(), 0
