@@ -60,7 +60,7 @@ def run(args) -> int:
     front.plot_front(points, out / "front.png")
     cmd = ("magtune front --sigmas " + ",".join(f"{s:g}" for s in args.sigmas) + f" --seed {args.seed} "
            f"--workers {args.workers} --max-evals {args.max_evals} --popsize {args.popsize}"
-           + ("".join(f" --start {f}" for f in args.start) if args.start else ""))
+           + (" --start " + " ".join(args.start) if args.start else ""))  # one option, nargs="+": a repeated one would replace it
     load = f"load average {load0:.1f} at the start, {os.getloadavg()[0]:.1f} at the end (2-core machine)"
     (out / "front.md").write_text(
         "# Trade-off front (J-optimal gains per sigma)\n\n"
