@@ -35,6 +35,7 @@ from magtune_core.design.params import SpacecraftParams
 from magtune_core.design.problem import performance_system
 from magtune_core.design.tuner import TunerSettings, tune
 from magtune_core.ltp import hinfnorm
+from magtune_core.ltp.hinf import GROWTH, gamma_margins
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Best J found before this benchmark existed (issue 9: CMA-ES from the then shipped gains, 64
@@ -80,6 +81,19 @@ def bench_norm(model, sigma, workers, path):
             obj(Ks, guess=ref, spread=1.05)
             batch = f"{1e3 * (time.perf_counter() - t) / len(Ks):.1f}"
         print(f"| {steps} | {abs(J - ref) / ref:.1e} | {1e3 * np.median(ts):.1f} | {batch} |")
+    print(f"\nInterval squarings (ltp.hinf.interval_scattering): one gamma-test at 1.01 J, plain exponential "
+          f"(growth = inf, the arithmetic before) against squaring in scattering form beyond ||.||_1 = {GROWTH:g}:")
+    print("| Magnus steps | plain: passes / ms | scattering form: passes / ms | time ratio |")
+    print("|---|---|---|---|")
+    for steps in (r // 2, r, 2 * r):
+        row = []
+        for growth in (np.inf, GROWTH):
+            gamma_margins(sys_, 1.01 * ref, steps, growth=growth)  # compile / warm up
+            t = time.perf_counter()
+            for _ in range(5):
+                p = bool(gamma_margins(sys_, 1.01 * ref, steps, growth=growth)[0])
+            row.append((p, 1e3 * (time.perf_counter() - t) / 5))
+        print(f"| {steps} | {row[0][0]} / {row[0][1]:.1f} | {row[1][0]} / {row[1][1]:.1f} | {row[1][1] / row[0][1]:.2f} |")
     if workers > 1:
         with HinfObjective(model, sigma, steps=r, rtol=1e-4, workers=workers) as obj:
             obj(Ks[:2 * workers])  # start the workers

@@ -45,7 +45,9 @@ def resolved_steps(models, K, sigma: float, steps: int = DEFAULT_STEPS, rtol: fl
 
     ``models`` is one AttitudeLTP or a sequence (worst case over them). An unstable result
     (J = inf) never counts as agreement: a stiff, stabilizing gain can look unstable on a coarse
-    grid (the sigma = 120 optimum, J = 336, is "unstable" at 64 and 128 steps), so the steps are
+    grid (the sigma = 60 optimum, J = 220, has rho = 1.7e7 at 32 steps; before the Hamiltonian
+    intervals were squared in scattering form, ``ltp.hinf.interval_scattering``, no level passed
+    below 256-1024 steps for the shipped optima), so the steps are
     doubled up to ``max_steps`` (cheap: an unstable loop costs one monodromy per level). Returns
     ``(steps, J)`` with J at the returned steps; at ``max_steps`` without agreement returns
     ``(max_steps, J)``.

@@ -14,13 +14,17 @@ _B13 = (64764752532480000.0, 32382376266240000.0, 7771770303897600.0, 1187353796
 _THETA13 = 5.371920351148152
 
 
-def expm(a: np.ndarray) -> np.ndarray:
-    """exp(a) for a stack of square matrices (..., n, n); non-finite inputs give NaN outputs.
+def pade13_scaled(a: np.ndarray):
+    """The Pade-13 approximant of exp(a / 2^s) and the squarings s that exp(a) still needs (Higham 2005).
 
     Returns
     -------
-    ndarray (..., n, n)
-        exp(a) per matrix, by Pade-13 scaling and squaring; NaN where ``a`` has non-finite entries.
+    r : ndarray (..., n, n)
+        exp(a / 2^s) per matrix (Pade 13), with s the least that brings ||a / 2^s||_1 below theta_13.
+    s : ndarray of int (...)
+        Squarings per matrix (exp(a) = r^(2^s)).
+    finite : ndarray of bool (...)
+        False where ``a`` has non-finite entries (r is then meaningless).
     """
     a = np.asarray(a, dtype=float)
     n = a.shape[-1]
@@ -36,7 +40,18 @@ def expm(a: np.ndarray) -> np.ndarray:
     a6 = a4 @ a2
     u = a @ (a6 @ (b[13] * a6 + b[11] * a4 + b[9] * a2) + b[7] * a6 + b[5] * a4 + b[3] * a2 + b[1] * eye)
     v = a6 @ (b[12] * a6 + b[10] * a4 + b[8] * a2) + b[6] * a6 + b[4] * a4 + b[2] * a2 + b[0] * eye
-    r = np.linalg.solve(v - u, v + u)
+    return np.linalg.solve(v - u, v + u), s, finite
+
+
+def expm(a: np.ndarray) -> np.ndarray:
+    """exp(a) for a stack of square matrices (..., n, n); non-finite inputs give NaN outputs.
+
+    Returns
+    -------
+    ndarray (..., n, n)
+        exp(a) per matrix, by Pade-13 scaling and squaring; NaN where ``a`` has non-finite entries.
+    """
+    r, s, finite = pade13_scaled(a)
     for i in range(int(s.max(initial=0))):
         sq = r @ r
         r = np.where((i < s)[..., None, None], sq, r)

@@ -26,12 +26,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from .expm import pade13_scaled
 from .hinf_kernel import gamma_test_omegas
 from .htf import lti_hinfnorm
-from .system import DEFAULT_STEPS, LTPSystem, generator_at_nodes, magnus_exponent, magnus_exponentials
+from .system import DEFAULT_STEPS, LTPSystem, generator_at_nodes, magnus_exponent
 
 MAX_DOUBLINGS = 48
 _CONVERGED = 1e-13
+#: Largest ||exp(Omega / 2^j)||_1 that ``interval_scattering`` still squares as a matrix.
+GROWTH = 1e6
 
 
 def hamiltonian(sys: LTPSystem, gamma, t) -> np.ndarray:
@@ -159,14 +162,62 @@ def _take(blocks, sl):
     return tuple(x[..., sl, :, :] for x in blocks)
 
 
+def interval_scattering(omega: np.ndarray, growth: float = GROWTH):
+    """Scattering blocks of exp(Omega) for a stack of Hamiltonian interval exponents, without
+    forming exp(Omega) when it is too large to split.
+
+    exp(Omega) is Pade 13 at Omega / 2^s, then squared s times (Higham 2005). A stiff closed loop
+    (fast modes, |lambda| h of tens: the converged gains) makes the Hamiltonian flow grow like
+    exp(|lambda| h) over an interval, and the scattering blocks, which hold the decaying part,
+    are then lost to cancellation: at 64 Magnus steps ||exp(Omega)||_1 reaches 1e36 for the
+    sigma = 60 optimum, and at 256 steps 1e19 for sigma = 240, where every level used to fail
+    (J = inf). So the squarings run as matrix products only while ||.||_1 stays <= ``GROWTH``;
+    the rest are star products of the interval with itself (the doubling of the structured
+    doubling algorithm), which never forms the growing part. Where no interval reaches ``GROWTH`` (every gain of the paper's method and
+    the LQ starts at 64 steps: ||exp(Omega)||_1 <= 250) the arithmetic is exactly the plain
+    exponential's. The star squarings also check conjugate points inside the interval.
+    ``GROWTH``: the error bound eps GROWTH^2 is 1e-4 at 1e6, but on the shipped stiff optima J is
+    the same to 1e-7 for GROWTH = 1e4, 1e6 and 1e8 (measured), and 1e6 is ~20 % faster than 1e4.
+    Tested in tests/ltp/test_hinf_kernel.py (a stiff loop against the truncated HTF).
+
+    Returns
+    -------
+    blocks : tuple of 4 ndarrays (..., n, n)
+        (E, G, Hs, F) of each interval (``scattering``).
+    ok : ndarray of bool (...)
+        False where the blocks are not finite or a star squaring met a conjugate point.
+    kappa : ndarray (...)
+        Largest junction eigenvalue of the star squarings (-inf where there were none).
+    """
+    r, s, finite = pade13_scaled(omega)
+    done = np.zeros(s.shape, dtype=int)  # squarings done as matrix products
+    live = np.ones(s.shape, dtype=bool)
+    for i in range(int(s.max(initial=0))):
+        sq = r @ r
+        live = live & (i < s) & (np.max(np.sum(np.abs(sq), axis=-2), axis=-1) <= growth)
+        r = np.where(live[..., None, None], sq, r)
+        done = done + live
+    blocks = scattering(np.where(finite[..., None, None], r, np.nan))
+    ok = _finite(*blocks)
+    kappa = np.full(ok.shape, -np.inf)
+    rest = s - done
+    for j in range(int(rest.max(initial=0))):
+        act = (j < rest) & ok
+        squared, ok_s, kap = star(blocks, blocks)
+        blocks = tuple(np.where(act[..., None, None], y, x) for x, y in zip(blocks, squared))
+        ok = ok & (ok_s | ~act)
+        kappa = np.where(act, np.fmax(kappa, kap), kappa)
+    return blocks, ok, kappa
+
+
 def period_scattering(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS):
     """Scattering blocks of one period of the Hamiltonian flow, where they exist, and the
     largest junction eigenvalue kappa met on the way (``star``)."""
     M1, M2, h = generator_at_nodes(lambda t: hamiltonian(sys, gamma, t), sys.period, steps)
     with np.errstate(all="ignore"):
-        blocks = scattering(magnus_exponentials(M1, M2, h))  # (..., steps, n, n) each
-        ok = _finite(*blocks).all(axis=-1)
-        kappa = np.full(ok.shape, -np.inf)
+        blocks, ok, kappa = interval_scattering(magnus_exponent(M1, M2, h))  # (..., steps, n, n) each
+        ok = ok.all(axis=-1)
+        kappa = kappa.max(axis=-1)
         while blocks[0].shape[-3] > 1:  # pairwise star products, earlier interval first
             k = blocks[0].shape[-3]
             if k % 2:
@@ -202,7 +253,7 @@ def gamma_test(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS, return_decay: 
     return passed, rho
 
 
-def gamma_margins(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS):
+def gamma_margins(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS, growth: float = GROWTH):
     """The gamma-test with the two margins that say how far gamma is above the norm (compiled kernel).
 
     The test fails at the norm by one of two events (module docstring): a pair of Hamiltonian
@@ -226,7 +277,8 @@ def gamma_margins(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS):
     omega = magnus_exponent(M1, M2, h)
     shape = omega.shape[:-3]
     with np.errstate(all="ignore"):
-        passed, rho, kappa = gamma_test_omegas(np.ascontiguousarray(omega.reshape((-1,) + omega.shape[-3:])), True)
+        passed, rho, kappa = gamma_test_omegas(np.ascontiguousarray(omega.reshape((-1,) + omega.shape[-3:])), True,
+                                               float(growth))
     passed = passed.reshape(shape) & (gamma > feedthrough_bound(sys))
     return passed, np.where(passed, rho.reshape(shape), np.nan), np.where(passed, kappa.reshape(shape), np.nan)
 
