@@ -26,7 +26,13 @@ The algorithm (decisions documented in README, section "Tuning to the optimum"):
 4. **certified stop**: when ``certify`` consecutive restarts each fail to improve the best J by
    more than ``rtol_certify`` (relative), i.e. no population of ``certify`` x (run length) draws
    with relative perturbations of ``restart_sigma`` (5 %) of the incumbent's entries found a
-   better gain, the result is declared converged. ``max_evals`` bounds the work (``converged`` is then False).
+   better gain, a **coordinate poll** follows: each entry alone moved by +- d of its scale (36 gains,
+   one batch), moving to the best while J improves, d halved from ``poll_step`` (5 %) down to
+   ``poll_min`` (0.1 %). If the poll improved J by no more than ``rtol_certify`` in all, the result is
+   declared converged; otherwise the restarts go on from the polled gain. Why the poll: at sigma = 120
+   two restarts "certified" J = 315.37 while a Nelder-Mead from it found 313.80 (-0.5 %) and a
+   coordinate poll -0.1 % within 300 evaluations: in a narrow, kinked valley isotropic draws rarely
+   improve, moves of single entries do. ``max_evals`` bounds the work (``converged`` is then False).
 
 5. **ranking resolution**: each generation's J are computed to a relative accuracy of
    ``rtol_spread`` x (median - best) / best of the previous generation, between ``rtol`` and
@@ -76,6 +82,8 @@ class CmaSettings:
     resolution_every: int = 25  # generations between checks that ``steps`` still resolves the incumbent
     resolution_rtol: float = 2e-3  # ... J at 2 x steps within this (relative), else steps are doubled
     max_steps: int = 1024
+    poll_step: float = 0.05  # coordinate poll of the certificate: first relative step per entry ...
+    poll_min: float = 1e-3  # ... halved down to this
 
 
 def gain_scale(K0: np.ndarray) -> np.ndarray:
@@ -117,6 +125,32 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
     converged = False
     step0 = s.sigma0
     interrupted = False
+
+    def poll():
+        """Coordinate poll (compass search): each of the 18 entries +- d of its scale, as one batch of
+        36; move to the best point while it improves J, else halve d, from ``poll_step`` down to
+        ``poll_min``. Isotropic CMA-ES restarts miss such single-entry moves in a narrow valley
+        (measured at sigma = 120: two certified restarts found nothing, a poll then found -0.1 %)."""
+        nonlocal best_K, best_J, best_x, gen_total
+        E = np.concatenate([np.eye(18), -np.eye(18)]).reshape(36, 3, 6)
+        d = s.poll_step
+        while d >= s.poll_min and objective.evaluations - ev0 < s.max_evals:
+            Ks = best_K + d * gain_scale(best_K) * E
+            J = objective(Ks, guess=best_J, spread=1.05, rtol=s.rtol)
+            i = int(np.argmin(J))
+            if J[i] < best_J * (1 - s.rtol_stall):
+                best_K, best_J = Ks[i], float(J[i])
+                best_x = ((best_K - K0) / S).ravel()  # the CMA coordinates of the new incumbent
+                if on_best is not None:
+                    on_best(best_K, best_J)
+            else:
+                d /= 2
+            gen_total += 1
+            evals = objective.evaluations - ev0
+            history.append((evals, best_J, gen_total, d, restart))
+            if progress is not None:
+                progress(evals, best_J, gen_total, d, restart)
+
     try:  # Ctrl-C / SIGTERM (the CLI maps it) ends the search and keeps the best gain so far
         while True:
             run_best = best_J
@@ -172,8 +206,19 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
             if restart > 0:
                 fails = fails + 1 if run_best_start_J - best_J <= s.rtol_certify * run_best_start_J else 0
             if fails >= s.certify:
-                converged = True
-                break
+                # the restarts found nothing: poll every entry on its own before certifying
+                start_J = best_J
+                poll()
+                J2 = _refine_steps(objective, best_K, best_J, s)
+                if J2 is not None:
+                    best_J, fails = J2, 0
+                elif start_J - best_J <= s.rtol_certify * start_J:
+                    converged = True
+                    break
+                else:
+                    fails = 0  # the poll moved the incumbent by more than rtol_certify: search on
+                if objective.evaluations - ev0 >= s.max_evals:
+                    break
             if evals >= s.max_evals:
                 break
             restart += 1
