@@ -24,7 +24,11 @@ STEPS = 150
 @pytest.fixture(scope="module")
 def setup():
     p = load_spacecraft("config/spacecraft.yaml")
-    K = load_gains("config/gains/sigma_120.yaml").K
+    # The paper-method gain: batch and single runs do the same arithmetic in a different order, and
+    # with the stiff J-optimal gains (re-shipped in issue 9: c2 ~ 34,000) that round-off is
+    # amplified at saturation switches to 1e-5 within half an orbit of the full environment, so
+    # the 1e-9 equivalence is checked on a loop that does not amplify it.
+    K = load_gains("config/gains/paper_method/sigma_120.yaml").K
     rng = np.random.default_rng(12)
     B = 3
     q0 = np.array([1.0, 0.0, 0.0, 0.0]) + 0.1 * rng.standard_normal((B, 4))
