@@ -105,8 +105,10 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
     -------
     TuneResult
         Best gain and its J (re-evaluated), K0 and J0, generations, history rows
-        (evaluations, J_best, generation, step, restart), wall time, ``converged`` (the certified
-        stop fired), ``method`` = "cma" and ``evaluations``.
+        (evaluations, J_best, generation, step, restart; during the coordinate poll ``step`` is
+        its relative step d), wall time, ``converged`` (the certified stop fired), ``method`` =
+        "cma", ``evaluations``, ``tuned_steps`` and ``stop`` ("certified", "budget" or
+        "interrupted": KeyboardInterrupt raised by ``progress`` ends the search with the best gain).
     """
     import cma
 
