@@ -127,9 +127,10 @@ def test_full_environment_quarter_orbit_converges():
     # transient peak ~2.5e-2 (as with the paper environment), then below 6e-3 after ~1000 s
     assert 1e-2 < f["peak_dq"] < 5e-2
     assert np.max(dq[-200:]) < 0.3 * f["peak_dq"]
-    # the J-optimal gain touches the 50 A m^2 limit at the transient's peak (1 step measured, as in
-    # docs/sampling.md at Ts = 1 s); more would mean the full environment drives it harder than that
-    assert res.info["saturated_steps"] <= 5
+    # the J-optimal gain touches the 50 A m^2 limit at the transient's peak (9 steps measured with
+    # the J = 214.76 gain, 1 with the 219.98 one before; docs/sampling.md at Ts = 1 s: 9); 20 leaves
+    # room, many more would mean the full environment drives it harder than the transient does
+    assert res.info["saturated_steps"] <= 20
     # the same loop with the paper environment differs (different field and frame), but only mildly
     paper = simulate(load_gains(GAINS60).K, SpacecraftParams(), ts=1.0, steps=1400)
     assert f["peak_dq"] == pytest.approx(paper.figures_of_merit()["peak_dq"], rel=0.2)
