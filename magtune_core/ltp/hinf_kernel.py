@@ -61,15 +61,6 @@ def _pade_scaled(a):
 
 
 @njit(cache=True)
-def _expm(a):
-    """exp(a), Pade 13 with scaling and squaring (the arithmetic of :func:`.expm.expm`); NaN if not finite."""
-    r, s = _pade_scaled(a)
-    for _ in range(s):
-        r = r @ r
-    return r
-
-
-@njit(cache=True)
 def _finite(x):
     return np.all(np.isfinite(x))
 

@@ -105,6 +105,32 @@ def test_resolution_watch_refines_a_coarse_grid():
     assert res.J < 400  # not the 8-step value (720) of anything near the start
 
 
+class _GridObjective:
+    """A quadratic bowl J = 100 (1 + |(K - K*) / 0.1|^2) plus a grid error 10 (16 / steps)^2 that
+    does not depend on K: the certificate's logic on a problem whose resolved grid is known."""
+
+    def __init__(self, steps):
+        self.steps, self.evaluations = steps, 0
+        self.K_star = np.linspace(-1.0, 1.0, 18).reshape(3, 6)
+
+    def __call__(self, Ks, guess=None, spread=None, rtol=None):
+        Ks = np.asarray(Ks, dtype=float).reshape(-1, 3, 6)
+        self.evaluations += len(Ks)
+        return 100.0 * (1.0 + np.sum(((Ks - self.K_star) / 0.1) ** 2, axis=(1, 2))) + 10.0 * (16.0 / self.steps) ** 2
+
+
+def test_certificate_needs_a_grid_resolved_to_its_tolerance():
+    """The watch (resolution_rtol 5 %) accepts 32 steps (J(32) - J(64) = 1.9 % of J); the certificate
+    (rtol_certify 2e-3) must refine until J(n) and J(2n) agree to 2e-3: 128 steps (1.2e-3; 64 gives
+    4.7e-3). Certifying at 32 steps would certify a 1.9 % grid error."""
+    obj = _GridObjective(32)
+    s = CmaSettings(popsize=8, steps=32, resolution_rtol=0.05, resolution_every=1000, rtol_certify=2e-3,
+                    stall=10, certify=1, sigma0=0.3, restart_sigma=0.05, max_evals=20000)
+    res = tune_cma(obj, obj.K_star + 0.05, 60.0, seed=0, settings=s)
+    assert res.converged and res.tuned_steps == obj.steps == 128
+    assert res.J == pytest.approx(100.0 + 10.0 / 64, rel=2e-3)  # at the bowl's bottom on the 128-step grid
+
+
 def test_gain_scale_covers_zero_entries():
     K = np.zeros((3, 6))
     K[0, 0], K[1, 3] = 2.0, -0.5
