@@ -2,17 +2,20 @@
 from __future__ import annotations
 
 import json
+import math
 
 from ..design.gains import load_gains
 from ..design.problem import figures
 from ..design.resolution import resolved_steps
+from ..design.sampled import SampledLoop, hold_gain_margin
 from .common import ANALYSIS_STEPS, field_model_argument, load_model
 
 
 def register(sub) -> None:
     a = sub.add_parser("analyze", help="J, c1, c2, rho of a gains file")
     a.add_argument("path", help="gains parameter file (config/gains/sigma_*.yaml)")
-    a.add_argument("--json", action="store_true", help="one JSON object with keys J, c1, c2, rho, stable")
+    a.add_argument("--json", action="store_true",
+                   help="one JSON object with keys J, c1, c2, rho, stable, ts, hold_gain_margin")
     a.add_argument("--steps", type=int, default=None,
                    help=f"Magnus intervals per period (default: {ANALYSIS_STEPS}, doubled until J agrees with "
                         "twice as many to 1e-3; see magtune_core/design/resolution.py)")
@@ -31,8 +34,11 @@ def run(args) -> int:
     args.steps = args.steps or resolved_steps(model, g.K, g.sigma, ANALYSIS_STEPS)[0]
     fig = figures(model, g.K, g.sigma, steps=args.steps)
     d = fig.as_dict()
+    # the digital implementation at the file's ts (design/sampled.py): 0 = unstable when held
+    margin = hold_gain_margin(SampledLoop.build(model, g.ts), g.K)
     if args.json:
-        print(json.dumps({k: d[k] for k in ("J", "c1", "c2", "rho", "stable")}))
+        print(json.dumps({**{k: d[k] for k in ("J", "c1", "c2", "rho", "stable")}, "ts": g.ts,
+                          "hold_gain_margin": margin}))
         return 0
     print(f"{args.path}: sigma={g.sigma:g}, field model {model.field.name}, {args.steps} Magnus steps")
     for key, label in (("J", "H-inf T_d -> z"), ("c1", "H-inf T_d -> dq"), ("c2", "H2 T_d -> m"), ("rho", "max |multiplier|")):
@@ -40,6 +46,10 @@ def run(args) -> int:
         extra = f"   (file: {rec:.6g}, diff {abs(d[key] - rec) / abs(rec):.1e})" if isinstance(rec, (int, float)) and rec else ""
         print(f"  {key:4s} {label:18s} {d[key]:.6g}{extra}")
     print(f"  closed loop {'stable' if fig.stable else 'UNSTABLE'}")
+    held = (f"UNSTABLE when held at Ts = {g.ts:g} s (sample-and-hold, design/sampled.py)" if margin == 0 else
+            f"sample-and-hold at Ts = {g.ts:g} s: gain margin {margin:.3g}"
+            + (" or more" if margin >= 16 else f" ({20 * math.log10(margin):.1f} dB)"))
+    print(f"  {held}")
     return 0
 
 

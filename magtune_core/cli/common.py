@@ -137,6 +137,22 @@ def environment_options(args) -> FullEnvironmentOptions:
                                   srp=not args.no_srp, field=args.env_field, igrf_degree=args.igrf_degree)
 
 
+GAIN_MARGIN_HELP = ("feasible gains keep the sample-and-hold loop at --ts stable with K times this factor "
+                    "(default 2 = 6 dB; 0 = no constraint, the paper's problem; design/sampled.py)")
+
+
+def hold_constraint(args):
+    """The digital-implementation constraint of ``--ts`` / ``--gain-margin`` (None for margin 0),
+    checked: one line naming the option, exit 2, before any work."""
+    from ..design.sampled import HoldConstraint
+
+    if not (np.isfinite(args.ts) and args.ts > 0):
+        raise ConfigError("--ts", None, f"must be a positive sample period in seconds, got {args.ts:g}")
+    if not (np.isfinite(args.gain_margin) and (args.gain_margin == 0 or args.gain_margin >= 1)):
+        raise ConfigError("--gain-margin", None, f"must be 0 (no constraint) or a factor >= 1, got {args.gain_margin:g}")
+    return HoldConstraint(args.ts, args.gain_margin) if args.gain_margin else None
+
+
 def load_model(args):
     """The LTP design model of ``--config`` and ``--field FILE`` or ``--field-model`` (if given)."""
     from ..design.fitfield import field_for_spacecraft

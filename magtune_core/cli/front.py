@@ -11,7 +11,17 @@ from ..base.errors import ConfigError
 from ..design.cmaes import CmaSettings
 from ..design.gains import load_gains
 from ..studies import front
-from .common import add_force_argument, check_outputs, field_model_argument, load_model, plain_summary, positive_floats, repo_path
+from .common import (
+    GAIN_MARGIN_HELP,
+    add_force_argument,
+    check_outputs,
+    field_model_argument,
+    hold_constraint,
+    load_model,
+    plain_summary,
+    positive_floats,
+    repo_path,
+)
 
 OUTPUTS = ("front.md", "front.png", "front.json")
 
@@ -26,6 +36,8 @@ def register(sub) -> None:
                    help="processes evaluating each population (default: all cores)")
     p.add_argument("--max-evals", type=int, default=30000, help="evaluation budget per sigma (default 30000)")
     p.add_argument("--popsize", type=int, default=8, help="candidates per generation (default 8)")
+    p.add_argument("--ts", type=float, default=1.0, help="controller sample period of the hold constraint [s] (default 1)")
+    p.add_argument("--gain-margin", type=float, default=2.0, help=GAIN_MARGIN_HELP)
     p.add_argument("--start", nargs="+", default=[], metavar="GAINS",
                    help="gains files tried as the start of every sigma besides the LQ gain and the previous sigma's "
                         "optimum (the lowest J at that sigma wins), e.g. config/gains/sigma_*.yaml")
@@ -41,6 +53,7 @@ def run(args) -> int:
     for name in ("workers", "max_evals", "popsize"):
         if getattr(args, name) < 1:
             raise ConfigError("--" + name.replace("_", "-"), None, f"must be a positive integer, got {getattr(args, name)}")
+    hold = hold_constraint(args)
     out = Path(args.out_dir)
     check_outputs(out, OUTPUTS, force=args.force, option="--out-dir")
     starts = [(f"{Path(f).name}", load_gains(f).K) for f in args.start]  # bad files: one line, exit 2, before any work
@@ -53,7 +66,8 @@ def run(args) -> int:
         print(f"magtune front: sigma={pt.sigma:g} ({i}/{n}) J={pt.J:.3f} c1={pt.c1:.2f} c2={pt.c2:.1f} "
               f"in {pt.evaluations} evaluations, {pt.seconds:.0f} s", file=sys.stderr, flush=True)
 
-    points = front.run_front(model, args.sigmas, settings, seed=args.seed, progress=progress, starts=starts)
+    points = front.run_front(model, args.sigmas, settings, seed=args.seed, progress=progress, starts=starts,
+                             hold=hold)
     wall = time.perf_counter() - t0
     out.mkdir(parents=True, exist_ok=True)
     table = front.front_table(points)

@@ -10,7 +10,18 @@ from ..base.errors import ConfigError
 from ..design.gains import Gains, load_gains, save_gains
 from ..design.problem import figures
 from ..design.resolution import resolved_steps, start_gain
-from .common import ANALYSIS_STEPS, CommandError, add_force_argument, check_output, field_model_argument, load_model, repo_path
+from ..design.sampled import feasible_start, hold_provenance
+from .common import (
+    ANALYSIS_STEPS,
+    GAIN_MARGIN_HELP,
+    CommandError,
+    add_force_argument,
+    check_output,
+    field_model_argument,
+    hold_constraint,
+    load_model,
+    repo_path,
+)
 
 METHODS = ("cma", "paper")
 
@@ -31,6 +42,7 @@ def register(sub) -> None:
     c.add_argument("--max-evals", type=int, default=30000, help="evaluation budget (default 30000)")
     c.add_argument("--restarts", type=int, default=2,
                    help="consecutive non-improving local restarts that certify convergence (default 2)")
+    c.add_argument("--gain-margin", type=float, default=2.0, help=GAIN_MARGIN_HELP)
     p = t.add_argument_group("paper method")
     p.add_argument("--samples", type=int, default=540, help="candidates per iteration N (paper: 540)")
     p.add_argument("--r-max", type=float, default=0.995, help="stop when the rejection ratio reaches this")
@@ -52,7 +64,7 @@ def register(sub) -> None:
 
 #: Options that only one method reads, with their defaults: given to the other method they would be
 #: silently ignored (a paper-style ``--samples 200 --max-iter 6`` does not shorten a CMA-ES run).
-METHOD_ONLY = {"cma": {"popsize": 8, "max_evals": 30000, "restarts": 2},
+METHOD_ONLY = {"cma": {"popsize": 8, "max_evals": 30000, "restarts": 2, "gain_margin": 2.0},
                "paper": {"samples": 540, "r_max": 0.995, "mu": 1e-3, "max_iter": 300, "patience": 1}}
 
 
@@ -68,6 +80,7 @@ def _check_args(args) -> None:
             raise ConfigError("--" + name.replace("_", "-"), None, f"must be a positive integer, got {getattr(args, name)}")
     if not args.sigma > 0:
         raise ConfigError("--sigma", None, f"must be positive, got {args.sigma:g}")
+    hold_constraint(args)
 
 
 def run(args) -> int:
@@ -108,6 +121,12 @@ def run(args) -> int:
 
         settings = CmaSettings(popsize=args.popsize, max_evals=args.max_evals, certify=args.restarts,
                                workers=args.workers, steps=steps)
+        hold = hold_constraint(args)
+        if hold is not None:
+            K0, note = feasible_start(model, K0, hold)
+            if note:
+                start += f", {note}"
+                print(f"tune: start gain {note} to meet --gain-margin {hold.gain_margin:g} at --ts {hold.ts:g}")
 
         stop = _StopRequest()
 
@@ -117,17 +136,20 @@ def run(args) -> int:
             if stop.requested:  # raised here, between generations, never inside compiled code
                 raise KeyboardInterrupt
 
-        with HinfObjective(model, args.sigma, steps=settings.steps, rtol=settings.rtol, workers=args.workers) as obj, stop:
+        with HinfObjective(model, args.sigma, steps=settings.steps, rtol=settings.rtol, workers=args.workers,
+                           hold=hold) as obj, stop:
             res = tune_cma(obj, K0, args.sigma, seed=args.seed, settings=settings, progress=progress)
         if obj.steps != steps:
             print(f"tune: the gains stiffened beyond {steps} Magnus steps; tuned on {obj.steps} (resolution watch)")
-        header = f"magtune tune --sigma {args.sigma:g} --seed {args.seed}" + (f" --start {args.start}" if args.start else "")
+        header = (f"magtune tune --sigma {args.sigma:g} --seed {args.seed} --ts {args.ts:g} --gain-margin {args.gain_margin:g}"
+                  + (f" --start {args.start}" if args.start else ""))
     bar.close()
     analysis_steps, _ = resolved_steps(model, res.K, args.sigma, ANALYSIS_STEPS)
     fig = figures(model, res.K, args.sigma, steps=analysis_steps)
     prov = {**fig.as_dict(), **res.provenance(), "start": start, "design_field": model.field.name,
             "analysis_steps": analysis_steps, "tune_seconds": round(res.seconds, 1)}
     prov.pop("stable", None)
+    prov.update(hold_provenance(model, res.K, args.ts, args.gain_margin if args.method == "cma" else 0.0))
     save_gains(out, Gains(res.K, args.sigma, args.ts, prov), header=header)
     state = {"certified": "converged", "interrupted": "NOT certified (interrupted: the best gain so far)"}.get(
         getattr(res, "stop", None), "NOT certified (budget reached)")
@@ -178,7 +200,8 @@ def _run_robust(args, model, out) -> int:
                                                                    ("certify", "restarts"), ("workers", "workers"))
                                   if hasattr(args, a)})
         K0 = load_gains(args.start).K if getattr(args, "start", None) else None
-        res, sigma0, steps = tune_robust(models, args.sigma, seed=args.seed, settings=settings, K0=K0)
+        hold = hold_constraint(args)
+        res, sigma0, steps = tune_robust(models, args.sigma, seed=args.seed, settings=settings, K0=K0, hold=hold)
     except ImportError:
         raise CommandError("--robust needs the CMA-ES tuner (magtune_core.design.cmaes), not installed here") from None
     except ValueError as exc:
@@ -191,6 +214,7 @@ def _run_robust(args, model, out) -> int:
             "robust_spec": str(args.robust), "robust_models": len(models), "robust_worst_model": rf.worst_name,
             **{f"worst_{k}": v for k, v in worst.items()}}
     prov.pop("stable", None)
+    prov.update(hold_provenance(model, res.K, args.ts, args.gain_margin))
     if getattr(args, "start", None):
         prov["start"] = str(args.start)
     elif sigma0 != args.sigma:

@@ -53,7 +53,8 @@ class Gains:
     PROVENANCE = ("J", "c1", "c2", "rho", "J_initial", "seed", "iterations", "converged", "tuner", "design",
                   "method", "evaluations", "seeds",
                   "field_model", "design_field", "start", "analysis_steps", "tuned_steps", "stop", "tune_seconds", "written",
-                  "robust_spec", "robust_models", "robust_worst_model", "worst_J", "worst_c1", "worst_c2", "worst_rho")
+                  "robust_spec", "robust_models", "robust_worst_model", "worst_J", "worst_c1", "worst_c2", "worst_rho",
+                  "hold_gain_margin_required", "hold_gain_margin")
 
     @classmethod
     def from_mapping(cls, params: dict, where="gains") -> "Gains":

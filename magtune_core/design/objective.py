@@ -11,6 +11,9 @@ Conventions (documented in README, tested in tests/design/test_objective.py):
 * a gain whose closed loop is not exponentially stable (max |characteristic multiplier| >= 1
   for any model, paper Theorem 2.1 / eq. 30) gets J = inf; it is screened by the cheap
   monodromy test first, so unstable candidates cost no bisection;
+* with a hold constraint (``hold=HoldConstraint(ts, gain_margin)``, design/sampled.py; the default
+  of ``magtune tune``) a gain whose sample-and-hold loop at ts is unstable with the gain times
+  gain_margin also gets J = inf, screened after the monodromy test and before any bisection;
 * J is computed to relative accuracy ``rtol`` (bracket of the bisection) with ``steps`` Magnus
   intervals per period; ``evaluations`` counts gains evaluated (one gain against every model
   counts once), the unit of the benchmarks.
@@ -25,6 +28,7 @@ import numpy as np
 from ..ltp import DEFAULT_STEPS, hinfnorm, spectral_radius
 from .model import AttitudeLTP
 from .problem import attitude_system, performance_system
+from .sampled import HoldConstraint, SampledLoop, sampled_margin_ok
 
 
 def _one_blas_thread() -> None:
@@ -40,8 +44,11 @@ def _one_blas_thread() -> None:
 
 
 def model_norms(model: AttitudeLTP, sigma: float, Ks: np.ndarray, steps: int, rtol: float,
-                guess=None, spread: float | None = None) -> np.ndarray:
+                guess=None, spread: float | None = None, hold: tuple | None = None) -> np.ndarray:
     """||G_zTd^sigma(K)||_inf for a batch of gains (n, 3, 6) on one model; inf where unstable.
+
+    ``hold`` = (SampledLoop, gain_margin): gains whose sample-and-hold loop fails the margin are
+    infeasible too (inf), screened after the continuous-time test and before any bisection.
 
     Returns
     -------
@@ -55,6 +62,8 @@ def model_norms(model: AttitudeLTP, sigma: float, Ks: np.ndarray, steps: int, rt
     with np.errstate(all="ignore"):
         rho = spectral_radius(attitude_system(model, Ks), steps)
     ok = np.isfinite(rho) & (rho < 1.0)
+    if hold is not None and ok.any():
+        ok[ok] = sampled_margin_ok(hold[0], Ks[ok], hold[1])
     if not ok.any():
         return out
     g = None
@@ -67,9 +76,10 @@ def model_norms(model: AttitudeLTP, sigma: float, Ks: np.ndarray, steps: int, rt
     return out
 
 
-def _norms_job(models, sigma, Ks, steps, rtol, guess, spread):
+def _norms_job(models, sigma, Ks, steps, rtol, guess, spread, holds=None):
     """Worker body: the (n, n_models) matrix of norms of one slice of the population."""
-    cols = [model_norms(m, sigma, Ks, steps, rtol, None if guess is None else guess[:, i], spread)
+    cols = [model_norms(m, sigma, Ks, steps, rtol, None if guess is None else guess[:, i], spread,
+                        None if holds is None else holds[i])
             for i, m in enumerate(models)]
     return np.stack(cols, axis=-1)
 
@@ -90,13 +100,17 @@ class HinfObjective:
     workers : int
         Processes the population is split over (1 = in this process). Workers have their BLAS
         pinned to one thread; use the objective as a context manager or call :meth:`close`.
+    hold : HoldConstraint, optional
+        Digital-implementation constraint (design/sampled.py): a gain whose sample-and-hold loop
+        at ``hold.ts`` is unstable with the gain times ``hold.gain_margin`` on any model is
+        infeasible (J = inf), like a continuous-time unstable one. None: the paper's problem.
 
     Calling the objective with ``Ks`` (n, 3, 6) returns J (n,); :meth:`per_model` returns the
     (n, n_models) matrix and :meth:`worst` the index of the model attaining the max.
     """
 
     def __init__(self, models: AttitudeLTP | Sequence[AttitudeLTP], sigma: float, steps: int = DEFAULT_STEPS,
-                 rtol: float = 1e-4, workers: int = 1):
+                 rtol: float = 1e-4, workers: int = 1, hold: HoldConstraint | None = None):
         self.models = (models,) if isinstance(models, AttitudeLTP) else tuple(models)
         if not self.models:
             raise ValueError("HinfObjective: at least one model is needed")
@@ -104,6 +118,9 @@ class HinfObjective:
         self.workers = max(1, int(workers))
         self.evaluations = 0
         self._pool = None
+        self.hold = hold
+        self._holds = None if hold is None else [(SampledLoop.build(m, hold.ts), hold.gain_margin)
+                                                 for m in self.models]
 
     def __enter__(self):
         return self
@@ -142,11 +159,12 @@ class HinfObjective:
                                     (n, nm))
         rtol = self.rtol if rtol is None else float(rtol)
         if self.workers == 1 or n < 2 * self.workers:
-            return _norms_job(self.models, self.sigma, Ks, self.steps, rtol, guess, spread)
+            return _norms_job(self.models, self.sigma, Ks, self.steps, rtol, guess, spread, self._holds)
         parts = np.array_split(np.arange(n), self.workers)
         pool = self._get_pool()
         futs = [pool.submit(_norms_job, self.models, self.sigma, Ks[p], self.steps, rtol,
-                            None if guess is None else np.ascontiguousarray(guess[p]), spread) for p in parts]
+                            None if guess is None else np.ascontiguousarray(guess[p]), spread, self._holds)
+                for p in parts]
         return np.concatenate([f.result() for f in futs], axis=0)
 
     def __call__(self, Ks, guess=None, spread: float | None = None, rtol: float | None = None) -> np.ndarray:

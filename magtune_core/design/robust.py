@@ -213,13 +213,14 @@ def robust_figures(models, K, sigma: float, steps: int = DEFAULT_STEPS) -> Robus
     return RobustFigures([m.name for m in models], [figures(m.model, K, sigma, steps=steps) for m in models])
 
 
-def tune_robust(models, sigma: float, seed: int = 0, settings=None, progress=None, K0=None):
+def tune_robust(models, sigma: float, seed: int = 0, settings=None, progress=None, K0=None, hold=None):
     """Minimize the worst J over ``models`` (a model set of :func:`model_set`) with the CMA-ES tuner.
 
     The objective is :class:`magtune_core.design.objective.HinfObjective` over every model of the set
     (batched over candidates and models), the optimizer :func:`magtune_core.design.cmaes.tune_cma`;
     the start gain (``K0``, default :func:`magtune_core.design.resolution.start_gain`) and the
-    Magnus steps are resolved on the whole set.
+    Magnus steps are resolved on the whole set. ``hold`` (design.sampled.HoldConstraint) makes
+    the sample-and-hold gain margin a constraint on every model of the set.
 
     Returns
     -------
@@ -240,7 +241,12 @@ def tune_robust(models, sigma: float, seed: int = 0, settings=None, progress=Non
         steps, J0 = resolved_steps(lt, K0, sigma)
         if not np.isfinite(J0):
             raise ValueError("the start gain does not stabilize every model of the set")
+    if hold is not None:
+        from .sampled import feasible_start
+
+        for m in lt:  # scaled down until every model's held loop meets the margin
+            K0, _ = feasible_start(m, K0, hold)
     s = replace(settings or CmaSettings(), steps=steps)
-    with HinfObjective(lt, sigma, steps=steps, rtol=s.rtol, workers=s.workers) as objective:
+    with HinfObjective(lt, sigma, steps=steps, rtol=s.rtol, workers=s.workers, hold=hold) as objective:
         res = tune_cma(objective, K0, sigma, seed=seed, settings=s, progress=progress)
     return res, sigma0, steps

@@ -27,6 +27,7 @@ from ..design.model import AttitudeLTP
 from ..design.objective import HinfObjective
 from ..design.problem import figures
 from ..design.resolution import resolved_steps
+from ..design.sampled import HoldConstraint, feasible_start
 
 #: Paper Table 1 (c1, c2, rho) at sigma = 60, 120, 240, as published.
 PAPER_TABLE1 = {60: (239.19, 12072.45, 0.00283), 120: (283.96, 11039.75, 0.00345), 240: (399.32, 9348.98, 0.00598)}
@@ -55,13 +56,14 @@ class FrontPoint:
 
 
 def run_front(model: AttitudeLTP, sigmas, settings: CmaSettings, seed: int = 0, analysis_steps: int = 128,
-              progress=None, starts=()) -> list[FrontPoint]:
+              progress=None, starts=(), hold: HoldConstraint | None = None) -> list[FrontPoint]:
     """Tune each sigma (increasing, warm-started) and compute its figures of merit.
 
     ``starts`` is a sequence of (label, K) candidate start gains tried at every sigma besides the
     LQ gain and the previous sigma's optimum. Figures are computed at ``analysis_steps`` doubled
     until resolved (:func:`~magtune_core.design.resolution.resolved_steps`).
-    ``progress(i, n, point)`` is called after each sigma.
+    ``progress(i, n, point)`` is called after each sigma. ``hold``: the digital-implementation
+    constraint of every tuning (design/sampled.py); candidate starts that fail it are scaled down.
 
     Returns
     -------
@@ -75,11 +77,13 @@ def run_front(model: AttitudeLTP, sigmas, settings: CmaSettings, seed: int = 0, 
         t0 = time.perf_counter()
         cands = [("lq", lq_gain(model, sigma))] + ([(f"sigma={out[-1].sigma:g}", prev)] if prev is not None else [])
         cands += [(label, np.asarray(K, dtype=float).reshape(3, 6)) for label, K in starts]
+        if hold is not None:
+            cands = [(label, feasible_start(model, K, hold)[0]) for label, K in cands]
         # each candidate's J on its own resolved grid (a stiff start may need more steps than 64)
         Js = [resolved_steps(model, K, sigma, settings.steps) for _, K in cands]
         best = int(np.argmin([J for _, J in Js]))
         (start, K0), steps = cands[best], max(Js[best][0], settings.steps)
-        with HinfObjective(model, sigma, steps=steps, rtol=settings.rtol, workers=settings.workers) as obj:
+        with HinfObjective(model, sigma, steps=steps, rtol=settings.rtol, workers=settings.workers, hold=hold) as obj:
             res = tune_cma(obj, K0, sigma, seed=seed, settings=settings)
         f = figures(model, res.K, sigma, steps=resolved_steps(model, res.K, sigma, analysis_steps)[0])
         pt = FrontPoint(sigma, res.K, f.J, f.c1, f.c2, f.rho, res.evaluations, time.perf_counter() - t0,

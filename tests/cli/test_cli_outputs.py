@@ -77,12 +77,26 @@ def test_tune_refuses_to_overwrite_shipped_gains(capsys):
 @pytest.mark.parametrize("argv, option, method", [
     (["--samples", "50"], "--samples", "paper"),  # the default method is cma: --samples would be ignored
     (["--method", "paper", "--max-evals", "100"], "--max-evals", "cma"),
+    (["--method", "paper", "--gain-margin", "3"], "--gain-margin", "cma"),  # the paper's problem is unconstrained
 ])
 def test_tune_refuses_options_of_the_other_method(argv, option, method, capsys):
     """An option the chosen method does not read is refused (one line, exit 2), not silently ignored."""
     assert cli_main(["tune", "--sigma", "60", "--out", "/nonexistent-dir/x.yaml", *argv]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and option in err and f"--method {method}" in err, err
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["tune", "--sigma", "60", "--gain-margin", "0.5"], "--gain-margin"),
+    (["tune", "--sigma", "60", "--gain-margin", "nan"], "--gain-margin"),
+    (["tune", "--sigma", "60", "--ts", "0"], "--ts"),
+    (["front", "--sigmas", "60", "--gain-margin", "inf"], "--gain-margin"),
+])
+def test_hold_constraint_options_are_checked_first(argv, option, tmp_path, capsys):
+    """--ts / --gain-margin out of range: one line naming the option, exit 2, before any work."""
+    assert cli_main([*argv, "--out" if argv[0] == "tune" else "--out-dir", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and option in err, err
 
 
 @pytest.mark.parametrize("argv, name", [
