@@ -36,7 +36,7 @@ from magtune_core.design.model import AttitudeLTP
 from magtune_core.design.objective import HinfObjective
 from magtune_core.design.params import SpacecraftParams
 from magtune_core.design.problem import performance_system
-from magtune_core.design.sampled import HoldConstraint, feasible_start
+from magtune_core.design.sampled import HoldConstraint, SampledLoop, feasible_start
 from magtune_core.design.tuner import TunerSettings, tune
 from magtune_core.ltp import hinfnorm
 from magtune_core.ltp.hinf import GROWTH, gamma_margins
@@ -100,6 +100,15 @@ def bench_norm(model, sigma, workers, path):
                 p = bool(gamma_margins(sys_, 1.01 * ref, steps, growth=growth)[0])
             row.append((p, 1e3 * (time.perf_counter() - t) / 5))
         print(f"| {steps} | {row[0][0]} / {row[0][1]:.1f} | {row[1][0]} / {row[1][1]:.1f} | {row[1][1] / row[0][1]:.2f} |")
+    # the hold constraint's cost next to J's (design/sampled.py): one build, one population of 8
+    t = time.perf_counter()
+    loop = SampledLoop.build(model, 1.0)
+    t_build = time.perf_counter() - t
+    t = time.perf_counter()
+    loop.spectral_radius(Ks[:8])
+    t_pop = time.perf_counter() - t
+    print(f"\nHold constraint at Ts = 1 s ({loop.intervals} intervals): build {1e3 * t_build:.0f} ms once; "
+          f"a population of 8 gains {1e3 * t_pop:.0f} ms ({1e3 * t_pop / 8:.1f} ms/gain; {load()})")
     if workers > 1:
         with HinfObjective(model, sigma, steps=r, rtol=1e-4, workers=workers) as obj:
             obj(Ks[:2 * workers])  # start the workers
