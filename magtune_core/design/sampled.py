@@ -24,11 +24,50 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from scipy.linalg import expm
 
 from .model import AttitudeLTP, skew_field
 
 _RESCALE_EVERY = 32  #: interval products between renormalizations (keeps unstable products finite)
+
+
+@njit(cache=True)
+def _held_products(Ad, Gamma, Ks):  # pragma: no cover - compiled; checked against numpy in the tests
+    """prod_k (Ad + Gamma_k K) for each gain, renormalized every _RESCALE_EVERY intervals:
+    (M (n, 6, 6), log of the scale factors (n,)). Compiled: 5,615 6x6 products per gain in numpy
+    cost ~10 ms per gain in Python overhead, here ~1 ms."""
+    n, N = Ks.shape[0], Gamma.shape[0]
+    M = np.zeros((n, 6, 6))
+    logscale = np.zeros(n)
+    P = np.empty((6, 6))
+    T = np.empty((6, 6))
+    for g in range(n):
+        for i in range(6):
+            M[g, i, i] = 1.0
+        for k in range(N):
+            for i in range(6):
+                for j in range(6):
+                    acc = Ad[i, j]
+                    for c in range(3):
+                        acc += Gamma[k, i, c] * Ks[g, c, j]
+                    P[i, j] = acc
+            for i in range(6):
+                for j in range(6):
+                    acc = 0.0
+                    for c in range(6):
+                        acc += P[i, c] * M[g, c, j]
+                    T[i, j] = acc
+            M[g] = T
+            if (k + 1) % _RESCALE_EVERY == 0:
+                s = 0.0
+                for i in range(6):
+                    for j in range(6):
+                        s = max(s, abs(M[g, i, j]))
+                if s > 0.0 and np.isfinite(s):
+                    M[g] /= s
+                    logscale[g] += np.log(s)
+    return M, logscale
 
 
 @dataclass(frozen=True)
@@ -83,18 +122,10 @@ class SampledLoop:
         ndarray (n,)
             rho of prod_k (Ad + Gamma_k K); inf where the product overflows or is not finite.
         """
-        Ks = np.asarray(Ks, dtype=float).reshape(-1, 3, 6)
+        Ks = np.ascontiguousarray(np.asarray(Ks, dtype=float).reshape(-1, 3, 6))
         n = len(Ks)
-        M = np.broadcast_to(np.eye(6), (n, 6, 6)).copy()
-        logscale = np.zeros(n)
+        M, logscale = _held_products(self.Ad, np.ascontiguousarray(self.Gamma), Ks)
         with np.errstate(all="ignore"):
-            for k in range(self.intervals):
-                M = (self.Ad + self.Gamma[k] @ Ks) @ M
-                if (k + 1) % _RESCALE_EVERY == 0:
-                    s = np.abs(M).max(axis=(1, 2))
-                    s = np.where(np.isfinite(s) & (s > 0), s, 1.0)
-                    M /= s[:, None, None]
-                    logscale += np.log(s)
             rho = np.full(n, np.inf)
             ok = np.all(np.isfinite(M), axis=(1, 2))
             if ok.any():
@@ -134,12 +165,19 @@ class HoldConstraint:
             raise ValueError(f"hold constraint: gain_margin must be >= 1, got {self.gain_margin}")
 
 
-def hold_gain_margin(loop: SampledLoop, K, upper: float = 16.0, points: int = 48) -> float:
+def hold_gain_margin(loop: SampledLoop, K, upper: float = 16.0, points: int = 48, rtol: float = 1e-3) -> float:
     """Largest factor g in (0, upper] with a stable sampled loop for every g' in [1, g], of one gain.
 
     A geometric grid of ``points`` factors in [1, upper] is evaluated as one batch, then the first
-    crossing is bisected to 0.5 %. 0.0 if K itself is unstable when held, ``upper`` if no factor of
-    the grid destabilizes it.
+    crossing is narrowed to ``rtol`` (four factors per batch). The result is the largest factor
+    known stable, so it is at most ``rtol`` below the true margin. 0.0 if K itself is unstable
+    when held, ``upper`` if no factor of the grid destabilizes it.
+
+    Accuracy: ~1e-3, not round-off. On the boundary a fast mode rings near the Nyquist rate, so
+    rho = |z|^N with N = 5,615 intervals: ln rho moves ~10^4 times faster than ln g, and the
+    explicit monodromy is strongly non-normal (||M|| / rho ~ 1e4), so its largest eigenvalue
+    carries a relative error of order one within ~2e-4 of the boundary (seen: 1.9993 vs 2.0002
+    for the same gain with two summation orders). A gain tuned for margin 2 shows 2 +- 1e-3.
 
     Returns
     -------
@@ -155,7 +193,7 @@ def hold_gain_margin(loop: SampledLoop, K, upper: float = 16.0, points: int = 48
         return float(upper)
     i = int(np.argmax(bad))
     lo, hi = g[i - 1], g[i]
-    while hi / lo > 1.005:
+    while hi / lo > 1.0 + rtol:
         mids = np.geomspace(lo, hi, 6)[1:-1]
         b = loop.spectral_radius(mids[:, None, None] * K) >= 1.0
         j = int(np.argmax(b)) if b.any() else len(mids)
@@ -189,4 +227,4 @@ def hold_provenance(model: AttitudeLTP, K, ts: float, gain_margin: float) -> dic
     under (0 = none) and the achieved sample-and-hold gain margin at ``ts``."""
     loop = SampledLoop.build(model, ts)
     return {"hold_gain_margin_required": float(gain_margin),
-            "hold_gain_margin": round(hold_gain_margin(loop, K), 4)}
+            "hold_gain_margin": round(hold_gain_margin(loop, K), 3)}

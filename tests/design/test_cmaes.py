@@ -163,7 +163,8 @@ def test_tune_and_front_commands(tmp_path):
     g = load_gains(out)
     assert g.provenance["method"] == "cma" and g.provenance["evaluations"] >= 12 and g.provenance["J"] > 0
     # tuned under the default hold constraint (6 dB at Ts = 1 s) and the file says what it achieved
-    assert g.provenance["hold_gain_margin_required"] == 2.0 and g.provenance["hold_gain_margin"] >= 2.0
+    # (the reported margin is accurate to 1e-3: hold_gain_margin's docstring)
+    assert g.provenance["hold_gain_margin_required"] == 2.0 and g.provenance["hold_gain_margin"] >= 2.0 * (1 - 1e-3)
     assert main(["tune", "--sigma", "60", "--workers", "0", "--out", str(tmp_path / "x.yaml")]) == 2
     assert main(["front", "--sigmas", "60,120", "--field-model", "constant", "--popsize", "4", "--max-evals", "8",
                  "--workers", "1", "--out-dir", str(tmp_path)]) == 0

@@ -73,7 +73,7 @@ def test_analyze_json_on_shipped_gains():
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     assert set(d) == {"J", "c1", "c2", "rho", "stable", "ts", "hold_gain_margin"} and d["stable"] is True
-    assert d["ts"] == 1.0 and d["hold_gain_margin"] >= 2.0  # the shipped gains meet the tuner's constraint
+    assert d["ts"] == 1.0 and d["hold_gain_margin"] >= 2.0 * (1 - 1e-3)  # the tuner's constraint, to its 1e-3
     from magtune_core.base.paramfile import read_ros_params
     prov = read_ros_params("config/gains/sigma_60.yaml", "controller")  # any section key (/**, controller)
     for k in ("J", "c1", "c2", "rho"):
