@@ -123,7 +123,11 @@ def run(args) -> int:
                                workers=args.workers, steps=steps)
         hold = hold_constraint(args)
         if hold is not None:
-            K0, note = feasible_start(model, K0, hold)
+            try:
+                K0, note = feasible_start(model, K0, hold)
+            except ValueError as exc:  # a start far beyond the margin: one line, exit 2, before the search
+                raise ConfigError("--start" if args.start else "--gain-margin", None,
+                                  f"{exc}; try a smaller --gain-margin or a longer --ts") from None
             if note:
                 start += f", {note}"
                 print(f"tune: start gain {note} to meet --gain-margin {hold.gain_margin:g} at --ts {hold.ts:g}")

@@ -99,6 +99,16 @@ def test_hold_constraint_options_are_checked_first(argv, option, tmp_path, capsy
     assert err.count("\n") == 1 and option in err, err
 
 
+def test_tune_refuses_a_margin_no_start_scaling_meets(tmp_path, capsys):
+    """A margin the start gain cannot meet even scaled down 100x: one line naming the option, exit 2.
+    (The LQ gain's own margin at 1 s is ~77: 40 x LQ has 1.93; 1e5 would need it scaled below
+    ~8e-4, and feasible_start stops at 0.95^90 ~ 0.01.)"""
+    assert cli_main(["tune", "--sigma", "60", "--gain-margin", "1e5", "--out", str(tmp_path / "g.yaml"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--gain-margin" in err and "meets the hold constraint" in err, err
+    assert not (tmp_path / "g.yaml").exists()
+
+
 @pytest.mark.parametrize("argv, name", [
     (["table1"], "docs/table1.md"),
     (["fit-field"], "config/field_model.yaml"),
