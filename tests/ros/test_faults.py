@@ -267,8 +267,9 @@ def test_nan_bursts_in_sensor_stream(tmp_path, gains60, offline):
 def test_relay_drops_ten_percent(tmp_path, gains60, offline):
     """A relay drops 10 % of the sensor messages (seeded): a step with a dropped input has no
     command and is counted missed, no other step is; the attitude stays bounded; the bag holds
-    exactly what the relay passed on."""
-    rig = Rig(tmp_path, gains60, relay_args=["--drop", 0.1, "--seed", 7]).start()
+    exactly what the relay passed on. Lockstep timeout 1 s (each lost step waits it out: ~20 s in
+    all): at 0.25 s a CI run once counted a 21st miss for 20 lost steps, a stall, not a drop."""
+    rig = Rig(tmp_path, gains60, relay_args=["--drop", 0.1, "--seed", 7], timeout=1.0).start()
     try:
         res = rig.finish()
     finally:
