@@ -244,8 +244,7 @@ def tune_robust(models, sigma: float, seed: int = 0, settings=None, progress=Non
     if hold is not None:
         from .sampled import feasible_start
 
-        for m in lt:  # scaled down until every model's held loop meets the margin
-            K0, _ = feasible_start(m, K0, hold)
+        K0, _ = feasible_start(lt, K0, hold)  # scaled down until every model's held loop meets the margin
     s = replace(settings or CmaSettings(), steps=steps)
     with HinfObjective(lt, sigma, steps=steps, rtol=s.rtol, workers=s.workers, hold=hold) as objective:
         res = tune_cma(objective, K0, sigma, seed=seed, settings=s, progress=progress)

@@ -202,19 +202,27 @@ def hold_gain_margin(loop: SampledLoop, K, upper: float = 16.0, points: int = 48
     return float(lo)
 
 
-def feasible_start(model: AttitudeLTP, K0, hold: HoldConstraint, shrink: float = 0.95, tries: int = 90):
+def feasible_start(model, K0, hold: HoldConstraint, shrink: float = 0.95, tries: int = 90):
     """A start gain meeting ``hold``: K0 itself, or K0 scaled down by shrink^j (smallest j).
+
+    ``model`` is one AttitudeLTP or a sequence (a robust model set): a scaling counts only where
+    every model's held loop meets the margin, checked together (feasibility need not be monotone
+    in the scale, so scaling model by model in turn could undo an earlier model's check).
 
     Returns
     -------
     (ndarray (3, 6), str)
         The gain and a note ("" if K0 already meets the constraint).
     """
+    models = (model,) if isinstance(model, AttitudeLTP) else tuple(model)
     K0 = np.asarray(K0, dtype=float).reshape(3, 6)
-    loop = SampledLoop.build(model, hold.ts)
+    loops = [SampledLoop.build(m, hold.ts) for m in models]
     f = shrink ** np.arange(tries + 1)
     for chunk in np.array_split(np.arange(len(f)), -(-len(f) // 8)):  # batches of 8: the largest feasible
-        ok = sampled_margin_ok(loop, f[chunk, None, None] * K0, hold.gain_margin)
+        ok = np.ones(len(chunk), dtype=bool)
+        for loop in loops:
+            if ok.any():
+                ok[ok] = sampled_margin_ok(loop, f[chunk[ok], None, None] * K0, hold.gain_margin)
         if ok.any():
             j = int(chunk[np.argmax(ok)])
             return (K0, "") if j == 0 else (f[j] * K0, f"scaled by {f[j]:.3g}")
