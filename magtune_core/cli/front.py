@@ -83,7 +83,9 @@ def run(args) -> int:
         "started from the best (lowest J at that sigma) of the LQ gain, the previous sigma's gain and the "
         "`--start` gains; J, c1, c2, rho are recomputed at 128 Magnus steps or more (doubled until J is resolved "
         "to 1e-3). 'certified' = the stopping rule fired; 'no (budget)' = "
-        "the evaluation budget ended the run first, so that J is an upper bound of the optimum.\n\n"
+        "the evaluation budget ended the run first, so that J is an upper bound of the optimum; 'no (unresolved)' = "
+        "the search found no improvement but the largest Magnus grid tried does not resolve J to the certificate's "
+        "tolerance.\n\n"
         f"{table}\n\n![front](front.png)\n\nThe paper's Table 1 points (red squares) are plotted as published.\n")
     (out / "front.json").write_text(json.dumps({"command": cmd, "seconds": wall, "field_model": model.field.name,
                                                 "points": [p.as_dict() for p in points]}, indent=1) + "\n")

@@ -155,7 +155,9 @@ def run(args) -> int:
     prov.pop("stable", None)
     prov.update(hold_provenance(model, res.K, args.ts, args.gain_margin if args.method == "cma" else 0.0))
     save_gains(out, Gains(res.K, args.sigma, args.ts, prov), header=header)
-    state = {"certified": "converged", "interrupted": "NOT certified (interrupted: the best gain so far)"}.get(
+    state = {"certified": "converged", "interrupted": "NOT certified (interrupted: the best gain so far)",
+             "unresolved": "NOT certified (no improvement found, but max_steps Magnus steps do not resolve J to "
+                           "the certificate's tolerance)"}.get(
         getattr(res, "stop", None), "NOT certified (budget reached)")
     print(f"sigma={args.sigma:g} [{res.method}]  J: {res.J0:.3f} ({start}, {steps} Magnus steps) -> {fig.J:.3f} in "
           f"{res.evaluations} evaluations, {res.seconds:.1f} s, {state}; c1={fig.c1:.3f} c2={fig.c2:.2f} "

@@ -48,7 +48,9 @@ The algorithm (decisions documented in README, section "Tuning to the optimum"):
    goes on, on the finer grid. Before a certified stop the check is made at the certificate's own
    tolerance ``rtol_certify`` (2e-4, 10x stricter): a certificate to 2e-4 on a grid whose error is
    1e-3 would certify the grid's error (measured at sigma = 240: a poll "improved" J by 0.07 % at
-   256 steps with a gain 0.04 % worse at 512).
+   256 steps with a gain 0.04 % worse at 512). At ``max_steps``, where the grid can no longer be
+   doubled, the certificate is issued only if J at twice the steps agrees to that tolerance;
+   otherwise the run ends with ``stop = "unresolved"`` (not converged).
 
 Every random draw comes from ``numpy.random.default_rng(seed)`` (passed to cma as its ``randn``;
 the package's global seeding is switched off), so a seed gives the same gains.
@@ -110,7 +112,7 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
         Best gain and its J (re-evaluated), K0 and J0, generations, history rows
         (evaluations, J_best, generation, step, restart; during the coordinate poll ``step`` is
         its relative step d), wall time, ``converged`` (the certified stop fired), ``method`` =
-        "cma", ``evaluations``, ``tuned_steps`` and ``stop`` ("certified", "budget" or
+        "cma", ``evaluations``, ``tuned_steps`` and ``stop`` ("certified", "budget", "unresolved" or
         "interrupted": KeyboardInterrupt raised by ``progress`` ends the search with the best gain).
     """
     import cma
@@ -127,7 +129,7 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
     best_x, best_J, best_K = np.zeros(18), J0, K0  # best_K = K0 + S * best_x, kept whole for an interrupt
     history, gen_total, restart, fails = [], 0, 0, 0
     run_best_start_J = J0  # best J when the current restart began
-    converged = False
+    converged = unresolved = False
     step0 = s.sigma0
     interrupted = False
 
@@ -221,7 +223,9 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
                 if J2 is not None:
                     best_J, fails = J2, 0
                 elif start_J - best_J <= s.rtol_certify * start_J:
-                    converged = True
+                    # at max_steps the grid cannot be refined: certify only if it resolves J anyway
+                    unresolved = not _resolved_at_max(objective, best_K, best_J, s)
+                    converged = not unresolved
                     break
                 else:
                     fails = 0  # the poll moved the incumbent by more than rtol_certify: search on
@@ -243,7 +247,8 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
     J = best_J if interrupted else float(objective(K[None], guess=best_J, spread=1.01)[0])
     return TuneResult(K, J, Kstart, J0, sigma, seed, gen_total, s, history, time.perf_counter() - t0, converged,
                       method="cma", evaluations=objective.evaluations - ev0, tuned_steps=getattr(objective, "steps", None),
-                      stop="certified" if converged else "interrupted" if interrupted else "budget")
+                      stop="certified" if converged else "interrupted" if interrupted else "unresolved" if unresolved
+                      else "budget")
 
 
 def _refine_steps(objective, K: np.ndarray, J: float, s: CmaSettings, rtol: float | None = None) -> float | None:
@@ -265,3 +270,18 @@ def _refine_steps(objective, K: np.ndarray, J: float, s: CmaSettings, rtol: floa
         objective.steps = steps
         return None
     return J2
+
+
+def _resolved_at_max(objective, K, J: float, s: CmaSettings) -> bool:
+    """At ``max_steps`` (where :func:`_refine_steps` no longer doubles): whether J(K) at twice the steps
+    is within ``rtol_certify`` of J, i.e. whether a certificate on this grid certifies J and not the
+    grid's error. True below ``max_steps`` (the refinement has checked it) or without ``steps``."""
+    steps = getattr(objective, "steps", None)
+    if steps is None or steps < s.max_steps or not np.isfinite(J):
+        return True
+    objective.steps = 2 * steps
+    try:
+        J2 = float(objective(np.asarray(K)[None], guess=J, spread=1.05)[0])
+    finally:
+        objective.steps = steps
+    return bool(np.isfinite(J2) and abs(J2 - J) <= min(s.resolution_rtol, s.rtol_certify) * J2)

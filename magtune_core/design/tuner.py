@@ -65,7 +65,7 @@ class TuneResult:
     method: str = "paper"
     evaluations: int = 0  # gains evaluated (paper: candidates gamma-tested; cma: full J evaluations)
     tuned_steps: int | None = None  # Magnus steps at the end of the run (cma: the resolution watch may double them)
-    stop: str | None = None  # cma: why the search ended: "certified", "budget" or "interrupted"
+    stop: str | None = None  # cma: why the search ended: "certified", "budget", "unresolved" or "interrupted"
 
     def provenance(self) -> dict:
         s = asdict(self.settings)

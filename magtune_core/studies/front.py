@@ -48,6 +48,7 @@ class FrontPoint:
     seconds: float
     converged: bool
     start: str
+    stop: str = ""  # the tuner's stop reason ("certified", "budget", "unresolved", ...)
 
     def as_dict(self) -> dict:
         return {"sigma": self.sigma, "J": self.J, "c1": self.c1, "c2": self.c2, "rho": self.rho,
@@ -87,7 +88,7 @@ def run_front(model: AttitudeLTP, sigmas, settings: CmaSettings, seed: int = 0, 
             res = tune_cma(obj, K0, sigma, seed=seed, settings=settings)
         f = figures(model, res.K, sigma, steps=resolved_steps(model, res.K, sigma, analysis_steps)[0])
         pt = FrontPoint(sigma, res.K, f.J, f.c1, f.c2, f.rho, res.evaluations, time.perf_counter() - t0,
-                        res.converged, start)
+                        res.converged, start, res.stop or "")
         out.append(pt)
         prev = res.K
         if progress is not None:
@@ -99,8 +100,9 @@ def front_table(points: list[FrontPoint]) -> str:
     """Markdown table of the front (one row per sigma)."""
     lines = ["| sigma | J | c1 | c2 | rho | evaluations | time [s] | certified | start |", "|---|---|---|---|---|---|---|---|---|"]
     for p in points:
+        cert = "yes" if p.converged else f"no ({p.stop or 'budget'})"
         lines.append(f"| {p.sigma:g} | {p.J:.2f} | {p.c1:.2f} | {p.c2:.1f} | {p.rho:.2e} | {p.evaluations} | "
-                     f"{p.seconds:.0f} | {'yes' if p.converged else 'no (budget)'} | {p.start} |")
+                     f"{p.seconds:.0f} | {cert} | {p.start} |")
     return "\n".join(lines)
 
 

@@ -224,3 +224,23 @@ def test_interrupted_tune_keeps_the_best_gain(tmp_path, sig, workers):
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+
+
+def test_no_certificate_on_an_unresolved_grid_at_max_steps():
+    """At max_steps the grid cannot be doubled, so a certificate needs J at twice the steps to agree to
+    rtol_certify: the paper-method sigma = 60 gain's J is 262.68 at 16 steps and 275.52 at 32 (4.7 %
+    apart: unresolved), 276.93 / 276.94 at 128 / 256 (resolved). The objective's steps are restored."""
+    from pathlib import Path
+
+    from magtune_core.design.cmaes import _resolved_at_max
+    from magtune_core.design.gains import load_gains
+
+    model = AttitudeLTP.from_params(SpacecraftParams())
+    K = load_gains(Path(__file__).resolve().parents[2] / "config/gains/paper_method/sigma_60.yaml").K
+    for steps, expected in ((16, False), (128, True)):
+        obj = HinfObjective(model, 60.0, steps=steps, rtol=1e-7)
+        J = float(obj(K[None])[0])
+        assert _resolved_at_max(obj, K, J, CmaSettings(steps=steps, max_steps=steps)) is expected
+        assert obj.steps == steps
+        # below max_steps the watch (_refine_steps) has already checked: nothing to do here
+        assert _resolved_at_max(obj, K, J, CmaSettings(steps=steps, max_steps=2 * steps))
