@@ -63,15 +63,17 @@ def omegas(path, sigma, steps, rel=1.001):
     return np.ascontiguousarray(magnus_exponent(M1, M2, h))[None]
 
 
-def median_time(f, reps):
-    """Median wall time of f() over reps calls (after one warm-up call)."""
-    f()
-    ts = []
+def paired_times(f_old, f_new, reps):
+    """Median wall times of f_old() and f_new(), called alternately reps times each (after a warm-up
+    call), so that a change of machine load hits both alike."""
+    f_old(), f_new()
+    t_old, t_new = [], []
     for _ in range(reps):
-        t0 = time.perf_counter()
-        f()
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts))
+        for f, ts in ((f_old, t_old), (f_new, t_new)):
+            t0 = time.perf_counter()
+            f()
+            ts.append(time.perf_counter() - t0)
+    return float(np.median(t_old)), float(np.median(t_new))
 
 
 def piece_loops(old):
@@ -132,17 +134,17 @@ def main():
     with open("/proc/loadavg") as f:
         print(f"load (/proc/loadavg): {f.read().strip()}   cores: {os.cpu_count()}")
     old = load_old_kernel()
-    print(f"\nfull gamma-test at gamma = 1.001 J (median), old = git {OLD_COMMIT} (np.linalg), new = hand-written")
+    print(f"\nfull gamma-test at gamma = 1.001 J (median, old and new alternating), old = git {OLD_COMMIT} (np.linalg), new = hand-written")
     print(f"{'case':<44} {'steps':>5} {'old ms':>8} {'new ms':>8} {'ratio':>6}")
     first = None
     for path, sigma, steps in CASES:
         om = omegas(path, sigma, steps)
         if first is None:
             first = om
-        reps = max(5, int(2000 // steps))
+        reps = max(15, int(6000 // steps))
         for growth in (1e6, np.inf):
-            t_old = median_time(lambda: old.gamma_test_omegas(om, True, growth), reps)
-            t_new = median_time(lambda: new.gamma_test_omegas(om, True, growth), reps)
+            t_old, t_new = paired_times(lambda: old.gamma_test_omegas(om, True, growth),
+                                        lambda: new.gamma_test_omegas(om, True, growth), reps)
             name = path.replace("config/gains/", "") + ("" if growth == 1e6 else "  growth=inf")
             print(f"{name:<44} {steps:>5} {1e3 * t_old:>8.2f} {1e3 * t_new:>8.2f} {t_old / t_new:>6.2f}")
 
@@ -165,13 +167,13 @@ def main():
         ("kappa (Cholesky + top eigenvalue)", lambda k: kappa_old(k, blk[0][1], blk[1][2], ws, ww, wv),
          lambda k: kappa_new(k, blk[0][1], blk[1][2], ws, ww, wv)),
     )
-    print("\npieces (compiled loops, median of 7 x 2000 calls)")
+    print("\npieces (compiled loops, median of 15 x 2000 calls, old and new alternating)")
     print(f"{'piece':<44} {'old us':>8} {'new us':>8} {'ratio':>6}")
     for name, f_old, f_new in rows:
         f_old(1), f_new(1)  # compile
         reps = 2000
-        t_old = median_time(lambda: f_old(reps), 7) / reps
-        t_new = median_time(lambda: f_new(reps), 7) / reps
+        t_old, t_new = paired_times(lambda: f_old(reps), lambda: f_new(reps), 15)
+        t_old, t_new = t_old / reps, t_new / reps
         print(f"{name:<44} {1e6 * t_old:>8.2f} {1e6 * t_new:>8.2f} {t_old / t_new:>6.2f}")
 
 

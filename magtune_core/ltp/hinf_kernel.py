@@ -16,18 +16,23 @@ the slightly shifted block). So pass/fail agrees except within round-off of the 
 (``tests/ltp/test_hinf_kernel.py`` compares the two). Compiled on first use, cached on disk (``cache=True``).
 
 Hand-written linear algebra. numba's ``np.linalg`` wrappers copy, check and allocate on every call,
-which for 6x6 and 12x12 matrices costs more than the arithmetic: ``np.linalg.solve`` of a 12x12 took
-~7 us, a 6x6 ``eigvalsh`` ~4.7 us, and a 12x12 ``@`` ~0.8 us (n = 6, 12x12 Hamiltonian exponents).
-So the hot path uses plain loops on work arrays allocated once per call of :func:`gamma_test_omegas`:
-matrix products, LU with partial pivoting (LAPACK getrf/getrs's algorithm; singular means an exactly
-zero pivot, as there), Cholesky (LAPACK potrf's: fails on a pivot <= 0 or NaN), the Pade-13 sums
-fused into one pass, and the largest eigenvalue of the symmetric L' Ga L by cyclic Jacobi (backward
-stable: error ~ eps ||.|| = eps kappa for this PSD matrix). Measured (n = 6, one core): Pade-13 of a
-12x12 ~25 -> ~6 us, a star product ~14.5 -> ~4 us, a full test at 512 intervals ~33 -> ~10 ms
-(``bench/bench_kernel.py`` compares with the library-call version, git 4091808). A failing
-interval or junction ends the test at once (the result, False / NaN / NaN, cannot change after it).
-Only the rare paths keep ``np.linalg``: kappa for an Hb that is not PSD to round-off, and the decay
-rho (one solve and one ``eigvals`` per system).
+which for 6x6 and 12x12 matrices costs more than the arithmetic (n = 6: 12x12 Hamiltonian exponents,
+6x6 scattering blocks): ``np.linalg.solve`` of a 12x12 took ~7 us, a 6x6 ``eigvalsh`` ~4.7 us, a
+12x12 ``@`` ~0.8 us, and one Pade-13 exponential ~25 us, one star product ~14.5 us. So the hot path
+is plain loops on work arrays allocated once per call of :func:`gamma_test_omegas`: matrix products
+with each output row held in scalars (numba leaves LLVM's SLP vectorizer off, and a 6- or 12-long
+inner loop is too short for the loop vectorizer), LU with partial pivoting (LAPACK getrf/getrs's
+algorithm; singular means an exactly zero pivot, as there), Cholesky (LAPACK potrf's: fails on a
+pivot <= 0 or NaN), the Pade-13 sums in the order of :func:`.expm.pade13_scaled` (one pass each),
+the star product's two solves as one (n, 2n) right-hand side, and the largest eigenvalue of the
+symmetric L' Ga L by Householder tridiagonalization and implicit QL (backward stable: error ~ eps
+||.|| = eps kappa for this PSD matrix; cyclic Jacobi as a fallback). Measured against the library-call
+version (git 4091808, ``bench/bench_kernel.py``, both in one process on a shared 2-core machine): a
+full test is ~2.6-3.4x faster (sigma = 120 at 512 intervals ~21 -> ~7 ms), Pade-13 ~3x, a star
+product ~3.2x, kappa ~2.5x (its QL iterations, ~12 for 6 eigenvalues, are the largest part left).
+A failing interval or junction ends the test at once (the result, False / NaN / NaN, cannot change
+after it). Only the rare paths keep ``np.linalg``: kappa for an Hb that is not PSD to round-off,
+and the decay rho (one solve and one ``eigvals`` per system).
 """
 from __future__ import annotations
 
@@ -43,7 +48,7 @@ _MAX_DOUBLINGS = 48
 _PSD_RTOL = 1e-9
 _GROWTH = 1e6  # largest ||exp||_1 squared as a matrix (hinf.interval_scattering)
 _JACOBI_SWEEPS = 50  # the fallback eigensolver (cyclic Jacobi) converges quadratically: 5-8 sweeps at n = 6
-_EPS = 2.220446049250313e-16
+_DEFLATE = 1e-16  # off-diagonal deflated by the QL of _eigmax_sym (matrix scaled to max |a_ij| ~ 1)
 _FM = {"contract"}  # fused multiply-add allowed; no reassociation, NaN and inf semantics kept
 _NW_PADE = 8  # (2n, 2n) work arrays of _pade_into
 _NW_STAR = 8  # (n, n) work arrays of _star_into / _scattering_into
@@ -356,9 +361,11 @@ def _eigmax_sym(a, t, wv):
     """Largest eigenvalue of the symmetric a (lower triangle read; a kept) by Householder tridiagonalization and
     implicit QL (EISPACK tql1: backward stable, error ~ n eps ||a||); NaN if a is not finite.
 
-    a is first scaled by a power of two to max |a_ij| in [0.5, 1) (exact), so the rotations cannot
-    overflow and an off-diagonal below 1e-19 (<= 1e-18 lambda_max after scaling) deflates. t: (n, n)
-    work, wv: (>= 4, n) work. Cyclic Jacobi on a if QL has not converged in 30 steps per eigenvalue."""
+    a is first scaled by a power of two to max |a_ij| in [0.5, 1) (exact, into t), so ||a||_2 >= 1/2, the
+    rotations cannot overflow, and an off-diagonal below _DEFLATE = 1e-16 deflates: that moves the
+    eigenvalues by <= 2e-16 ||a||_2, the size of the rounding errors, and spares the iterations that
+    would resolve the small eigenvalues (L' Ga L has rank ~3) to full relative accuracy. t: (n, n) work,
+    wv: (>= 4, n) work. Cyclic Jacobi on a if QL has not converged in 30 steps per eigenvalue."""
     n = a.shape[0]
     sc = _scale_sym(a, t)
     if not sc > 0.0:  # NaN (not finite) or 0 (a = 0)
@@ -407,7 +414,7 @@ def _eigmax_sym(a, t, wv):
         while True:
             m = l
             while m < n - 1:
-                if abs(e[m]) <= _EPS * (abs(d[m]) + abs(d[m + 1])) + 1e-19:
+                if abs(e[m]) <= _DEFLATE:
                     break
                 m += 1
             if m == l:
@@ -433,8 +440,9 @@ def _eigmax_sym(a, t, wv):
                     e[m] = 0.0
                     under = True
                     break
-                s = f / r
-                c = g / r
+                ri = 1.0 / r
+                s = f * ri
+                c = g * ri
                 g = d[i + 1] - q
                 r = (d[i] - g) * s + 2.0 * c * b
                 q = s * r
@@ -469,29 +477,33 @@ def _pade_into(a, r, w, piv):
     sc = 2.0 ** -s
     b = _B13
     A, A2, A4, A6, T, U1, U, V = w[0], w[1], w[2], w[3], w[4], w[5], w[6], w[7]
-    for i in range(n):
-        for j in range(n):
-            A[i, j] = a[i, j] * sc
+    nn = n * n  # the elementwise sums run over flat views (loops long enough to vectorize)
+    wf = w.reshape(w.shape[0], nn)
+    Af, A2f, A4f, A6f, Tf, U1f, Uf, Vf = wf[0], wf[1], wf[2], wf[3], wf[4], wf[5], wf[6], wf[7]
+    af, rf = a.reshape(nn), r.reshape(nn)
+    for t in range(nn):
+        Af[t] = af[t] * sc
     _matmul(A, A, A2)
     _matmul(A2, A2, A4)
     _matmul(A4, A2, A6)
-    for i in range(n):  # the sums of expm.pade13_scaled, in its order, one pass each
-        for j in range(n):
-            T[i, j] = b[13] * A6[i, j] + b[11] * A4[i, j] + b[9] * A2[i, j]
+    for t in range(nn):  # the sums of expm.pade13_scaled, in its order (the identity terms last)
+        Tf[t] = b[13] * A6f[t] + b[11] * A4f[t] + b[9] * A2f[t]
     _matmul(A6, T, U1)
+    for t in range(nn):
+        U1f[t] = U1f[t] + b[7] * A6f[t] + b[5] * A4f[t] + b[3] * A2f[t]
     for i in range(n):
-        for j in range(n):
-            U1[i, j] = U1[i, j] + b[7] * A6[i, j] + b[5] * A4[i, j] + b[3] * A2[i, j] + (b[1] if i == j else 0.0)
+        U1[i, i] += b[1]
     _matmul(A, U1, U)
-    for i in range(n):
-        for j in range(n):
-            T[i, j] = b[12] * A6[i, j] + b[10] * A4[i, j] + b[8] * A2[i, j]
+    for t in range(nn):
+        Tf[t] = b[12] * A6f[t] + b[10] * A4f[t] + b[8] * A2f[t]
     _matmul(A6, T, V)
+    for t in range(nn):
+        Vf[t] = Vf[t] + b[6] * A6f[t] + b[4] * A4f[t] + b[2] * A2f[t]
     for i in range(n):
-        for j in range(n):
-            v = V[i, j] + b[6] * A6[i, j] + b[4] * A4[i, j] + b[2] * A2[i, j] + (b[0] if i == j else 0.0)
-            T[i, j] = v - U[i, j]
-            r[i, j] = v + U[i, j]
+        V[i, i] += b[0]
+    for t in range(nn):
+        Tf[t] = Vf[t] - Uf[t]
+        rf[t] = Vf[t] + Uf[t]
     if not _lu(T, piv):
         r[:, :] = np.nan
         return 0

@@ -120,6 +120,7 @@ def test_stiff_loop_keeps_its_norm_on_a_coarse_grid():
 
 
 def _kernel():
+    """The compiled kernel module (its private pieces are what these tests check)."""
     from magtune_core.ltp import hinf_kernel as K
     return K
 
@@ -133,6 +134,7 @@ def _ill_conditioned(rng, n, cond):
 
 @pytest.mark.parametrize("n, m", [(6, 6), (6, 12), (12, 12), (5, 7), (1, 3)])
 def test_matmul_equals_numpy(n, m):
+    """The register-row products (6 and 12 columns) and the generic loop against numpy's @."""
     K = _kernel()
     rng = np.random.default_rng(n * 100 + m)
     a, b = rng.standard_normal((n, n)), rng.standard_normal((n, m))
