@@ -27,13 +27,14 @@ pivot <= 0 or NaN), the Pade-13 sums in the order of :func:`.expm.pade13_scaled`
 the star product's two solves as one (n, 2n) right-hand side, and the largest eigenvalue of the
 symmetric L' Ga L by Householder tridiagonalization and implicit QL, stopped by a Sturm count once
 the top eigenvalue is found (backward stable: error ~ eps ||.|| = eps kappa for this PSD matrix;
-cyclic Jacobi as a fallback). Measured against the library-call
-version (git 4091808, ``bench/bench_kernel.py``, both in one process on a shared 2-core machine): a
-full test is ~2.9-3.5x faster (sigma = 120 at 512 intervals: ~21-37 -> ~7-10 ms with the load),
-Pade-13 ~2.8x (now mostly its six 12x12 products at scalar speed), a star product ~3.7x, kappa ~3.9x.
-A failing interval or junction ends the test at once (the result, False / NaN / NaN, cannot change
-after it). Only the rare paths keep ``np.linalg``: kappa for an Hb that is not PSD to round-off,
-and the decay rho (one solve and one ``eigvals`` per system).
+cyclic Jacobi as a fallback). Measured against the library-call version (git 4091808,
+``bench/bench_kernel.py``, both in one process on a shared 2-core machine): a full test is ~2.9-3.5x
+faster (sigma = 120 at 512 intervals: ~21-37 -> ~7-10 ms with the load), Pade-13 ~2.8x (now mostly
+its six 12x12 products at scalar speed), a star product ~3.7x, kappa ~3.9x. A failing interval or
+junction ends the test at once (the result, False / NaN / NaN, cannot change after it). Only the
+rare paths keep ``np.linalg``: kappa for an Hb that is not PSD to round-off, and the decay rho (one
+solve and one ``eigvals`` per system). Where the library version raised (a singular Pade
+denominator, a non-finite L' Ga L in ``eigvalsh``) this one returns NaN, i.e. the test fails.
 """
 from __future__ import annotations
 

@@ -233,9 +233,25 @@ def test_largest_symmetric_eigenvalue_equals_lapack():
     assert np.isnan(K._eigmax_sym(bad, np.empty((6, 6)), np.empty((4, 6))))
 
 
+def test_sturm_count_equals_eigvalsh():
+    """The Sturm count that ends _eigmax_sym's QL: eigenvalues above x of a tridiagonal block, against
+    np.linalg.eigvalsh (x away from the eigenvalues by 1e-9, far above round-off)."""
+    K = _kernel()
+    rng = np.random.default_rng(31)
+    for _ in range(200):
+        n = int(rng.integers(1, 8))
+        d, e = rng.standard_normal(n), np.append(rng.standard_normal(n - 1), 0.0)
+        l0 = int(rng.integers(0, n))
+        T = np.diag(d[l0:]) + np.diag(e[l0:n - 1], 1) + np.diag(e[l0:n - 1], -1)
+        lam = np.linalg.eigvalsh(T)
+        for x in np.concatenate([rng.uniform(lam[0] - 1, lam[-1] + 1, 5), lam + 1e-9, lam - 1e-9]):
+            assert K._count_above(d, e, l0, x) == int(np.sum(lam > x))
+
+
 def test_kappa_equals_numpy_reference():
     """kappa (Cholesky of Hb, top eigenvalue of L' Ga L) against hinf._max_eig_product (two eigh),
-    for definite, singular and ill-conditioned blocks; 1e-10 as above (delta = 1e-14 tr(Hb) adds less)."""
+    for definite, singular, ill-conditioned and (the fallback) indefinite blocks; 1e-10 as above
+    (delta = 1e-14 tr(Hb) adds less)."""
     K = _kernel()
     rng = np.random.default_rng(23)
     for k in range(60):
@@ -245,6 +261,11 @@ def test_kappa_equals_numpy_reference():
         if k % 5 == 0:
             Hb = _ill_conditioned(rng, 6, 1e12)
             Hb = Hb @ Hb.T
+        if k % 7 == 0:  # not PSD beyond round-off: the Cholesky fails, the np.linalg route of the reference
+            Q, _ = np.linalg.qr(rng.standard_normal((6, 6)))
+            Hb = (Q * np.array([1.0, 0.5, 0.2, 0.1, 0.0, -0.05])) @ Q.T
+            L = np.empty((6, 6))
+            assert not K._cholesky(0.5 * (Hb + Hb.T), 1e-14 * np.trace(Hb), L)
         ref = float(hinf._max_eig_product(Ga, Hb))
         got = K._kappa(Ga, Hb)
         assert abs(got - ref) <= 1e-10 * ref, (k, got, ref)
