@@ -12,10 +12,33 @@ switch to squaring in scattering form; same pairwise tree over the period with t
 doubling, same conjugate-point, PSD and decay tests). Two things differ: the floating-point summation
 order of the matrix products, and the star product's eigenproblems, replaced by Cholesky
 factorizations (kappa as the top eigenvalue of L' Ga L with L L' = Hb, the PSD test as a Cholesky of
-the slightly shifted block: 15 us per star product instead of 27 us). So pass/fail agrees except within
-round-off of the norm itself (``tests/ltp/test_hinf_kernel.py`` compares the two). Compiled on first use, cached on disk (``cache=True``).
+the slightly shifted block). So pass/fail agrees except within round-off of the norm itself
+(``tests/ltp/test_hinf_kernel.py`` compares the two). Compiled on first use, cached on disk (``cache=True``).
+
+Hand-written linear algebra. numba's ``np.linalg`` wrappers copy, check and allocate on every call,
+which for 6x6 and 12x12 matrices costs more than the arithmetic (n = 6: 12x12 Hamiltonian exponents,
+6x6 scattering blocks): ``np.linalg.solve`` of a 12x12 took ~7 us, a 6x6 ``eigvalsh`` ~4.7 us, a
+12x12 ``@`` ~0.8 us, and one Pade-13 exponential ~25 us, one star product ~14.5 us. So the hot path
+is plain loops on work arrays allocated once per call of :func:`gamma_test_omegas`: matrix products
+with each output row held in scalars (numba leaves LLVM's SLP vectorizer off, and a 6- or 12-long
+inner loop is too short for the loop vectorizer), LU with partial pivoting (LAPACK getrf/getrs's
+algorithm; singular means an exactly zero pivot, as there), Cholesky (LAPACK potrf's: fails on a
+pivot <= 0 or NaN), the Pade-13 sums in the order of :func:`.expm.pade13_scaled` (one pass each),
+the star product's two solves as one (n, 2n) right-hand side, and the largest eigenvalue of the
+symmetric L' Ga L by Householder tridiagonalization and implicit QL, stopped by a Sturm count once
+the top eigenvalue is found (backward stable: error ~ eps ||.|| = eps kappa for this PSD matrix;
+cyclic Jacobi as a fallback). Measured against the library-call version (git 4091808,
+``bench/bench_kernel.py``, both in one process on a shared 2-core machine): a full test is ~2.9-3.5x
+faster (sigma = 120 at 512 intervals: ~21-37 -> ~7-10 ms with the load), Pade-13 ~2.8x (now mostly
+its six 12x12 products at scalar speed), a star product ~3.7x, kappa ~3.9x. A failing interval or
+junction ends the test at once (the result, False / NaN / NaN, cannot change after it). Only the
+rare paths keep ``np.linalg``: kappa for an Hb that is not PSD to round-off, and the decay rho (one
+solve and one ``eigvals`` per system). Where the library version raised (a singular Pade
+denominator, a non-finite L' Ga L in ``eigvalsh``) this one returns NaN, i.e. the test fails.
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit
@@ -26,10 +49,20 @@ _CONVERGED = 1e-13
 _MAX_DOUBLINGS = 48
 _PSD_RTOL = 1e-9
 _GROWTH = 1e6  # largest ||exp||_1 squared as a matrix (hinf.interval_scattering)
+_JACOBI_SWEEPS = 50  # the fallback eigensolver (cyclic Jacobi) converges quadratically: 5-8 sweeps at n = 6
+_QL_TOP_SHIFTS = 2  # QL steps of _eigmax_sym shifted above the spectrum (then Wilkinson-type)
+_DEFLATE = 1e-16  # off-diagonal deflated by the QL of _eigmax_sym (matrix scaled to max |a_ij| ~ 1)
+_FM = {"contract"}  # fused multiply-add allowed; no reassociation, NaN and inf semantics kept
+_NW_PADE = 8  # (2n, 2n) work arrays of _pade_into
+_NW_STAR = 8  # (n, n) work arrays of _star_into / _scattering_into
+_NW_WIDE = 6  # (n, 2n) work arrays of _star_into
 
+
+# ---------------------------------------------------------------- small dense kernels (no allocation)
 
 @njit(cache=True)
 def _norm1(a):
+    """Largest column sum of |a| (NaN-propagating through the sums)."""
     n1 = 0.0
     for j in range(a.shape[1]):
         c = 0.0
@@ -40,38 +73,26 @@ def _norm1(a):
 
 
 @njit(cache=True)
-def _pade_scaled(a):
-    """(exp(a / 2^s) by Pade 13, s) as :func:`.expm.pade13_scaled`; NaN and s = 0 if a is not finite."""
-    n = a.shape[0]
-    norm1 = _norm1(a)
-    if not np.isfinite(norm1):
-        return np.full((n, n), np.nan), 0
-    s = 0
-    if norm1 > _THETA13:
-        s = int(np.ceil(np.log2(norm1 / _THETA13)))
-    a = a * (2.0 ** -s)
-    b = _B13
-    eye = np.eye(n)
-    a2 = a @ a
-    a4 = a2 @ a2
-    a6 = a4 @ a2
-    u = a @ (a6 @ (b[13] * a6 + b[11] * a4 + b[9] * a2) + b[7] * a6 + b[5] * a4 + b[3] * a2 + b[1] * eye)
-    v = a6 @ (b[12] * a6 + b[10] * a4 + b[8] * a2) + b[6] * a6 + b[4] * a4 + b[2] * a2 + b[0] * eye
-    return np.ascontiguousarray(np.linalg.solve(v - u, v + u)), s
-
-
-@njit(cache=True)
 def _finite(x):
-    return np.all(np.isfinite(x))
+    """True if every entry of the 2-d x is finite."""
+    for i in range(x.shape[0]):
+        for j in range(x.shape[1]):
+            if not np.isfinite(x[i, j]):
+                return False
+    return True
 
 
 @njit(cache=True)
-def _sym(x):
-    return 0.5 * (x + x.T)
+def _copy(src, dst):
+    """dst[:] = src for 2-d arrays of one shape."""
+    for i in range(src.shape[0]):
+        for j in range(src.shape[1]):
+            dst[i, j] = src[i, j]
 
 
 @njit(cache=True)
 def _trace(x):
+    """Trace of the square x."""
     t = 0.0
     for i in range(x.shape[0]):
         t += x[i, i]
@@ -79,155 +100,654 @@ def _trace(x):
 
 
 @njit(cache=True)
-def _psd(x):
-    """x >= 0 up to round-off: Cholesky of x + (_PSD_RTOL tr(x) / n) I succeeds (no eigenproblem).
-    The shift is at most _PSD_RTOL lambda_max, the tolerance of :func:`.hinf._psd`."""
+def _sym_into(x, out):
+    """out = (x + x') / 2."""
     n = x.shape[0]
-    try:
-        np.linalg.cholesky(x + (_PSD_RTOL * abs(_trace(x)) / n + 1e-300) * np.eye(n))
-    except Exception:
-        return False
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = 0.5 * (x[i, j] + x[j, i])
+
+
+@njit(cache=True, fastmath=_FM)
+def _mm6(a, b, out):
+    """out = a @ b for b with 6 columns: each row of out accumulated in 6 scalars (registers)."""
+    n, m = a.shape
+    for i in range(n):
+        c0, c1, c2, c3, c4, c5 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        for k in range(m):
+            x = a[i, k]
+            c0, c1, c2, c3, c4, c5 = c0 + x * b[k, 0], c1 + x * b[k, 1], c2 + x * b[k, 2], c3 + x * b[k, 3], c4 + x * b[k, 4], c5 + x * b[k, 5]
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3], out[i, 4], out[i, 5] = c0, c1, c2, c3, c4, c5
+
+
+@njit(cache=True, fastmath=_FM)
+def _mm12(a, b, out):
+    """out = a @ b for b with 12 columns: each row of out accumulated in 12 scalars (registers)."""
+    n, m = a.shape
+    for i in range(n):
+        c0, c1, c2, c3, c4, c5 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        c6, c7, c8, c9, c10, c11 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        for k in range(m):
+            x = a[i, k]
+            c0, c1, c2, c3, c4, c5 = c0 + x * b[k, 0], c1 + x * b[k, 1], c2 + x * b[k, 2], c3 + x * b[k, 3], c4 + x * b[k, 4], c5 + x * b[k, 5]
+            c6, c7, c8, c9, c10, c11 = c6 + x * b[k, 6], c7 + x * b[k, 7], c8 + x * b[k, 8], c9 + x * b[k, 9], c10 + x * b[k, 10], c11 + x * b[k, 11]
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3], out[i, 4], out[i, 5] = c0, c1, c2, c3, c4, c5
+        out[i, 6], out[i, 7], out[i, 8], out[i, 9], out[i, 10], out[i, 11] = c6, c7, c8, c9, c10, c11
+
+
+@njit(cache=True, fastmath=_FM)
+def _subst6(lu, b):
+    """b <- U^-1 L^-1 b for 6 right-hand sides (rows of b in scalars), after the row swaps."""
+    n = lu.shape[0]
+    for i in range(n):  # unit lower triangle
+        c0, c1, c2, c3, c4, c5 = b[i, 0], b[i, 1], b[i, 2], b[i, 3], b[i, 4], b[i, 5]
+        for k in range(i):
+            x = lu[i, k]
+            c0, c1, c2, c3, c4, c5 = c0 - x * b[k, 0], c1 - x * b[k, 1], c2 - x * b[k, 2], c3 - x * b[k, 3], c4 - x * b[k, 4], c5 - x * b[k, 5]
+        b[i, 0], b[i, 1], b[i, 2], b[i, 3], b[i, 4], b[i, 5] = c0, c1, c2, c3, c4, c5
+    for i in range(n - 1, -1, -1):  # upper triangle
+        c0, c1, c2, c3, c4, c5 = b[i, 0], b[i, 1], b[i, 2], b[i, 3], b[i, 4], b[i, 5]
+        for k in range(i + 1, n):
+            x = lu[i, k]
+            c0, c1, c2, c3, c4, c5 = c0 - x * b[k, 0], c1 - x * b[k, 1], c2 - x * b[k, 2], c3 - x * b[k, 3], c4 - x * b[k, 4], c5 - x * b[k, 5]
+        x = 1.0 / lu[i, i]
+        b[i, 0], b[i, 1], b[i, 2], b[i, 3], b[i, 4], b[i, 5] = c0 * x, c1 * x, c2 * x, c3 * x, c4 * x, c5 * x
+
+
+@njit(cache=True, fastmath=_FM)
+def _subst12(lu, b):
+    """b <- U^-1 L^-1 b for 12 right-hand sides (rows of b in scalars), after the row swaps."""
+    n = lu.shape[0]
+    for i in range(n):  # unit lower triangle
+        c0, c1, c2, c3, c4, c5 = b[i, 0], b[i, 1], b[i, 2], b[i, 3], b[i, 4], b[i, 5]
+        c6, c7, c8, c9, c10, c11 = b[i, 6], b[i, 7], b[i, 8], b[i, 9], b[i, 10], b[i, 11]
+        for k in range(i):
+            x = lu[i, k]
+            c0, c1, c2, c3, c4, c5 = c0 - x * b[k, 0], c1 - x * b[k, 1], c2 - x * b[k, 2], c3 - x * b[k, 3], c4 - x * b[k, 4], c5 - x * b[k, 5]
+            c6, c7, c8, c9, c10, c11 = c6 - x * b[k, 6], c7 - x * b[k, 7], c8 - x * b[k, 8], c9 - x * b[k, 9], c10 - x * b[k, 10], c11 - x * b[k, 11]
+        b[i, 0], b[i, 1], b[i, 2], b[i, 3], b[i, 4], b[i, 5] = c0, c1, c2, c3, c4, c5
+        b[i, 6], b[i, 7], b[i, 8], b[i, 9], b[i, 10], b[i, 11] = c6, c7, c8, c9, c10, c11
+    for i in range(n - 1, -1, -1):  # upper triangle
+        c0, c1, c2, c3, c4, c5 = b[i, 0], b[i, 1], b[i, 2], b[i, 3], b[i, 4], b[i, 5]
+        c6, c7, c8, c9, c10, c11 = b[i, 6], b[i, 7], b[i, 8], b[i, 9], b[i, 10], b[i, 11]
+        for k in range(i + 1, n):
+            x = lu[i, k]
+            c0, c1, c2, c3, c4, c5 = c0 - x * b[k, 0], c1 - x * b[k, 1], c2 - x * b[k, 2], c3 - x * b[k, 3], c4 - x * b[k, 4], c5 - x * b[k, 5]
+            c6, c7, c8, c9, c10, c11 = c6 - x * b[k, 6], c7 - x * b[k, 7], c8 - x * b[k, 8], c9 - x * b[k, 9], c10 - x * b[k, 10], c11 - x * b[k, 11]
+        x = 1.0 / lu[i, i]
+        b[i, 0], b[i, 1], b[i, 2], b[i, 3], b[i, 4], b[i, 5] = c0 * x, c1 * x, c2 * x, c3 * x, c4 * x, c5 * x
+        b[i, 6], b[i, 7], b[i, 8], b[i, 9], b[i, 10], b[i, 11] = c6 * x, c7 * x, c8 * x, c9 * x, c10 * x, c11 * x
+
+
+
+@njit(cache=True, fastmath=_FM)
+def _matmul(a, b, out):
+    """out = a @ b (out must not alias a or b); rows in registers for 6 or 12 columns."""
+    p = b.shape[1]
+    if p == 12:
+        _mm12(a, b, out)
+    elif p == 6:
+        _mm6(a, b, out)
+    else:
+        n, m = a.shape
+        for i in range(n):
+            for j in range(p):
+                out[i, j] = 0.0
+            for k in range(m):
+                x = a[i, k]
+                for j in range(p):
+                    out[i, j] += x * b[k, j]
+
+
+@njit(cache=True, fastmath=_FM)
+def _lu(a, piv):
+    """LU with partial pivoting of the square a in place (LAPACK getrf's algorithm); False if singular
+    (an exactly zero pivot, where getrf reports info > 0)."""
+    n = a.shape[0]
+    for k in range(n):
+        p = k
+        big = abs(a[k, k])
+        for i in range(k + 1, n):
+            v = abs(a[i, k])
+            if v > big:
+                big = v
+                p = i
+        piv[k] = p
+        if big == 0.0:
+            return False
+        if p != k:
+            for j in range(n):
+                t = a[k, j]
+                a[k, j] = a[p, j]
+                a[p, j] = t
+        inv = 1.0 / a[k, k]
+        for i in range(k + 1, n):
+            a[i, k] *= inv
+            x = a[i, k]
+            for j in range(k + 1, n):
+                a[i, j] -= x * a[k, j]
+    return True
+
+
+@njit(cache=True, fastmath=_FM)
+def _lu_solve(lu, piv, b):
+    """b <- A^-1 b in place for the factorization (lu, piv) of :func:`_lu` (LAPACK getrs)."""
+    n = lu.shape[0]
+    m = b.shape[1]
+    for k in range(n):
+        p = piv[k]
+        if p != k:
+            for j in range(m):
+                t = b[k, j]
+                b[k, j] = b[p, j]
+                b[p, j] = t
+    if m == 12:
+        _subst12(lu, b)
+        return
+    if m == 6:
+        _subst6(lu, b)
+        return
+    for i in range(1, n):  # unit lower triangle
+        for k in range(i):
+            x = lu[i, k]
+            for j in range(m):
+                b[i, j] -= x * b[k, j]
+    for i in range(n - 1, -1, -1):  # upper triangle
+        for k in range(i + 1, n):
+            x = lu[i, k]
+            for j in range(m):
+                b[i, j] -= x * b[k, j]
+        x = 1.0 / lu[i, i]
+        for j in range(m):
+            b[i, j] *= x
+
+
+@njit(cache=True, fastmath=_FM)
+def _cholesky(a, shift, L):
+    """L L' = a + shift I from a's lower triangle (LAPACK potrf's algorithm); False on a pivot <= 0 or NaN."""
+    n = a.shape[0]
+    for j in range(n):
+        d = a[j, j] + shift
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if not d > 0.0:
+            return False
+        d = np.sqrt(d)
+        L[j, j] = d
+        inv = 1.0 / d
+        for i in range(j + 1, n):
+            v = a[i, j]
+            for k in range(j):
+                v -= L[i, k] * L[j, k]
+            L[i, j] = v * inv
+        for i in range(j):
+            L[i, j] = 0.0
     return True
 
 
 @njit(cache=True)
-def _kappa(Ga, Hb):
+def _scale_sym(a, t):
+    """t = 2^-e a, symmetric from a's lower triangle, with max |t_ij| in [0.5, 1) (exact; t may be a).
+    Returns 2^-e; 0 if a = 0, NaN if a is not finite."""
+    n = a.shape[0]
+    big = 0.0
+    for i in range(n):
+        for j in range(i + 1):
+            x = a[i, j]
+            if not np.isfinite(x):
+                return np.nan
+            big = max(big, abs(x))
+    if big == 0.0:
+        return 0.0
+    sc = math.ldexp(1.0, -math.frexp(big)[1])
+    for i in range(n):
+        for j in range(i + 1):
+            x = a[i, j] * sc
+            t[i, j] = x
+            t[j, i] = x
+    return sc
+
+
+@njit(cache=True)
+def _eigmax_jacobi(a):
+    """Largest eigenvalue of the symmetric a (lower triangle read, a overwritten) by cyclic Jacobi on a
+    scaled to max |a_ij| ~ 1 (:func:`_scale_sym`); NaN if a is not finite. Stops when the off-diagonal
+    part is below 1e-16 of the diagonal (Frobenius). The fallback of :func:`_eigmax_sym`."""
+    n = a.shape[0]
+    sc = _scale_sym(a, a)
+    if not sc > 0.0:  # NaN (not finite) or 0 (a = 0)
+        return np.nan if np.isnan(sc) else 0.0
+    for _ in range(_JACOBI_SWEEPS):
+        off = 0.0
+        dia = 0.0
+        for i in range(n):
+            dia += a[i, i] * a[i, i]
+            for j in range(i):
+                off += a[i, j] * a[i, j]
+        if not off > 1e-32 * dia:  # converged (the eigenvalues move by <= ||off||_F), or NaN
+            break
+        for p in range(n - 1):
+            for q in range(p + 1, n):
+                apq = a[p, q]
+                if apq == 0.0:
+                    continue
+                theta = (a[q, q] - a[p, p]) / (2.0 * apq)
+                if abs(theta) > 1e150:
+                    t = 0.5 / theta
+                else:
+                    t = 1.0 / (abs(theta) + np.sqrt(theta * theta + 1.0))
+                    if theta < 0.0:
+                        t = -t
+                c = 1.0 / np.sqrt(t * t + 1.0)
+                s = t * c
+                tau = s / (1.0 + c)
+                a[p, p] -= t * apq
+                a[q, q] += t * apq
+                a[p, q] = 0.0
+                a[q, p] = 0.0
+                for r in range(n):
+                    if r != p and r != q:
+                        arp = a[r, p]
+                        arq = a[r, q]
+                        a[r, p] = arp - s * (arq + tau * arp)
+                        a[r, q] = arq + s * (arp - tau * arq)
+                        a[p, r] = a[r, p]
+                        a[q, r] = a[r, q]
+    top = a[0, 0]
+    for i in range(1, n):
+        top = max(top, a[i, i])
+    return top / sc
+
+
+@njit(cache=True)
+def _count_above(d, e, l0, x):
+    """Number of eigenvalues above x of the symmetric tridiagonal (d[l0:], e[l0:-1]) (Sturm: positive
+    pivots of the LDL' factorization of T - x I; a zero pivot replaced by a tiny one)."""
+    n = d.shape[0]
+    q = d[l0] - x
+    above = 1 if q > 0.0 else 0
+    for i in range(l0 + 1, n):
+        if q == 0.0:
+            q = 1e-300
+        q = d[i] - x - e[i - 1] * e[i - 1] / q
+        if q > 0.0:
+            above += 1
+    return above
+
+
+@njit(cache=True, fastmath=_FM)
+def _eigmax_sym(a, t, wv):
+    """Largest eigenvalue of the symmetric a (lower triangle read; a kept) by Householder tridiagonalization and
+    implicit QL (EISPACK tql1: backward stable, error ~ n eps ||a||); NaN if a is not finite.
+
+    a is first scaled by a power of two to max |a_ij| in [0.5, 1) (exact, into t), so ||a||_2 >= 1/2, the
+    rotations cannot overflow, and an off-diagonal below _DEFLATE = 1e-16 deflates: that moves the
+    eigenvalues by <= 2e-16 ||a||_2, the size of the rounding errors, and spares the iterations that
+    would resolve the small eigenvalues (L' Ga L has rank ~3) to full relative accuracy. The first
+    eigenvalue is sought with the shift above the spectrum (Gershgorin) for _QL_TOP_SHIFTS steps, so that
+    it tends to be the top one; a Sturm count of the rest then ends the iteration if nothing lies above
+    it (5.3 instead of 11.3 QL steps on the junctions of the shipped sigma = 120 gain). t: (n, n) work,
+    wv: (>= 4, n) work. Cyclic Jacobi on a if QL has not converged in 30 steps per eigenvalue."""
+    n = a.shape[0]
+    sc = _scale_sym(a, t)
+    if not sc > 0.0:  # NaN (not finite) or 0 (a = 0)
+        return np.nan if np.isnan(sc) else 0.0
+    d, e, v, p = wv[0], wv[1], wv[2], wv[3]
+    for k in range(n - 2):  # Householder: t <- H t H, zeroing column k below the subdiagonal
+        s2 = 0.0
+        for i in range(k + 2, n):
+            s2 += t[i, k] * t[i, k]
+        x0 = t[k + 1, k]
+        d[k] = t[k, k]
+        if s2 == 0.0:
+            e[k] = x0
+            continue
+        s2 += x0 * x0
+        alpha = np.sqrt(s2)
+        if x0 > 0.0:
+            alpha = -alpha
+        e[k] = alpha
+        v[k + 1] = x0 - alpha
+        for i in range(k + 2, n):
+            v[i] = t[i, k]
+        beta = 1.0 / (s2 - alpha * x0)  # 2 / v'v
+        vp = 0.0
+        for i in range(k + 1, n):
+            y = 0.0
+            for j in range(k + 1, n):
+                y += t[i, j] * v[j]
+            p[i] = beta * y
+            vp += v[i] * p[i]
+        kk = 0.5 * beta * vp
+        for i in range(k + 1, n):
+            p[i] -= kk * v[i]
+        for i in range(k + 1, n):
+            for j in range(k + 1, i + 1):
+                y = t[i, j] - v[i] * p[j] - p[i] * v[j]
+                t[i, j] = y
+                t[j, i] = y
+    if n >= 2:
+        d[n - 2] = t[n - 2, n - 2]
+        e[n - 2] = t[n - 1, n - 2]
+    d[n - 1] = t[n - 1, n - 1]
+    e[n - 1] = 0.0
+    ub = d[0] + abs(e[0])  # Gershgorin: no eigenvalue above ub
+    for i in range(1, n):
+        ub = max(ub, d[i] + abs(e[i - 1]) + abs(e[i]))
+    for l in range(n):  # implicit QL (tqli), eigenvalues only
+        if l == 1 and _count_above(d, e, 1, d[0] + 4.0 * _DEFLATE) == 0:
+            return d[0] / sc  # the first eigenvalue found is the top one, to round-off
+        it = 0
+        while True:
+            m = l
+            while m < n - 1:
+                if abs(e[m]) <= _DEFLATE:
+                    break
+                m += 1
+            if m == l:
+                break
+            it += 1
+            if it > 30:
+                return _eigmax_jacobi(a)
+            if l == 0 and it <= _QL_TOP_SHIFTS:  # shift above the spectrum: d[0] tends to the top eigenvalue
+                g = d[m] - ub
+            else:  # the tqli (Wilkinson-type) shift from the leading 2x2 block
+                g = (d[l + 1] - d[l]) / (2.0 * e[l])
+                r = np.sqrt(g * g + 1.0)
+                g = d[m] - d[l] + e[l] / (g + (r if g >= 0.0 else -r))
+            s = 1.0
+            c = 1.0
+            q = 0.0
+            i = m - 1
+            under = False
+            while i >= l:
+                f = s * e[i]
+                b = c * e[i]
+                r = np.sqrt(f * f + g * g)
+                e[i + 1] = r
+                if r == 0.0:  # underflow: deflate and restart
+                    d[i + 1] -= q
+                    e[m] = 0.0
+                    under = True
+                    break
+                ri = 1.0 / r
+                s = f * ri
+                c = g * ri
+                g = d[i + 1] - q
+                r = (d[i] - g) * s + 2.0 * c * b
+                q = s * r
+                d[i + 1] = g + q
+                g = c * r - b
+                i -= 1
+            if under:
+                continue
+            d[l] -= q
+            e[l] = g
+            e[m] = 0.0
+    top = d[0]
+    for i in range(1, n):
+        top = max(top, d[i])
+    return top / sc
+
+
+# ---------------------------------------------------------------- the gamma-test
+
+@njit(cache=True, fastmath=_FM)
+def _pade_into(a, r, w, piv):
+    """r = exp(a / 2^s) by Pade 13 as :func:`.expm.pade13_scaled`; returns s. r is NaN and s = 0 if a is
+    not finite (or, never met, the Pade denominator is singular). w: (_NW_PADE, n, n) work arrays."""
+    n = a.shape[0]
+    norm1 = _norm1(a)
+    if not np.isfinite(norm1):
+        r[:, :] = np.nan
+        return 0
+    s = 0
+    if norm1 > _THETA13:
+        s = int(np.ceil(np.log2(norm1 / _THETA13)))
+    sc = 2.0 ** -s
+    b = _B13
+    A, A2, A4, A6, T, U1, U, V = w[0], w[1], w[2], w[3], w[4], w[5], w[6], w[7]
+    nn = n * n  # the elementwise sums run over flat views (loops long enough to vectorize)
+    wf = w.reshape(w.shape[0], nn)
+    Af, A2f, A4f, A6f, Tf, U1f, Uf, Vf = wf[0], wf[1], wf[2], wf[3], wf[4], wf[5], wf[6], wf[7]
+    af, rf = a.reshape(nn), r.reshape(nn)
+    for t in range(nn):
+        Af[t] = af[t] * sc
+    _matmul(A, A, A2)
+    _matmul(A2, A2, A4)
+    _matmul(A4, A2, A6)
+    for t in range(nn):  # the sums of expm.pade13_scaled, in its order (the identity terms last)
+        Tf[t] = b[13] * A6f[t] + b[11] * A4f[t] + b[9] * A2f[t]
+    _matmul(A6, T, U1)
+    for t in range(nn):
+        U1f[t] = U1f[t] + b[7] * A6f[t] + b[5] * A4f[t] + b[3] * A2f[t]
+    for i in range(n):
+        U1[i, i] += b[1]
+    _matmul(A, U1, U)
+    for t in range(nn):
+        Tf[t] = b[12] * A6f[t] + b[10] * A4f[t] + b[8] * A2f[t]
+    _matmul(A6, T, V)
+    for t in range(nn):
+        Vf[t] = Vf[t] + b[6] * A6f[t] + b[4] * A4f[t] + b[2] * A2f[t]
+    for i in range(n):
+        V[i, i] += b[0]
+    for t in range(nn):
+        Tf[t] = Vf[t] - Uf[t]
+        rf[t] = Vf[t] + Uf[t]
+    if not _lu(T, piv):
+        r[:, :] = np.nan
+        return 0
+    _lu_solve(T, piv, r)
+    return s
+
+
+@njit(cache=True)
+def _pade_scaled(a):
+    """(exp(a / 2^s) by Pade 13, s) as :func:`.expm.pade13_scaled`; NaN and s = 0 if a is not finite."""
+    n = a.shape[0]
+    r = np.empty((n, n))
+    s = _pade_into(np.ascontiguousarray(a), r, np.empty((_NW_PADE, n, n)), np.empty(n, dtype=np.int64))
+    return r, s
+
+
+@njit(cache=True)
+def _psd(x, L):
+    """x >= 0 up to round-off: Cholesky of x + (_PSD_RTOL tr(x) / n) I succeeds (no eigenproblem).
+    The shift is at most _PSD_RTOL lambda_max, the tolerance of :func:`.hinf._psd`. L: (n, n) work."""
+    n = x.shape[0]
+    return _cholesky(x, _PSD_RTOL * abs(_trace(x)) / n + 1e-300, L)
+
+
+@njit(cache=True)
+def _kappa_into(Ga, Hb, w, wv):
     """Largest eigenvalue of Ga Hb (both symmetric >= 0) as that of L' Ga L, L L' = Hb + delta I.
 
     delta = 1e-14 tr(Hb) makes a semidefinite Hb factorable and raises kappa by at most
     delta lambda_max(Ga), far below the margins hinfnorm reads. One Cholesky and one symmetric
     eigenproblem instead of the two eigenproblems of Hb^1/2 Ga Hb^1/2 (:func:`.hinf._max_eig_product`);
-    an Hb that is not >= 0 to round-off takes that route."""
+    an Hb that is not >= 0 to round-off takes that route (np.linalg). w: (>= 4, n, n), wv: (4, n) work."""
     n = Hb.shape[0]
-    H = _sym(Hb)
-    try:
-        L = np.linalg.cholesky(H + (1e-14 * abs(_trace(H)) + 1e-300) * np.eye(n))
-    except Exception:
-        lam, V = np.linalg.eigh(H)
+    Hs, Gs, L, M = w[0], w[1], w[2], w[3]
+    _sym_into(Hb, Hs)
+    _sym_into(Ga, Gs)
+    if not _cholesky(Hs, 1e-14 * abs(_trace(Hs)) + 1e-300, L):
+        lam, V = np.linalg.eigh(Hs)
         Hh = (V * np.sqrt(np.maximum(lam, 0.0))) @ V.T
-        return np.linalg.eigvalsh(Hh @ _sym(Ga) @ Hh)[-1]
-    return np.linalg.eigvalsh(L.T @ _sym(Ga) @ L)[-1]
+        return np.linalg.eigvalsh(Hh @ Gs @ Hh)[-1]
+    _matmul(Gs, L, M)  # Gs L, then the lower triangle of L' (Gs L) (L lower triangular) into Gs
+    for i in range(n):
+        for j in range(i + 1):
+            v = 0.0
+            for k in range(i, n):
+                v += L[k, i] * M[k, j]
+            Gs[i, j] = v
+    return _eigmax_sym(Gs, Hs, wv)
+
+
+@njit(cache=True)
+def _kappa(Ga, Hb):
+    """Largest eigenvalue of Ga Hb (symmetric >= 0) as the kernel computes it (allocating wrapper)."""
+    n = Hb.shape[0]
+    return _kappa_into(np.ascontiguousarray(Ga), np.ascontiguousarray(Hb), np.empty((4, n, n)), np.empty((4, n)))
+
+
+@njit(cache=True)
+def _star_into(Ea, Ga, Ha, Fa, Eb, Gb, Hb, Fb, E, G, H, F, w, ww, wv, piv):
+    """Redheffer star product (earlier a, later b) as :func:`.hinf.star` into E, G, H, F (which may alias
+    the inputs): (ok, kappa); on failure E, G, H, F are left unspecified. w: (_NW_STAR, n, n),
+    ww: (_NW_WIDE, n, 2n), wv: (4, n) work arrays. The two right-hand sides Ea, Ga Fb share one
+    (n, 2n) solve, and the products by Ga, Fa, Eb, Fa Hb are each one (n, n) x (n, 2n) product."""
+    n = Ea.shape[0]
+    kappa = np.inf
+    if not (_finite(Ga) and _finite(Hb)):
+        return False, kappa
+    kappa = _kappa_into(Ga, Hb, w, wv)
+    S, FaHb, P = w[4], w[5], w[6]
+    B, GB, X, FB, EX, FX = ww[0], ww[1], ww[2], ww[3], ww[4], ww[5]
+    for i in range(n):
+        for j in range(n):
+            B[i, j] = Hb[i, j]
+            B[i, n + j] = Fb[i, j]
+    _matmul(Ga, B, GB)  # [Ga Hb | Ga Fb]
+    for i in range(n):
+        for j in range(n):
+            S[i, j] = (1.0 if i == j else 0.0) - GB[i, j]
+            X[i, j] = Ea[i, j]
+            X[i, n + j] = GB[i, n + j]
+    if not (_finite(S) and _finite(X)):  # (np.linalg.solve raised on a non-finite right-hand side)
+        return False, kappa
+    if not _lu(S, piv):  # singular junction: a conjugate point exactly there
+        return False, kappa
+    _lu_solve(S, piv, X)  # [S^-1 Ea | S^-1 Ga Fb]
+    _matmul(Fa, B, FB)  # [Fa Hb | Fa Fb]
+    _matmul(Eb, X, EX)
+    for i in range(n):
+        for j in range(n):
+            FaHb[i, j] = FB[i, j]
+    _matmul(FaHb, X, FX)
+    for i in range(n):
+        for j in range(n):
+            P[i, j] = Ha[i, j] + FX[i, j]
+    for i in range(n):  # the inputs are no longer read (but Gb, elementwise): write the outputs
+        for j in range(n):
+            E[i, j] = EX[i, j]
+            G[i, j] = Gb[i, j] + EX[i, n + j]
+            H[i, j] = 0.5 * (P[i, j] + P[j, i])
+            F[i, j] = FB[i, n + j] + FX[i, n + j]
+    ok = _finite(E) and _finite(G) and _finite(H) and _finite(F) and kappa < 1.0
+    if ok:
+        ok = _psd(H, P)
+    return ok, kappa
 
 
 @njit(cache=True)
 def _star(Ea, Ga, Ha, Fa, Eb, Gb, Hb, Fb):
-    """Redheffer star product (earlier a, later b) as :func:`.hinf.star`: blocks, ok, kappa."""
+    """Redheffer star product (earlier a, later b) as :func:`.hinf.star`: blocks, ok, kappa (allocating wrapper)."""
     n = Ea.shape[0]
-    kappa = np.inf
-    nanm = np.full((n, n), np.nan)
-    if not (_finite(Ga) and _finite(Hb)):
-        return nanm, nanm, nanm, nanm, False, kappa
-    kappa = _kappa(Ga, Hb)
-    S = np.eye(n) - Ga @ Hb
-    if not _finite(S):
-        return nanm, nanm, nanm, nanm, False, kappa
-    rhs = np.empty((n, 2 * n))
-    rhs[:, :n] = Ea
-    rhs[:, n:] = Ga @ Fb
-    try:
-        X = np.linalg.solve(S, rhs)  # one LU for both right-hand sides
-    except Exception:  # singular junction: a conjugate point exactly there
-        return nanm, nanm, nanm, nanm, False, kappa
-    SinvEa = np.ascontiguousarray(X[:, :n])
-    SinvGaFb = np.ascontiguousarray(X[:, n:])
-    E = Eb @ SinvEa
-    G = Gb + Eb @ SinvGaFb
-    FaHb = Fa @ Hb
-    H = _sym(Ha + FaHb @ SinvEa)
-    F = Fa @ Fb + FaHb @ SinvGaFb
-    ok = _finite(E) and _finite(G) and _finite(H) and _finite(F) and kappa < 1.0
-    if ok:
-        ok = _psd(H)
+    E, G, H, F = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+    c = np.ascontiguousarray
+    ok, kappa = _star_into(c(Ea), c(Ga), c(Ha), c(Fa), c(Eb), c(Gb), c(Hb), c(Fb), E, G, H, F,
+                           np.empty((_NW_STAR, n, n)), np.empty((_NW_WIDE, n, 2 * n)), np.empty((4, n)),
+                           np.empty(n, dtype=np.int64))
     return E, G, H, F, ok, kappa
 
 
 @njit(cache=True)
-def _scattering(phi, n):
-    """Scattering blocks (E, G, Hs, F) of one Hamiltonian transition; ok False if P22 is singular."""
-    P11 = np.ascontiguousarray(phi[:n, :n])
-    P12 = np.ascontiguousarray(phi[:n, n:])
-    P21 = np.ascontiguousarray(phi[n:, :n])
-    P22 = np.ascontiguousarray(phi[n:, n:])
-    nanm = np.full((n, n), np.nan)
+def _scattering_into(phi, E, G, Hs, F, w, piv):
+    """Scattering blocks (E, G, Hs, F) of one Hamiltonian transition; False if P22 is singular or the
+    blocks are not finite. w: (>= 5, n, n) work arrays."""
+    n = E.shape[0]
     if not _finite(phi):
-        return nanm, nanm, nanm, nanm, False
-    try:
-        F = np.linalg.solve(P22, np.eye(n))
-    except Exception:
-        return nanm, nanm, nanm, nanm, False
-    G = P12 @ F
-    Hs = -F @ P21
-    E = P11 + P12 @ Hs
-    return E, G, Hs, F, _finite(E) and _finite(G) and _finite(Hs) and _finite(F)
+        return False
+    P11, P12, P21, P22, T = w[0], w[1], w[2], w[3], w[4]
+    for i in range(n):
+        for j in range(n):
+            P11[i, j] = phi[i, j]
+            P12[i, j] = phi[i, n + j]
+            P21[i, j] = phi[n + i, j]
+            P22[i, j] = phi[n + i, n + j]
+            F[i, j] = 1.0 if i == j else 0.0
+    if not _lu(P22, piv):
+        return False
+    _lu_solve(P22, piv, F)
+    _matmul(P12, F, G)
+    _matmul(F, P21, T)
+    for i in range(n):
+        for j in range(n):
+            Hs[i, j] = -T[i, j]
+    _matmul(P12, Hs, E)
+    for i in range(n):
+        for j in range(n):
+            E[i, j] = P11[i, j] + E[i, j]
+    return _finite(E) and _finite(G) and _finite(Hs) and _finite(F)
 
 
 @njit(cache=True)
-def _interval(a, n, growth):
-    """Scattering blocks of exp(a) for one interval, squared as a matrix while ||.||_1 <= growth and
-    then in scattering form (star products), as :func:`.hinf.interval_scattering`: (E, G, Hs, F, ok, kappa)."""
-    r, s = _pade_scaled(a)
+def _interval_into(a, growth, E, G, H, F, r, r2, wp, w, ww, wv, piv):
+    """Scattering blocks of exp(a) for one interval into E, G, H, F, squared as a matrix while
+    ||.||_1 <= growth and then in scattering form (star products), as :func:`.hinf.interval_scattering`:
+    (ok, kappa). r, r2: (2n, 2n) work; wp, w, ww, wv: work arrays of _pade_into and _star_into."""
+    s = _pade_into(a, r, wp, piv)
     k = 0
     while k < s:
-        sq = r @ r
-        if not _norm1(sq) <= growth:
+        _matmul(r, r, r2)
+        if not _norm1(r2) <= growth:
             break
-        r = sq
+        r, r2 = r2, r
         k += 1
-    E, G, H, F, ok = _scattering(r, n)
-    E, G, H, F = np.ascontiguousarray(E), np.ascontiguousarray(G), np.ascontiguousarray(H), np.ascontiguousarray(F)
+    ok = _scattering_into(r, E, G, H, F, w, piv)
     kappa = -np.inf
     for _ in range(s - k):
         if not ok:
             break
-        E, G, H, F, okk, kap = _star(E, G, H, F, E, G, H, F)
-        E, G, H, F = np.ascontiguousarray(E), np.ascontiguousarray(G), np.ascontiguousarray(H), np.ascontiguousarray(F)
+        okk, kap = _star_into(E, G, H, F, E, G, H, F, E, G, H, F, w, ww, wv, piv)
         ok = ok and okk
         kappa = max(kappa, kap)
-    return E, G, H, F, ok, kappa
+    return ok, kappa
 
 
 @njit(cache=True)
-def _one(omega, margins, growth):
-    """Gamma-test of one system from its Magnus exponents omega (steps, 2n, 2n): (passed, rho, kappa)."""
+def _one(omega, margins, growth, E, G, H, F, r, r2, wp, w, ww, wv, piv):
+    """Gamma-test of one system from its Magnus exponents omega (steps, 2n, 2n): (passed, rho, kappa).
+    E, G, H, F: (steps, n, n) and the rest work arrays (:func:`gamma_test_omegas`)."""
     steps, n = omega.shape[0], omega.shape[1] // 2
-    E = np.empty((steps, n, n))
-    G = np.empty((steps, n, n))
-    H = np.empty((steps, n, n))
-    F = np.empty((steps, n, n))
-    ok = True
     kappa = -np.inf
     for k in range(steps):
-        e, g, h, f, okk, kap = _interval(np.ascontiguousarray(omega[k]), n, growth)
-        E[k], G[k], H[k], F[k] = e, g, h, f
-        ok = ok and okk
+        okk, kap = _interval_into(omega[k], growth, E[k], G[k], H[k], F[k], r, r2, wp, w, ww, wv, piv)
+        if not okk:  # the test has failed: nothing after this can change (False, NaN, NaN)
+            return False, np.nan, np.nan
         kappa = max(kappa, kap)
     # pairwise tree over the period, earlier interval first (the pairing of hinf.period_scattering)
     m = steps
-    while m > 1 and ok:
+    while m > 1:
         if m % 2:
-            e, g, h, f, okt, kap = _star(E[m - 2], G[m - 2], H[m - 2], F[m - 2], E[m - 1], G[m - 1], H[m - 1], F[m - 1])
-            E[m - 2], G[m - 2], H[m - 2], F[m - 2] = e, g, h, f
-            ok = ok and okt
+            a, b = m - 2, m - 1
+            okt, kap = _star_into(E[a], G[a], H[a], F[a], E[b], G[b], H[b], F[b], E[a], G[a], H[a], F[a], w, ww, wv, piv)
+            if not okt:
+                return False, np.nan, np.nan
             kappa = max(kappa, kap)
             m -= 1
             continue
         for i in range(m // 2):
-            e, g, h, f, okt, kap = _star(E[2 * i], G[2 * i], H[2 * i], F[2 * i],
-                                         E[2 * i + 1], G[2 * i + 1], H[2 * i + 1], F[2 * i + 1])
-            E[i], G[i], H[i], F[i] = e, g, h, f
-            ok = ok and okt
+            a, b = 2 * i, 2 * i + 1
+            okt, kap = _star_into(E[a], G[a], H[a], F[a], E[b], G[b], H[b], F[b], E[i], G[i], H[i], F[i], w, ww, wv, piv)
+            if not okt:
+                return False, np.nan, np.nan
             kappa = max(kappa, kap)
         m //= 2
-    if not ok:
-        return False, np.nan, np.nan
     E1, G1 = E[0].copy(), G[0].copy()
-    Ek, Gk, Hk, Fk = E[0].copy(), G[0].copy(), H[0].copy(), F[0].copy()
+    Ek, Gk, Hk, Fk = E[0], G[0], H[0], F[0]  # doubled in place
     done = False
     for _ in range(_MAX_DOUBLINGS):
-        if np.max(np.abs(Ek)) < _CONVERGED:
+        small = True
+        for i in range(n):
+            for j in range(n):
+                if not abs(Ek[i, j]) < _CONVERGED:  # as np.max(np.abs(Ek)) < _CONVERGED (NaN: not small)
+                    small = False
+        if small:
             done = True
             break
-        Ek, Gk, Hk, Fk, okd, kap = _star(Ek, Gk, Hk, Fk, Ek, Gk, Hk, Fk)  # horizon 2^k -> 2^(k+1) periods
+        okd, kap = _star_into(Ek, Gk, Hk, Fk, Ek, Gk, Hk, Fk, Ek, Gk, Hk, Fk, w, ww, wv, piv)  # 2^k -> 2^(k+1) periods
         kappa = max(kappa, kap)
         if not okd:
             return False, np.nan, np.nan
@@ -260,14 +780,27 @@ def gamma_test_omegas(omega, margins, growth=_GROWTH):
     kappa : ndarray (N,)
         Largest junction eigenvalue (NaN where failed).
     """
-    N = omega.shape[0]
+    N, steps, n2 = omega.shape[0], omega.shape[1], omega.shape[2]
+    n = n2 // 2
     passed = np.zeros(N, dtype=np.bool_)
     rho = np.full(N, np.nan)
     kappa = np.full(N, np.nan)
+    # the interval blocks and the work arrays, allocated once for all systems
+    E = np.empty((steps, n, n))
+    G = np.empty((steps, n, n))
+    H = np.empty((steps, n, n))
+    F = np.empty((steps, n, n))
+    r = np.empty((n2, n2))
+    r2 = np.empty((n2, n2))
+    wp = np.empty((_NW_PADE, n2, n2))
+    w = np.empty((_NW_STAR, n, n))
+    ww = np.empty((_NW_WIDE, n, n2))
+    wv = np.empty((4, n))
+    piv = np.empty(n2, dtype=np.int64)
     for i in range(N):
-        p, r, k = _one(omega[i], margins, growth)
+        p, rh, k = _one(np.ascontiguousarray(omega[i]), margins, growth, E, G, H, F, r, r2, wp, w, ww, wv, piv)
         passed[i] = p
         if p:
-            rho[i] = r
+            rho[i] = rh
             kappa[i] = k
     return passed, rho, kappa

@@ -1,0 +1,181 @@
+"""Timing of the compiled gamma-test (magtune_core/ltp/hinf_kernel.py) against its np.linalg version.
+
+The version before the hand-written linear algebra (git 4091808) is written to a temporary module and
+compiled next to the current one, so both run in the same process on the same inputs: one full
+gamma-test at gamma = 1.001 J for the four shipped / paper gains, and the pieces (Pade-13 of one 12x12
+interval exponent, one star product of 6x6 blocks, kappa alone) in compiled loops (no dispatch cost).
+Timings are printed, never asserted; run on an idle core (the load line says how idle).
+
+    PYTHONPATH=. python bench/bench_kernel.py
+"""
+from __future__ import annotations
+
+import importlib.util
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+from numba import njit
+
+import magtune_core.ltp.hinf as H
+import magtune_core.ltp.hinf_kernel as new
+from magtune_core.design.gains import load_gains
+from magtune_core.design.model import AttitudeLTP
+from magtune_core.design.params import SpacecraftParams
+from magtune_core.design.problem import performance_system
+from magtune_core.ltp.system import generator_at_nodes, magnus_exponent
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+OLD_COMMIT = "4091808"
+CASES = (  # (gain file, sigma, Magnus steps)
+    ("config/gains/paper_method/sigma_60.yaml", 60.0, 64),
+    ("config/gains/sigma_60.yaml", 60.0, 256),
+    ("config/gains/sigma_120.yaml", 120.0, 512),
+    ("config/gains/sigma_240.yaml", 240.0, 256),
+)
+
+
+def load_old_kernel():
+    """The kernel of git OLD_COMMIT as an importable module (compiled and cached beside a temp file)."""
+    src = subprocess.run(["git", "show", f"{OLD_COMMIT}:magtune_core/ltp/hinf_kernel.py"], cwd=ROOT,
+                         check=True, capture_output=True, text=True).stdout
+    src = src.replace("from .expm import", "from magtune_core.ltp.expm import")
+    path = os.path.join(tempfile.gettempdir(), f"magtune_hinf_kernel_{OLD_COMMIT}.py")
+    if not os.path.exists(path) or open(path).read() != src:
+        with open(path, "w") as f:
+            f.write(src)
+    spec = importlib.util.spec_from_file_location(f"magtune_hinf_kernel_{OLD_COMMIT}", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def omegas(path, sigma, steps, rel=1.001):
+    """Magnus exponents (1, steps, 12, 12) of the Hamiltonian at gamma = rel J for one gain file."""
+    model = AttitudeLTP.from_params(SpacecraftParams())
+    s = performance_system(model, load_gains(os.path.join(ROOT, path)).K, sigma)
+    J = float(H.hinfnorm(s, rtol=1e-9, steps=steps))
+    M1, M2, h = generator_at_nodes(lambda t: H.hamiltonian(s, rel * J, t), s.period, steps)
+    return np.ascontiguousarray(magnus_exponent(M1, M2, h))[None]
+
+
+def paired_times(f_old, f_new, reps):
+    """Median wall times of f_old() and f_new(), called alternately reps times each (after a warm-up
+    call), so that a change of machine load hits both alike."""
+    f_old(), f_new()
+    t_old, t_new = [], []
+    for _ in range(reps):
+        for f, ts in ((f_old, t_old), (f_new, t_new)):
+            t0 = time.perf_counter()
+            f()
+            ts.append(time.perf_counter() - t0)
+    return float(np.median(t_old)), float(np.median(t_new))
+
+
+def piece_loops(old):
+    """Compiled timing loops: (name, old loop, new loop); each loop(reps, args...) returns a checksum."""
+    op, np_, ok_, nk_, os_, ns_ = old._pade_scaled, new._pade_into, old._kappa, new._kappa_into, old._star, new._star_into
+
+    @njit
+    def pade_old(reps, a, r, w, piv):
+        acc = 0.0
+        for _ in range(reps):
+            x, s = op(a)
+            acc += x[0, 0] + s
+        return acc
+
+    @njit
+    def pade_new(reps, a, r, w, piv):
+        acc = 0.0
+        for _ in range(reps):
+            s = np_(a, r, w, piv)
+            acc += r[0, 0] + s
+        return acc
+
+    @njit
+    def kappa_old(reps, Ga, Hb, w, ww, wv):
+        acc = 0.0
+        for _ in range(reps):
+            acc += ok_(Ga, Hb)
+        return acc
+
+    @njit
+    def kappa_new(reps, Ga, Hb, w, ww, wv):
+        acc = 0.0
+        for _ in range(reps):
+            acc += nk_(Ga, Hb, w, wv)
+        return acc
+
+    @njit
+    def star_old(reps, a, b, out, w, ww, wv, piv):
+        acc = 0.0
+        for _ in range(reps):
+            E, G, Hs, F, ok, kap = os_(a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3])
+            acc += E[0, 0] + kap
+        return acc
+
+    @njit
+    def star_new(reps, a, b, out, w, ww, wv, piv):
+        acc = 0.0
+        for _ in range(reps):
+            ok, kap = ns_(a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3], out[0], out[1], out[2], out[3], w, ww, wv, piv)
+            acc += out[0][0, 0] + kap
+        return acc
+
+    return pade_old, pade_new, kappa_old, kappa_new, star_old, star_new
+
+
+def main():
+    """Print the load, the full-test table and the per-piece table."""
+    with open("/proc/loadavg") as f:
+        print(f"load (/proc/loadavg): {f.read().strip()}   cores: {os.cpu_count()}")
+    old = load_old_kernel()
+    print(f"\nfull gamma-test at gamma = 1.001 J (median, old and new alternating), old = git {OLD_COMMIT} (np.linalg), new = hand-written")
+    print(f"{'case':<44} {'steps':>5} {'old ms':>8} {'new ms':>8} {'ratio':>6}")
+    first = None
+    for path, sigma, steps in CASES:
+        om = omegas(path, sigma, steps)
+        if first is None:
+            first = om
+        reps = max(15, int(6000 // steps))
+        for growth in (1e6, np.inf):
+            t_old, t_new = paired_times(lambda: old.gamma_test_omegas(om, True, growth),
+                                        lambda: new.gamma_test_omegas(om, True, growth), reps)
+            name = path.replace("config/gains/", "") + ("" if growth == 1e6 else "  growth=inf")
+            print(f"{name:<44} {steps:>5} {1e3 * t_old:>8.2f} {1e3 * t_new:>8.2f} {t_old / t_new:>6.2f}")
+
+    # pieces, on blocks of the first case (paper sigma 60, 64 steps: a typical interval and junction)
+    n2 = first.shape[-1]
+    n = n2 // 2
+    a = np.ascontiguousarray(first[0, 0])
+    (E, G, Hs, F), _, _ = H.interval_scattering(first[0, :2])
+    blk = [tuple(np.ascontiguousarray(x[k]) for x in (E, G, Hs, F)) for k in range(2)]
+    out = tuple(np.empty((n, n)) for _ in range(4))
+    wp, ws, piv = np.empty((new._NW_PADE, n2, n2)), np.empty((new._NW_STAR, n, n)), np.empty(n2, dtype=np.int64)
+    ww, wv = np.empty((new._NW_WIDE, n, n2)), np.empty((4, n))
+    r = np.empty((n2, n2))
+    pade_old, pade_new, kappa_old, kappa_new, star_old, star_new = piece_loops(old)
+    rows = (
+        (f"Pade-13 {n2}x{n2} (s = {int(H.pade13_scaled(a)[1])})", lambda k: pade_old(k, a, r, wp, piv),
+         lambda k: pade_new(k, a, r, wp, piv)),
+        (f"star product ({n}x{n} blocks)", lambda k: star_old(k, blk[0], blk[1], out, ws, ww, wv, piv),
+         lambda k: star_new(k, blk[0], blk[1], out, ws, ww, wv, piv)),
+        ("kappa (Cholesky + top eigenvalue)", lambda k: kappa_old(k, blk[0][1], blk[1][2], ws, ww, wv),
+         lambda k: kappa_new(k, blk[0][1], blk[1][2], ws, ww, wv)),
+    )
+    print("\npieces (compiled loops, median of 15 x 2000 calls, old and new alternating)")
+    print(f"{'piece':<44} {'old us':>8} {'new us':>8} {'ratio':>6}")
+    for name, f_old, f_new in rows:
+        f_old(1), f_new(1)  # compile
+        reps = 2000
+        t_old, t_new = paired_times(lambda: f_old(reps), lambda: f_new(reps), 15)
+        t_old, t_new = t_old / reps, t_new / reps
+        print(f"{name:<44} {1e6 * t_old:>8.2f} {1e6 * t_new:>8.2f} {t_old / t_new:>6.2f}")
+
+
+if __name__ == "__main__":
+    main()
