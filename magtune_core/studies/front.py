@@ -112,6 +112,7 @@ def plot_front(points: list[FrontPoint], path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker  # noqa: F401  (matplotlib.ticker below)
 
     s = np.array([p.sigma for p in points])
     c1, c2 = np.array([p.c1 for p in points]), np.array([p.c2 for p in points])
@@ -138,6 +139,9 @@ def plot_front(points: list[FrontPoint], path) -> None:
             a.plot(s, c1, "^-", label="c1")
             a.legend(["J", "c1"], fontsize=8)
         a.set_xscale("log")
+        nice = [v for v in (10, 15, 30, 60, 120, 240, 480, 960, 1920) if s.min() <= v <= s.max()] or list(s[[0, -1]])
+        a.set_xticks(nice, [f"{v:g}" for v in nice])  # plain sigmas: log-axis minor labels (3 x 10^1 ...) overlap
+        a.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         if key == "rho":
             a.set_yscale("log")
         a.set_xlabel("sigma")
