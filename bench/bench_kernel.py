@@ -1,10 +1,15 @@
-"""Timing of the compiled gamma-test (magtune_core/ltp/hinf_kernel.py) against its np.linalg version.
+"""Timing of the compiled gamma-test (magtune_core/ltp/hinf_kernel.py) against its np.linalg version,
+and of one J(K) = hinfnorm at rtol 1e-4 with and without what was added since (issue 9, ninth pass).
 
 The version before the hand-written linear algebra (git 4091808) is written to a temporary module and
 compiled next to the current one, so both run in the same process on the same inputs: one full
 gamma-test at gamma = 1.001 J for the four shipped / paper gains, and the pieces (Pade-13 of one 12x12
 interval exponent, one star product of 6x6 blocks, kappa alone) in compiled loops (no dispatch cost).
-Timings are printed, never asserted; run on an idle core (the load line says how idle).
+The last table times a whole single-gain J(K) (``hinfnorm``, rtol 1e-4, no guess: ``magtune analyze``'s
+call) three ways in one run, alternating: the Hamiltonian assembled and its Magnus exponents formed at
+every level (as before; ``exponent_polynomial`` switched off), the exponents as the polynomial in
+1/gamma formed once, in one thread, and the same with the kernel's intervals split over all threads.
+Timings are printed, never asserted; run on an idle machine (the load line says how idle).
 
     PYTHONPATH=. python bench/bench_kernel.py
 """
@@ -17,6 +22,7 @@ import sys
 import tempfile
 import time
 
+import numba
 import numpy as np
 from numba import njit
 
@@ -134,6 +140,8 @@ def main():
     with open("/proc/loadavg") as f:
         print(f"load (/proc/loadavg): {f.read().strip()}   cores: {os.cpu_count()}")
     old = load_old_kernel()
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)  # the kernels compared on one thread
     print(f"\nfull gamma-test at gamma = 1.001 J (median, old and new alternating), old = git {OLD_COMMIT} (np.linalg), new = hand-written")
     print(f"{'case':<44} {'steps':>5} {'old ms':>8} {'new ms':>8} {'ratio':>6}")
     first = None
@@ -175,6 +183,42 @@ def main():
         t_old, t_new = paired_times(lambda: f_old(reps), lambda: f_new(reps), 15)
         t_old, t_new = t_old / reps, t_new / reps
         print(f"{name:<44} {1e6 * t_old:>8.2f} {1e6 * t_new:>8.2f} {t_old / t_new:>6.2f}")
+    single_j(threads)
+
+
+def single_j(threads):
+    """One J(K) per case three ways (module docstring): median ms, alternating, and the ratios."""
+    model = AttitudeLTP.from_params(SpacecraftParams())
+    poly = H.exponent_polynomial
+
+    def run(s, steps, use_poly, nthreads):
+        H.exponent_polynomial = poly if use_poly else (lambda *a: None)
+        numba.set_num_threads(nthreads)
+        try:
+            return float(H.hinfnorm(s, rtol=1e-4, steps=steps))
+        finally:
+            H.exponent_polynomial = poly
+
+    print(f"\nsingle J(K), hinfnorm rtol 1e-4 (median ms, alternating): A = Hamiltonian at every level, "
+          f"B = exponent polynomial, C = B on {threads} threads")
+    print(f"{'case':<44} {'steps':>5} {'A ms':>7} {'B ms':>7} {'C ms':>7} {'A/B':>5} {'B/C':>5} {'A/C':>5}")
+    for path, sigma, steps in CASES:
+        s = performance_system(model, load_gains(os.path.join(ROOT, path)).K, sigma)
+        ways = [(False, 1), (True, 1), (True, threads)]
+        J = [run(s, steps, *w) for w in ways]  # warm-up; the three agree to the bracket
+        assert max(J) - min(J) <= 1e-4 * max(J)
+        ts = [[] for _ in ways]
+        for _ in range(max(5, int(2000 // steps))):
+            for w, t in zip(ways, ts):
+                t0 = time.perf_counter()
+                run(s, steps, *w)
+                t.append(time.perf_counter() - t0)
+        a, b, c = (1e3 * float(np.median(t)) for t in ts)
+        name = path.replace("config/gains/", "")
+        print(f"{name:<44} {steps:>5} {a:>7.1f} {b:>7.1f} {c:>7.1f} {a / b:>5.2f} {b / c:>5.2f} {a / c:>5.2f}")
+    numba.set_num_threads(threads)
+    with open("/proc/loadavg") as f:
+        print(f"load at the end (/proc/loadavg): {f.read().strip()}")
 
 
 if __name__ == "__main__":

@@ -31,16 +31,18 @@ from .problem import attitude_system, performance_system
 from .sampled import HoldConstraint, SampledLoop, sampled_margin_ok
 
 
-def _one_blas_thread() -> None:
-    """Worker initializer: BLAS/OpenMP pools of a worker use one thread (the workers are the
-    parallelism), and Ctrl-C is left to the parent (a tuner keeps its best gain on an interrupt;
-    the workers end when the parent shuts the pool down)."""
+def one_thread_per_worker() -> None:
+    """Worker initializer: BLAS/OpenMP pools and numba's threads (the compiled gamma-test) use one
+    thread per worker process (the workers are the parallelism), and Ctrl-C is left to the parent (a
+    tuner keeps its best gain on an interrupt; the workers end when the parent shuts the pool down)."""
     import signal
 
+    import numba
     from threadpoolctl import threadpool_limits
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     threadpool_limits(limits=1)
+    numba.set_num_threads(1)
 
 
 def model_norms(model: AttitudeLTP, sigma: float, Ks: np.ndarray, steps: int, rtol: float,
@@ -135,7 +137,7 @@ class HinfObjective:
 
     def _get_pool(self):
         if self._pool is None:
-            self._pool = ProcessPoolExecutor(self.workers, initializer=_one_blas_thread)
+            self._pool = ProcessPoolExecutor(self.workers, initializer=one_thread_per_worker)
         return self._pool
 
     def per_model(self, Ks, guess=None, spread: float | None = None, rtol: float | None = None) -> np.ndarray:

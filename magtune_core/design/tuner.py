@@ -30,6 +30,7 @@ import numpy as np
 from ..ltp import DEFAULT_STEPS, gamma_test, hinfnorm, spectral_radius
 from .lq import lq_gain
 from .model import AttitudeLTP
+from .objective import one_thread_per_worker
 from .problem import attitude_system, performance_system
 
 
@@ -85,7 +86,7 @@ class CandidateEvaluator:
 
     def __init__(self, model: AttitudeLTP, sigma: float, steps: int, workers: int = 1):
         self.model, self.sigma, self.steps, self.workers = model, sigma, steps, workers
-        self._pool = ProcessPoolExecutor(workers) if workers > 1 else None
+        self._pool = ProcessPoolExecutor(workers, initializer=one_thread_per_worker) if workers > 1 else None
 
     def close(self):
         if self._pool is not None:

@@ -35,13 +35,21 @@ junction ends the test at once (the result, False / NaN / NaN, cannot change aft
 rare paths keep ``np.linalg``: kappa for an Hb that is not PSD to round-off, and the decay rho (one
 solve and one ``eigvals`` per system). Where the library version raised (a singular Pade
 denominator, a non-finite L' Ga L in ``eigvalsh``) this one returns NaN, i.e. the test fails.
+
+Threads (issue 9, ninth pass): a single system's intervals and the pairs of each tree level are
+independent, so :func:`_one_threads` splits them over numba's threads (``prange``; bit-identical to
+:func:`_one`): ~1.9x on 2 cores for the test, ~1.45x for a whole single-gain J (bench/bench_kernel.py),
+whose remaining time is the Python level placement of :func:`.hinf.hinfnorm`. Batches stay in one
+thread per process (the tuner's worker processes are faster than threads there).
 """
 from __future__ import annotations
 
 import math
+import threading
 
+import numba
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .expm import _B13, _THETA13  # the same Pade-13 coefficients and scaling threshold
 
@@ -710,7 +718,7 @@ def _interval_into(a, growth, E, G, H, F, r, r2, wp, w, ww, wv, piv):
 def _one(omega, margins, growth, E, G, H, F, r, r2, wp, w, ww, wv, piv):
     """Gamma-test of one system from its Magnus exponents omega (steps, 2n, 2n): (passed, rho, kappa).
     E, G, H, F: (steps, n, n) and the rest work arrays (:func:`gamma_test_omegas`)."""
-    steps, n = omega.shape[0], omega.shape[1] // 2
+    steps = omega.shape[0]
     kappa = -np.inf
     for k in range(steps):
         okk, kap = _interval_into(omega[k], growth, E[k], G[k], H[k], F[k], r, r2, wp, w, ww, wv, piv)
@@ -735,8 +743,15 @@ def _one(omega, margins, growth, E, G, H, F, r, r2, wp, w, ww, wv, piv):
                 return False, np.nan, np.nan
             kappa = max(kappa, kap)
         m //= 2
-    E1, G1 = E[0].copy(), G[0].copy()
-    Ek, Gk, Hk, Fk = E[0], G[0], H[0], F[0]  # doubled in place
+    return _close(E[0], G[0], H[0], F[0], kappa, margins, w, ww, wv, piv)
+
+
+@njit(cache=True)
+def _close(Ek, Gk, Hk, Fk, kappa, margins, w, ww, wv, piv):
+    """The end of a gamma-test from the period's blocks (overwritten): doublings until E has decayed,
+    then the decay rho. (passed, rho, kappa) as :func:`_one`."""
+    n = Ek.shape[0]
+    E1, G1 = Ek.copy(), Gk.copy()
     done = False
     for _ in range(_MAX_DOUBLINGS):
         small = True
@@ -765,21 +780,8 @@ def _one(omega, margins, growth, E, G, H, F, r, r2, wp, w, ww, wv, piv):
 
 
 @njit(cache=True)
-def gamma_test_omegas(omega, margins, growth=_GROWTH):
-    """The gamma-test of every system of omega (N, steps, 2n, 2n) (Magnus exponents of the Hamiltonian).
-
-    ``growth``: the largest ||exp(Omega / 2^j)||_1 squared as a matrix before the squarings go on in
-    scattering form (:func:`.hinf.interval_scattering`); ``np.inf`` is the plain exponential (the
-    arithmetic before issue 9's stiff gains; ``bench/bench_tuner.py`` compares the two).
-
-    Returns
-    -------
-    passed : ndarray of bool (N,)
-    rho : ndarray (N,)
-        Decay of the Hamiltonian closed loop over one period (NaN where failed or not asked).
-    kappa : ndarray (N,)
-        Largest junction eigenvalue (NaN where failed).
-    """
+def _gamma_test_serial(omega, margins, growth=_GROWTH):
+    """:func:`gamma_test_omegas` in one thread, the systems one after the other: (passed, rho, kappa)."""
     N, steps, n2 = omega.shape[0], omega.shape[1], omega.shape[2]
     n = n2 // 2
     passed = np.zeros(N, dtype=np.bool_)
@@ -804,3 +806,95 @@ def gamma_test_omegas(omega, margins, growth=_GROWTH):
             rho[i] = rh
             kappa[i] = k
     return passed, rho, kappa
+
+
+@njit(cache=True)
+def _work(n):
+    """The work arrays of one gamma-test of an n-state system (r, r2, wp, w, ww, wv, piv of :func:`_one`)."""
+    n2 = 2 * n
+    return (np.empty((n2, n2)), np.empty((n2, n2)), np.empty((_NW_PADE, n2, n2)), np.empty((_NW_STAR, n, n)),
+            np.empty((_NW_WIDE, n, n2)), np.empty((4, n)), np.empty(n2, dtype=np.int64))
+
+
+@njit(cache=True, parallel=True)
+def _one_threads(omega, margins, growth, threads):
+    """:func:`_one` with its intervals and each level of its tree split over ``threads`` threads (one
+    system: the single-gain J of ``magtune analyze``). Every interval and junction is the same
+    arithmetic as in :func:`_one` (same pairing; each level writes a second buffer, so no pair reads a
+    slot another pair writes), and the max over junctions does not depend on their order: the result
+    is bit-identical. A failed interval or junction ends its thread's share, not the others'."""
+    steps, n = omega.shape[0], omega.shape[1] // 2
+    E, G, H, F = np.empty((steps, n, n)), np.empty((steps, n, n)), np.empty((steps, n, n)), np.empty((steps, n, n))
+    E2, G2, H2, F2 = np.empty_like(E), np.empty_like(E), np.empty_like(E), np.empty_like(E)
+    ok = np.ones(threads, dtype=np.bool_)
+    kap = np.full(threads, -np.inf)
+    for t in prange(threads):
+        r, r2, wp, w, ww, wv, piv = _work(n)
+        for k in range(t, steps, threads):
+            okk, kk = _interval_into(omega[k], growth, E[k], G[k], H[k], F[k], r, r2, wp, w, ww, wv, piv)
+            if not okk:
+                ok[t] = False
+                break
+            kap[t] = max(kap[t], kk)
+    if not ok.all():
+        return False, np.nan, np.nan
+    kappa = kap.max()
+    r, r2, wp, w, ww, wv, piv = _work(n)
+    m = steps
+    while m > 1:
+        if m % 2:  # odd: the last two joined in place, as in _one
+            a, b = m - 2, m - 1
+            okt, kk = _star_into(E[a], G[a], H[a], F[a], E[b], G[b], H[b], F[b], E[a], G[a], H[a], F[a], w, ww, wv, piv)
+            if not okt:
+                return False, np.nan, np.nan
+            kappa = max(kappa, kk)
+            m -= 1
+            continue
+        for t in prange(threads):
+            r_, r2_, wp_, w_, ww_, wv_, piv_ = _work(n)
+            for i in range(t, m // 2, threads):
+                a, b = 2 * i, 2 * i + 1
+                okt, kk = _star_into(E[a], G[a], H[a], F[a], E[b], G[b], H[b], F[b], E2[i], G2[i], H2[i], F2[i],
+                                     w_, ww_, wv_, piv_)
+                if not okt:
+                    ok[t] = False
+                    break
+                kap[t] = max(kap[t], kk)
+        if not ok.all():
+            return False, np.nan, np.nan
+        kappa = max(kappa, kap.max())
+        E, G, H, F, E2, G2, H2, F2 = E2, G2, H2, F2, E, G, H, F
+        m //= 2
+    return _close(E[0], G[0], H[0], F[0], kappa, margins, w, ww, wv, piv)
+
+
+def gamma_test_omegas(omega, margins, growth=_GROWTH):
+    """The gamma-test of every system of omega (N, steps, 2n, 2n) (Magnus exponents of the Hamiltonian).
+
+    ``growth``: the largest ||exp(Omega / 2^j)||_1 squared as a matrix before the squarings go on in
+    scattering form (:func:`.hinf.interval_scattering`); ``np.inf`` is the plain exponential (the
+    arithmetic before issue 9's stiff gains; ``bench/bench_tuner.py`` compares the two).
+
+    Threads: a single system (``magtune analyze``, the tuner's incumbent checks) has its intervals and
+    junctions split over numba's threads (``numba.set_num_threads``: all cores by default; 1 in the
+    tuner's worker processes), in the main thread only; the result is bit-identical to one thread's
+    (tests/ltp/test_hinf_kernel.py). A batch runs in one thread: the tuner spreads its populations
+    over worker processes, which was faster (bench/bench_kernel.py: 26 ms/gain with 2 processes
+    against 32 with 2 threads at 256 steps; the processes also share the Python around the kernel).
+
+    Returns
+    -------
+    passed : ndarray of bool (N,)
+    rho : ndarray (N,)
+        Decay of the Hamiltonian closed loop over one period (NaN where failed or not asked).
+    kappa : ndarray (N,)
+        Largest junction eigenvalue (NaN where failed).
+    """
+    omega = np.ascontiguousarray(omega, dtype=float)
+    # numba's default (workqueue) threading layer must not be entered by two Python threads at once
+    # (it aborts the process): other threads (e.g. a Dask worker's) take the serial kernel
+    threads = numba.get_num_threads() if threading.current_thread() is threading.main_thread() else 1
+    if threads == 1 or omega.shape[0] != 1 or omega.shape[1] < 4 * threads:
+        return _gamma_test_serial(omega, margins, growth)
+    p, rh, k = _one_threads(omega[0], margins, growth, threads)
+    return np.array([p]), np.array([rh if p else np.nan]), np.array([k if p else np.nan])

@@ -435,7 +435,7 @@ def run_batch(spec: CampaignSpec, jobs: list, steps: int, record_every: int) -> 
 # --- execution -----------------------------------------------------------------------------------
 #: Environment of every LocalCluster worker: one BLAS/OpenMP thread per worker process (the
 #: batched simulator is elementwise numpy; threads would only fight over the cores).
-WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
 
 
 def plan(spec: CampaignSpec, runs: int) -> list:

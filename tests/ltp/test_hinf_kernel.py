@@ -91,15 +91,67 @@ def test_population_norms_take_few_gamma_tests(monkeypatch):
     sys_ = performance_system(model, Ks, 60.0)
     ref = hinf.hinfnorm(sys_, rtol=1e-9)
     J0 = float(hinf.hinfnorm(performance_system(model, K, 60.0), rtol=1e-9))
-    count, orig = [0], hinf.gamma_margins
+    count, orig = [0], hinf.gamma_test_omegas
 
-    def counted(s, gamma, steps, growth=hinf.GROWTH):
-        count[0] += np.size(gamma)
-        return orig(s, gamma, steps, growth)
-    monkeypatch.setattr(hinf, "gamma_margins", counted)
+    def counted(omega, margins, growth):  # every gamma-test of either path goes through the kernel
+        count[0] += omega.shape[0]
+        return orig(omega, margins, growth)
+    monkeypatch.setattr(hinf, "gamma_test_omegas", counted)
     got = hinf.hinfnorm(sys_, rtol=1e-6, guess=np.full(8, J0), spread=1.05, grid=1)
     assert np.all(np.abs(got - ref) <= 1e-6 * ref)
-    assert count[0] / 8 <= 14
+    assert 8 <= count[0] / 8 <= 14  # (at least the closing round's pair and a few chase levels per gain)
+
+
+def test_threaded_single_system_test_is_bit_identical(loops):
+    """The single-system kernel split over threads (intervals, then each tree level) gives exactly the
+    serial kernel's (passed, rho, kappa): same arithmetic per interval and junction, same pairing,
+    and a max over junctions; at a failing level, a passing one and far above, with 2 and 3 threads
+    (3 does not divide the 64 intervals: the odd shares and the in-place join of an odd level)."""
+    from magtune_core.ltp import hinf_kernel as HK
+
+    for sys_, J in loops[::3]:
+        W = hinf.exponent_polynomial(sys_, 64)
+        for g in (0.999 * J, 1.001 * J, 3.0 * J):
+            om = np.ascontiguousarray(W[0] + W[1] / g + W[2] / g**2)
+            ref = HK._gamma_test_serial(om[None], True, hinf.GROWTH)
+            for threads in (2, 3):
+                got = HK._one_threads(om, True, hinf.GROWTH, threads)
+                assert got[0] == ref[0][0] == (g > J)
+                assert np.array_equal(np.array(got[1:]), np.array([ref[1][0], ref[2][0]]), equal_nan=True)
+    # 36 intervals: 18 -> 9 -> an odd level joined in place, then 4 -> 2 -> 1
+    sys_, J = loops[0]
+    W = hinf.exponent_polynomial(sys_, 36)
+    om = np.ascontiguousarray(W[0] + W[1] / (1.01 * J) + W[2] / (1.01 * J) ** 2)
+    ref = HK._gamma_test_serial(om[None], True, hinf.GROWTH)
+    got = HK._one_threads(om, True, hinf.GROWTH, 2)
+    assert got[0] and np.array_equal(np.array(got[1:]), np.array([ref[1][0], ref[2][0]]))
+
+
+def test_exponent_polynomial_equals_the_hamiltonian_exponents():
+    """W0 + W1/g + W2/g^2 (formed once per system) is the Magnus exponent of the balanced Hamiltonian
+    assembled at each level g (:func:`hinf.hamiltonian`, :func:`.system.magnus_exponent`), for a batch
+    of systems whose A, B and C all vary in time (else the 1/g^2 term vanishes) and levels far apart."""
+    from magtune_core.ltp.system import generator_at_nodes, magnus_exponent
+
+    rng = np.random.default_rng(5)
+    A0, A1 = rng.standard_normal((2, 3, 4, 4))
+    B0, B1 = rng.standard_normal((2, 3, 4, 2))
+    C0, C1 = rng.standard_normal((2, 3, 3, 4))
+    w = 2 * np.pi / 10.0
+    sys_ = hinf.LTPSystem(lambda t: A0[:, None] - 3 * np.eye(4) + A1[:, None] * np.cos(w * t)[:, None, None],
+                          lambda t: B0[:, None] + B1[:, None] * np.sin(w * t)[:, None, None],
+                          lambda t: C0[:, None] + C1[:, None] * np.cos(2 * w * t)[:, None, None], None, 10.0)
+    W = hinf.exponent_polynomial(sys_, 16)
+    assert all(x.shape == (3, 16, 8, 8) for x in W)
+    assert np.abs(W[2]).max() > 1e-3 * np.abs(W[0]).max()  # the test exercises the quadratic term
+    for g in (0.5, 3.0, 100.0):
+        M1, M2, h = generator_at_nodes(lambda t: hinf.hamiltonian(sys_, np.full(3, g), t), sys_.period, 16)
+        ref = magnus_exponent(M1, M2, h)
+        # the same sums in another order: round-off of the largest entries
+        assert np.abs(W[0] + W[1] / g + W[2] / g**2 - ref).max() <= 1e-13 * np.abs(ref).max()
+    # where the balancing has nothing to balance (C = 0) or there is feedthrough: no polynomial
+    assert hinf.exponent_polynomial(hinf.LTPSystem(sys_.A, sys_.B, np.zeros((2, 4)), None, sys_.period), 8) is None
+    assert hinf.exponent_polynomial(hinf.LTPSystem(sys_.A, sys_.B, sys_.C, np.ones((3, 2)), sys_.period), 8) is None
 
 
 @pytest.mark.parametrize("rtol", [1e-4, 1e-7])
