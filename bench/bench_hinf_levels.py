@@ -81,7 +81,7 @@ def main():
         if args.quick and steps > 64:
             continue
         g = load_gains(ROOT / rel)
-        sigma = float(g.provenance.get("sigma", 0) or rel.split("_")[-1].split(".")[0])
+        sigma = g.sigma
         sys_ = performance_system(model, g.K, sigma)
         J = float(hinf.hinfnorm(sys_, rtol=1e-9, steps=steps))
         Ks = g.K * (1 + 0.01 * rng.standard_normal((8, 3, 6)))

@@ -264,11 +264,10 @@ def _refine_steps(objective, K: np.ndarray, J: float, s: CmaSettings, rtol: floa
     steps = getattr(objective, "steps", None)
     if steps is None or steps >= s.max_steps or not np.isfinite(J):
         return None
-    objective.steps = 2 * steps
-    J2 = float(objective(K[None], guess=J, spread=1.05)[0])
+    J2 = _j_doubled(objective, K, J)
     if np.isfinite(J2) and abs(J2 - J) <= (s.resolution_rtol if rtol is None else rtol) * J2:
-        objective.steps = steps
         return None
+    objective.steps = 2 * steps
     return J2
 
 
@@ -279,9 +278,15 @@ def _resolved_at_max(objective, K, J: float, s: CmaSettings) -> bool:
     steps = getattr(objective, "steps", None)
     if steps is None or steps < s.max_steps or not np.isfinite(J):
         return True
+    J2 = _j_doubled(objective, K, J)
+    return bool(np.isfinite(J2) and abs(J2 - J) <= min(s.resolution_rtol, s.rtol_certify) * J2)
+
+
+def _j_doubled(objective, K, J: float) -> float:
+    """J(K) on twice ``objective.steps`` (the objective's steps are left as they were)."""
+    steps = objective.steps
     objective.steps = 2 * steps
     try:
-        J2 = float(objective(np.asarray(K)[None], guess=J, spread=1.05)[0])
+        return float(objective(np.asarray(K)[None], guess=J, spread=1.05)[0])
     finally:
         objective.steps = steps
-    return bool(np.isfinite(J2) and abs(J2 - J) <= min(s.resolution_rtol, s.rtol_certify) * J2)

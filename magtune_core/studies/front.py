@@ -53,7 +53,7 @@ class FrontPoint:
     def as_dict(self) -> dict:
         return {"sigma": self.sigma, "J": self.J, "c1": self.c1, "c2": self.c2, "rho": self.rho,
                 "evaluations": self.evaluations, "seconds": round(self.seconds, 1), "converged": self.converged,
-                "start": self.start, "gain": [float(v) for v in self.K.ravel()]}
+                "start": self.start, "stop": self.stop, "gain": [float(v) for v in self.K.ravel()]}
 
 
 def run_front(model: AttitudeLTP, sigmas, settings: CmaSettings, seed: int = 0, analysis_steps: int = 128,

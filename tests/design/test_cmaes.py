@@ -170,6 +170,7 @@ def test_tune_and_front_commands(tmp_path):
                  "--workers", "1", "--out-dir", str(tmp_path)]) == 0
     pts = json.loads((tmp_path / "front.json").read_text())["points"]
     assert [p["sigma"] for p in pts] == [60.0, 120.0] and (tmp_path / "front.png").stat().st_size > 10000
+    assert [p["stop"] for p in pts] == ["budget", "budget"]  # 8 evaluations cannot certify anything
     # the outputs exist now: a second run refuses before any work
     assert main(["front", "--sigmas", "60", "--field-model", "constant", "--out-dir", str(tmp_path)]) == 2
     # --start: the tuned sigma = 60 gain has a lower J at sigma = 60 than the LQ start, so it is chosen
