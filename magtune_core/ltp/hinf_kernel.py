@@ -715,6 +715,13 @@ def _interval_into(a, growth, E, G, H, F, r, r2, wp, w, ww, wv, piv):
 
 
 @njit(cache=True)
+def _join_last_two(E, G, H, F, m, w, ww, wv, piv):
+    """Star product of intervals m - 2 and m - 1 into slot m - 2 (an odd level of the tree): (ok, kappa)."""
+    a, b = m - 2, m - 1
+    return _star_into(E[a], G[a], H[a], F[a], E[b], G[b], H[b], F[b], E[a], G[a], H[a], F[a], w, ww, wv, piv)
+
+
+@njit(cache=True)
 def _one(omega, margins, growth, E, G, H, F, r, r2, wp, w, ww, wv, piv):
     """Gamma-test of one system from its Magnus exponents omega (steps, 2n, 2n): (passed, rho, kappa).
     E, G, H, F: (steps, n, n) and the rest work arrays (:func:`gamma_test_omegas`)."""
@@ -729,8 +736,7 @@ def _one(omega, margins, growth, E, G, H, F, r, r2, wp, w, ww, wv, piv):
     m = steps
     while m > 1:
         if m % 2:
-            a, b = m - 2, m - 1
-            okt, kap = _star_into(E[a], G[a], H[a], F[a], E[b], G[b], H[b], F[b], E[a], G[a], H[a], F[a], w, ww, wv, piv)
+            okt, kap = _join_last_two(E, G, H, F, m, w, ww, wv, piv)
             if not okt:
                 return False, np.nan, np.nan
             kappa = max(kappa, kap)
@@ -843,8 +849,7 @@ def _one_threads(omega, margins, growth, threads):
     m = steps
     while m > 1:
         if m % 2:  # odd: the last two joined in place, as in _one
-            a, b = m - 2, m - 1
-            okt, kk = _star_into(E[a], G[a], H[a], F[a], E[b], G[b], H[b], F[b], E[a], G[a], H[a], F[a], w, ww, wv, piv)
+            okt, kk = _join_last_two(E, G, H, F, m, w, ww, wv, piv)
             if not okt:
                 return False, np.nan, np.nan
             kappa = max(kappa, kk)
