@@ -1,14 +1,16 @@
 """Timing of the compiled gamma-test (magtune_core/ltp/hinf_kernel.py) against its np.linalg version,
-and of one J(K) = hinfnorm at rtol 1e-4 with and without what was added since (issue 9, ninth pass).
+and of one J(K) = hinfnorm at rtol 1e-4 with and without what was added since (issue 9, ninth and tenth passes).
 
 The version before the hand-written linear algebra (git 4091808) is written to a temporary module and
 compiled next to the current one, so both run in the same process on the same inputs: one full
 gamma-test at gamma = 1.001 J for the four shipped / paper gains, and the pieces (Pade-13 of one 12x12
 interval exponent, one star product of 6x6 blocks, kappa alone) in compiled loops (no dispatch cost).
 The last table times a whole single-gain J(K) (``hinfnorm``, rtol 1e-4, no guess: ``magtune analyze``'s
-call) three ways in one run, alternating: the Hamiltonian assembled and its Magnus exponents formed at
-every level (as before; ``exponent_polynomial`` switched off), the exponents as the polynomial in
-1/gamma formed once, in one thread, and the same with the kernel's intervals split over all threads.
+call) four ways in one run, alternating: A = the Hamiltonian assembled and its Magnus exponents formed
+at every level (``exponent_polynomial`` switched off), B = the ninth pass's ``hinf.py`` (git PREV_COMMIT:
+the level model and its bookkeeping in numpy over the batch, exponents from the polynomial in numpy),
+C = now (level model compiled, ``hinf_levels``; exponents gathered by ``exponents_at``) on one thread,
+D = now with the kernel's intervals split over all threads.
 Timings are printed, never asserted; run on an idle machine (the load line says how idle).
 
     PYTHONPATH=. python bench/bench_kernel.py
@@ -36,6 +38,7 @@ from magtune_core.ltp.system import generator_at_nodes, magnus_exponent
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 OLD_COMMIT = "4091808"
+PREV_COMMIT = "a3e4f25"  # the ninth pass: level model of hinfnorm in numpy
 CASES = (  # (gain file, sigma, Magnus steps)
     ("config/gains/paper_method/sigma_60.yaml", 60.0, 64),
     ("config/gains/sigma_60.yaml", 60.0, 256),
@@ -186,26 +189,43 @@ def main():
     single_j(threads)
 
 
+def load_prev_hinf():
+    """hinfnorm of git PREV_COMMIT (level model in numpy over the batch) as an importable module."""
+    src = subprocess.run(["git", "show", f"{PREV_COMMIT}:magtune_core/ltp/hinf.py"], cwd=ROOT,
+                         check=True, capture_output=True, text=True).stdout
+    src = src.replace("from .", "from magtune_core.ltp.")
+    path = os.path.join(tempfile.gettempdir(), f"magtune_hinf_{PREV_COMMIT}.py")
+    with open(path, "w") as f:
+        f.write(src)
+    spec = importlib.util.spec_from_file_location(f"magtune_hinf_{PREV_COMMIT}", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
 def single_j(threads):
-    """One J(K) per case three ways (module docstring): median ms, alternating, and the ratios."""
+    """One J(K) per case four ways (module docstring): median ms, alternating, and the ratios."""
     model = AttitudeLTP.from_params(SpacecraftParams())
     poly = H.exponent_polynomial
+    prev = load_prev_hinf()
 
-    def run(s, steps, use_poly, nthreads):
-        H.exponent_polynomial = poly if use_poly else (lambda *a: None)
+    def run(s, steps, way, nthreads):
+        H.exponent_polynomial = poly if way != "A" else (lambda *a: None)
         numba.set_num_threads(nthreads)
         try:
-            return float(H.hinfnorm(s, rtol=1e-4, steps=steps))
+            return float((prev if way == "B" else H).hinfnorm(s, rtol=1e-4, steps=steps))
         finally:
             H.exponent_polynomial = poly
 
-    print(f"\nsingle J(K), hinfnorm rtol 1e-4 (median ms, alternating): A = Hamiltonian at every level, "
-          f"B = exponent polynomial, C = B on {threads} threads")
-    print(f"{'case':<44} {'steps':>5} {'A ms':>7} {'B ms':>7} {'C ms':>7} {'A/B':>5} {'B/C':>5} {'A/C':>5}")
+    print(f"\nsingle J(K), hinfnorm rtol 1e-4 (median ms, alternating): A = Hamiltonian at every level "
+          f"({threads} threads), B = git {PREV_COMMIT} (level model in numpy; polynomial, {threads} threads), "
+          f"C = now on 1 thread, D = now on {threads} threads")
+    print(f"{'case':<44} {'steps':>5} {'A ms':>7} {'B ms':>7} {'C ms':>7} {'D ms':>7} {'A/D':>5} {'B/D':>5} {'C/D':>5}")
     for path, sigma, steps in CASES:
         s = performance_system(model, load_gains(os.path.join(ROOT, path)).K, sigma)
-        ways = [(False, 1), (True, 1), (True, threads)]
-        J = [run(s, steps, *w) for w in ways]  # warm-up; the three agree to the bracket
+        ways = [("A", threads), ("B", threads), ("C", 1), ("D", threads)]
+        J = [run(s, steps, *w) for w in ways]  # warm-up; the four agree to the bracket
         assert max(J) - min(J) <= 1e-4 * max(J)
         ts = [[] for _ in ways]
         for _ in range(max(5, int(2000 // steps))):
@@ -213,9 +233,9 @@ def single_j(threads):
                 t0 = time.perf_counter()
                 run(s, steps, *w)
                 t.append(time.perf_counter() - t0)
-        a, b, c = (1e3 * float(np.median(t)) for t in ts)
+        a, b, c, d = (1e3 * float(np.median(t)) for t in ts)
         name = path.replace("config/gains/", "")
-        print(f"{name:<44} {steps:>5} {a:>7.1f} {b:>7.1f} {c:>7.1f} {a / b:>5.2f} {b / c:>5.2f} {a / c:>5.2f}")
+        print(f"{name:<44} {steps:>5} {a:>7.1f} {b:>7.1f} {c:>7.1f} {d:>7.1f} {a / d:>5.2f} {b / d:>5.2f} {c / d:>5.2f}")
     numba.set_num_threads(threads)
     with open("/proc/loadavg") as f:
         print(f"load at the end (/proc/loadavg): {f.read().strip()}")

@@ -26,8 +26,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import hinf_levels as L
 from .expm import pade13_scaled
-from .hinf_kernel import gamma_test_omegas
+from .hinf_kernel import exponents_at, gamma_test_omegas
 from .system import DEFAULT_STEPS, LTPSystem, generator_at_nodes, interval_grid, magnus_exponent
 
 MAX_DOUBLINGS = 48
@@ -345,7 +346,7 @@ def hinfnorm(sys: LTPSystem, rtol: float = 1e-6, steps: int = DEFAULT_STEPS, gue
     batch = _batch_shape(sys)
     poly = exponent_polynomial(sys, steps)
     if poly is not None:
-        poly = tuple(np.broadcast_to(W, batch + W.shape[-3:]) for W in poly)
+        poly = tuple(np.ascontiguousarray(np.broadcast_to(W, batch + W.shape[-3:])) for W in poly)
     if grid is None:
         grid = 1 if int(np.prod(batch)) == 1 else 4
     dlo = np.broadcast_to(feedthrough_bound(sys), batch).astype(float)
@@ -402,35 +403,19 @@ def hinfnorm(sys: LTPSystem, rtol: float = 1e-6, steps: int = DEFAULT_STEPS, gue
     hist = np.full(batch + (3, 3), np.nan)  # last three passing (gamma, (ln rho)^2, 1 - kappa), newest first
     hist[..., 0, 0], hist[..., 0, 1:] = hi, m_hi
     hist[..., 1, :] = prev
-    bad = np.zeros(batch, dtype=int)  # consecutive model rounds that did not halve the bracket
-    cfac = np.full(batch, _CHASE)
-    while True:
-        active = found_hi & (hi - lo > rtol * hi)
-        if not active.any():
-            break
-        est = predict_norm(hist, lo, hi)
-        model = active & np.isfinite(est) & (est > lo) & (est < hi) & (bad < 2)
-        with np.errstate(all="ignore"):
-            u = np.where(model, np.maximum(cfac * (hist[..., 0, 0] - est), 0.45 * rtol * hi), 0.0)
-        closing = model & (2.0 * u <= 0.99 * rtol * hi)
-        up = np.where(model, np.minimum(est + u, hi), np.sqrt(lo * hi))
-        gam = np.stack([np.where(closing, np.maximum(est - u, lo), up), up], axis=-1)
-        inside = (gam > lo[..., None]) & (gam < hi[..., None])
-        need = active[..., None] & inside & np.stack([np.ones(batch, bool), closing], axis=-1)
-        passed, marg = _test_some(sys, gam, steps, need, poly)
-        width0 = hi - lo
-        for j in range(2):
-            pj, fj = need[..., j] & passed[..., j], need[..., j] & ~passed[..., j]
-            newer = pj & np.any(np.isfinite(marg[..., j, :]), axis=-1) & (gam[..., j] < hist[..., 0, 0])
-            hist[..., 1:, :] = np.where(newer[..., None, None], hist[..., :-1, :], hist[..., 1:, :])
-            hist[..., 0, 0] = np.where(newer, gam[..., j], hist[..., 0, 0])
-            hist[..., 0, 1:] = np.where(newer[..., None], marg[..., j, :], hist[..., 0, 1:])
-            hi = np.where(pj, np.minimum(hi, gam[..., j]), hi)
-            lo = np.where(fj, np.maximum(lo, gam[..., j]), lo)
-        chased = need[..., 0] & model & ~closing  # a level above the prediction: did it pass?
-        cfac = np.where(chased & ~passed[..., 0], np.minimum(4.0 * cfac, 0.5),
-                        np.where(chased, np.maximum(0.5 * cfac, _CHASE), cfac))
-        bad = np.where(active & model, np.where(hi - lo <= 0.5 * width0, 0, bad + 1), 0)
+    # the bookkeeping of each round is compiled (hinf_levels: one loop over the systems in scalars)
+    N = int(np.prod(batch))
+    hist, lo, hi = hist.reshape(N, 3, 3), lo.reshape(N).copy(), hi.reshape(N).copy()
+    bad = np.zeros(N, dtype=np.int64)  # consecutive model rounds that did not halve the bracket
+    cfac = np.full(N, _CHASE)
+    found = np.ascontiguousarray(found_hi.reshape(N))
+    gam, need = np.empty((N, 2)), np.empty((N, 2), dtype=bool)
+    model, closing = np.empty(N, dtype=bool), np.empty(N, dtype=bool)
+    while L.plan_round(hist, lo, hi, cfac, bad, found, float(rtol), L._FRAC, gam, need, model, closing):
+        passed, marg = _test_some(sys, gam.reshape(batch + (2,)), steps, need.reshape(batch + (2,)), poly)
+        L.update_round(hist, lo, hi, cfac, bad, gam, need, passed.reshape(N, 2), marg.reshape(N, 2, 2), model,
+                       closing, _CHASE)
+    lo, hi = lo.reshape(batch), hi.reshape(batch)
     return np.where(found_hi, 0.5 * (lo + hi), np.inf)
 
 
@@ -448,16 +433,11 @@ def predict_norm(hist: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray
     ndarray (*batch)
         The predicted norm; -inf where no margin gives a usable prediction.
     """
-    g, m = hist[..., 0], hist[..., 1:]
-    est = quadratic_zero(g, m, lo)
-    with np.errstate(all="ignore"):
-        line = np.log(hi / lo) < 0.01
-    # the power-law scan (~0.5 ms per call) only where the quadratic gave nothing and margin_zero has
-    # something to fit: three passing levels, or two near the norm (the line)
-    miss = ~np.all(np.isfinite(est), axis=-1) & np.isfinite(g[..., 1]) & (np.isfinite(g[..., 2]) | line)
-    if miss.any():
-        est[miss] = np.where(np.isfinite(est[miss]), est[miss], margin_zero(g[miss], m[miss], lo[miss], line=line[miss]))
-    return est.max(axis=-1)
+    hist = np.asarray(hist, dtype=float)
+    batch = hist.shape[:-2]
+    lo, hi = (np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=float), batch).reshape(-1)) for v in (lo, hi))
+    est = L.predict_many(np.ascontiguousarray(hist.reshape((-1,) + hist.shape[-2:])), lo, hi, L._FRAC)
+    return est.reshape(batch)
 
 
 def quadratic_zero(g: np.ndarray, m: np.ndarray, lo: np.ndarray) -> np.ndarray:
@@ -473,17 +453,7 @@ def quadratic_zero(g: np.ndarray, m: np.ndarray, lo: np.ndarray) -> np.ndarray:
         The zero where it exists, lies below g_1 and above ``lo``, and the margin increases with
         gamma there (m_2 > m_1 > 0); -inf elsewhere.
     """
-    g1, g2, g3 = (g[..., i, None] for i in range(3))
-    m1, m2, m3 = (m[..., i, :] for i in range(3))
-    with np.errstate(all="ignore"):
-        f12 = (m2 - m1) / (g2 - g1)
-        f123 = ((m3 - m2) / (g3 - g2) - f12) / (g3 - g1)
-        a, b, c = f123, f12 - f123 * (g2 - g1), m1
-        disc = b * b - 4.0 * a * c
-        x = 2.0 * c / (-b - np.sign(b) * np.sqrt(np.maximum(disc, 0.0)))
-        root = g1 + x
-        ok = (m1 > 0) & (m2 > m1) & (f12 > 0) & (disc >= 0) & (x < 0) & np.isfinite(root) & (root > lo[..., None])
-    return np.where(ok, root, -np.inf)
+    return _zeros(g, m, lo, False, L._FRAC, power=False)
 
 
 def margin_zero(g: np.ndarray, m: np.ndarray, lo: np.ndarray, line=True, points: int = 256) -> np.ndarray:
@@ -503,25 +473,17 @@ def margin_zero(g: np.ndarray, m: np.ndarray, lo: np.ndarray, line=True, points:
     ndarray (*batch, q)
         The predicted zero per margin; -inf where there is no usable prediction.
     """
-    g1, g2, g3 = (g[..., i, None] for i in range(3))
-    m1, m2, m3 = (m[..., i, :] for i in range(3))
-    with np.errstate(all="ignore"):
-        lin = g1 - m1 * (g2 - g1) / (m2 - m1)
-        lin = np.where(np.asarray(line)[..., None] & (m2 > m1) & (m1 > 0) & np.isfinite(lin), lin, -np.inf)
-        # three-point power law: scan x = g1 - d, d from 1e-9 g1 to g1 - lo
-        frac = np.logspace(-9, 0, points)
-        span = np.maximum(g1 - lo[..., None], 0.0)
-        x = g1[..., None] - span[..., None] * frac  # (*batch, 1, points)
-        l12, l23 = np.log(m1 / m2)[..., None], np.log(m2 / m3)[..., None]
-        F = l12 * np.log((g2[..., None] - x) / (g3[..., None] - x)) - l23 * np.log((g1[..., None] - x) / (g2[..., None] - x))
-        change = np.sign(F[..., :-1]) * np.sign(F[..., 1:]) < 0
-        i = np.argmax(change, axis=-1)[..., None]
-        xa, xb = np.take_along_axis(np.broadcast_to(x, F.shape), i, -1), np.take_along_axis(np.broadcast_to(x, F.shape), i + 1, -1)
-        Fa, Fb = np.take_along_axis(F, i, -1), np.take_along_axis(F, i + 1, -1)
-        root = (xa - Fa * (xb - xa) / (Fb - Fa))[..., 0]
-        p = (l12[..., 0]) / np.log((g1 - root) / (g2 - root))
-        ok = change.any(axis=-1) & (m1 > 0) & (m2 > m1) & (m3 > m2) & (p >= 0.25) & (p <= 2.0) & np.isfinite(root)
-    return np.where(ok, root, lin)
+    return _zeros(g, m, lo, line, L._FRAC if points == L.SCAN_POINTS else np.logspace(-9, 0, points), power=True)
+
+
+def _zeros(g, m, lo, line, frac, power):
+    """quadratic_zero / margin_zero over any batch shape: flattened for :func:`.hinf_levels.zeros_many`."""
+    g, m = np.asarray(g, dtype=float), np.asarray(m, dtype=float)
+    batch = g.shape[:-1]
+    flat = lambda v, dt: np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=dt), batch).reshape(-1))  # noqa: E731
+    out = L.zeros_many(np.ascontiguousarray(g.reshape(-1, g.shape[-1])), np.ascontiguousarray(m.reshape((-1,) + m.shape[-2:])),
+                       flat(lo, float), flat(line, bool), frac, power)
+    return out.reshape(batch + m.shape[-1:])
 
 
 def exponent_polynomial(sys: LTPSystem, steps: int = DEFAULT_STEPS):
@@ -573,9 +535,9 @@ def exponent_polynomial(sys: LTPSystem, steps: int = DEFAULT_STEPS):
 def _margins_from_polynomial(poly, idx: np.ndarray, gamma: np.ndarray, growth: float = GROWTH):
     """:func:`gamma_margins` of the systems ``idx`` (flat batch positions) of an
     :func:`exponent_polynomial` at levels ``gamma`` (same length): (passed, rho, kappa)."""
-    W0, W1, W2 = (W.reshape((-1,) + W.shape[-3:])[idx] for W in poly)
-    ig = (1.0 / np.asarray(gamma, dtype=float))[:, None, None, None]
-    omega = np.ascontiguousarray(W0 + ig * (W1 + ig * W2))
+    W0, W1, W2 = (np.ascontiguousarray(W.reshape((-1,) + W.shape[-3:])) for W in poly)
+    ig = 1.0 / np.asarray(gamma, dtype=float)
+    omega = exponents_at(W0, W1, W2, np.asarray(idx, dtype=np.int64), ig)
     with np.errstate(all="ignore"):
         passed, rho, kappa = gamma_test_omegas(omega, True, float(growth))
     passed = passed & (np.asarray(gamma) > 0)
@@ -615,19 +577,13 @@ def _test_some(sys, gam, steps, which, poly=None):
     marg = np.full(gam.shape + (2,), np.nan)
     if not which.any():
         return passed, marg
-    if poly is not None:
-        flat = np.flatnonzero(which.reshape(-1))
-        p, r, k = _margins_from_polynomial(poly, flat // g, gam.reshape(-1)[flat])
-        passed.reshape(-1)[flat] = p
-        with np.errstate(all="ignore"):
-            marg.reshape(-1, 2)[flat] = np.stack([np.log(r) ** 2, 1.0 - k], axis=-1)
-        return passed, marg
-    if which.all():
-        p, r, k = _test_grid(sys, gam, steps)
-        with np.errstate(all="ignore"):
-            return p, np.stack([np.log(r) ** 2, 1.0 - k], axis=-1)
     flat = np.flatnonzero(which.reshape(-1))
-    p, r, k = gamma_margins(_subset(sys, batch, flat // g), gam.reshape(-1)[flat], steps)
+    if poly is not None:
+        p, r, k = _margins_from_polynomial(poly, flat // g, gam.reshape(-1)[flat])
+    elif flat.size == gam.size:  # every pair: the systems paired with their rows, no subsetting
+        p, r, k = (v.reshape(-1) for v in _test_grid(sys, gam, steps))
+    else:
+        p, r, k = gamma_margins(_subset(sys, batch, flat // g), gam.reshape(-1)[flat], steps)
     passed.reshape(-1)[flat] = p
     with np.errstate(all="ignore"):
         marg.reshape(-1, 2)[flat] = np.stack([np.log(r) ** 2, 1.0 - k], axis=-1)

@@ -80,6 +80,26 @@ def test_quadratic_zero_is_exact_on_a_quadratic():
                              np.array([100.5])) == pytest.approx(100.0, abs=1e-10)  # the higher zero
 
 
+def test_margin_zero_power_laws_and_line():
+    """predict_norm's second model (compiled, ltp/hinf_levels.py): the zero of m = c (gamma - 100)^p
+    through three points is found for p = 1/2 and 1 (the two generic laws) to the scan's accuracy
+    (log grid of 256 distances 8.5 % apart, F interpolated linearly in the interval that changes
+    sign: measured 1.3e-3 of the distance from g_1 to the zero here, the same for every p since F/p
+    does not depend on p; allowed 3e-3, well inside the chase's u = 0.05 of that distance); with the
+    third level unknown (NaN) only the line through
+    two remains, where ``line`` allows it; a margin that does not increase toward g_1 gives -inf."""
+    g = np.array([100.5, 101.0, 102.0])
+    for p in (0.5, 1.0):
+        m = (3.0 * (g - 100.0) ** p)[:, None]
+        z = hinf.margin_zero(g[None], m[None], np.array([50.0]))[0, 0]
+        assert abs(z - 100.0) < 3e-3 * 0.5
+    g2 = np.array([100.5, 101.0, np.nan])
+    m2 = np.array([[1.0], [2.0], [np.nan]])  # line through (100.5, 1), (101, 2): zero at 100
+    assert hinf.margin_zero(g2[None], m2[None], np.array([50.0]), line=True)[0, 0] == pytest.approx(100.0, abs=1e-12)
+    assert np.isneginf(hinf.margin_zero(g2[None], m2[None], np.array([50.0]), line=False)[0, 0])
+    assert np.isneginf(hinf.margin_zero(g[None], -(g - 100.0)[None, :, None], np.array([50.0]))[0, 0])
+
+
 def test_population_norms_take_few_gamma_tests(monkeypatch):
     """The tuner's case (8 gains within 1 % of the incumbent, its J as guess, spread 1.05): the chase
     of the norm needs <= 14 gamma-tests per gain at rtol 1e-6 (measured 10.9 for this population, 17.5 with the

@@ -316,10 +316,14 @@ def test_seeded_sensor_noise_is_deterministic(gains60, tmp_path):
 def test_free_running_mode(gains60, tmp_path):
     """lockstep false: the simulator runs on a wall timer at real_time_factor and applies the
     latest command (typically one step old), so the loop is closed but not bit-identical."""
-    run = sil.run_sil(gains60, steps=100, ts=1.0, lockstep=False, real_time_factor=200.0, log_dir=tmp_path,
+    run = sil.run_sil(gains60, steps=100, ts=1.0, lockstep=False, real_time_factor=50.0, log_dir=tmp_path,
                       timeout=60)
-    assert run.wall_time >= 0.45  # 100 s at 200x = 0.5 s (timer jitter allowance 10%)
-    assert np.count_nonzero(np.linalg.norm(run.result.m, axis=1)) > 90  # commands were applied
+    assert run.wall_time >= 1.8  # 100 s at 50x = 2 s (timer jitter allowance 10%)
+    # commands were applied on most steps. Not all: the controller takes inputs up to 2 Ts old and
+    # zeroes its dipole after 2 Ts without one (stale_data), and on a free-running loop the
+    # sensors -> controller lag is wall time (2 Ts = 40 ms here; at 200x = 10 ms a loaded CI
+    # machine gave 71 of 100)
+    assert np.count_nonzero(np.linalg.norm(run.result.m, axis=1)) > 80
     off = simulate(load_gains(gains60).K, SpacecraftParams(), steps=100)
     # a one-step command delay perturbs x by ~ Ts * |dx/dt| ~ 1e-3 at most over 100 s here
     assert np.max(np.abs(run.result.x - off.x)) < 5e-3
