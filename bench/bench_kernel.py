@@ -47,16 +47,18 @@ CASES = (  # (gain file, sigma, Magnus steps)
 )
 
 
-def load_old_kernel():
-    """The kernel of git OLD_COMMIT as an importable module (compiled and cached beside a temp file)."""
-    src = subprocess.run(["git", "show", f"{OLD_COMMIT}:magtune_core/ltp/hinf_kernel.py"], cwd=ROOT,
-                         check=True, capture_output=True, text=True).stdout
-    src = src.replace("from .expm import", "from magtune_core.ltp.expm import")
-    path = os.path.join(tempfile.gettempdir(), f"magtune_hinf_kernel_{OLD_COMMIT}.py")
+def module_at(commit, relpath):
+    """The module ``relpath`` of git ``commit`` as an importable module (its relative imports made
+    absolute; written to a temp file, where numba caches what it compiles)."""
+    src = subprocess.run(["git", "show", f"{commit}:{relpath}"], cwd=ROOT, check=True, capture_output=True,
+                         text=True).stdout
+    src = src.replace("from .", "from magtune_core.ltp.")
+    name = f"magtune_{os.path.basename(relpath)[:-3]}_{commit}"
+    path = os.path.join(tempfile.gettempdir(), name + ".py")
     if not os.path.exists(path) or open(path).read() != src:
         with open(path, "w") as f:
             f.write(src)
-    spec = importlib.util.spec_from_file_location(f"magtune_hinf_kernel_{OLD_COMMIT}", path)
+    spec = importlib.util.spec_from_file_location(name, path)
     mod = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = mod
     spec.loader.exec_module(mod)
@@ -142,7 +144,7 @@ def main():
     """Print the load, the full-test table and the per-piece table."""
     with open("/proc/loadavg") as f:
         print(f"load (/proc/loadavg): {f.read().strip()}   cores: {os.cpu_count()}")
-    old = load_old_kernel()
+    old = module_at(OLD_COMMIT, "magtune_core/ltp/hinf_kernel.py")
     threads = numba.get_num_threads()
     numba.set_num_threads(1)  # the kernels compared on one thread
     print(f"\nfull gamma-test at gamma = 1.001 J (median, old and new alternating), old = git {OLD_COMMIT} (np.linalg), new = hand-written")
@@ -189,26 +191,11 @@ def main():
     single_j(threads)
 
 
-def load_prev_hinf():
-    """hinfnorm of git PREV_COMMIT (level model in numpy over the batch) as an importable module."""
-    src = subprocess.run(["git", "show", f"{PREV_COMMIT}:magtune_core/ltp/hinf.py"], cwd=ROOT,
-                         check=True, capture_output=True, text=True).stdout
-    src = src.replace("from .", "from magtune_core.ltp.")
-    path = os.path.join(tempfile.gettempdir(), f"magtune_hinf_{PREV_COMMIT}.py")
-    with open(path, "w") as f:
-        f.write(src)
-    spec = importlib.util.spec_from_file_location(f"magtune_hinf_{PREV_COMMIT}", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def single_j(threads):
     """One J(K) per case four ways (module docstring): median ms, alternating, and the ratios."""
     model = AttitudeLTP.from_params(SpacecraftParams())
     poly = H.exponent_polynomial
-    prev = load_prev_hinf()
+    prev = module_at(PREV_COMMIT, "magtune_core/ltp/hinf.py")
 
     def run(s, steps, way, nthreads):
         H.exponent_polynomial = poly if way != "A" else (lambda *a: None)
