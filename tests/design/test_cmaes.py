@@ -197,10 +197,12 @@ def test_interrupted_tune_keeps_the_best_gain(tmp_path, sig, workers):
     import time
 
     from magtune_core.design.gains import load_gains
+    from magtune_core.ros.sil import die_with_parent  # the kernel's SIGTERM if pytest dies
 
     out = tmp_path / "g.yaml"
     proc = subprocess.Popen([sys.executable, "-m", "magtune_core", "tune", "--sigma", "60", "--workers", str(workers),
-                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
+                            preexec_fn=die_with_parent())
     try:
         seen, t0, evals = b"", time.monotonic(), 0
         while evals < 100 and time.monotonic() - t0 < 600:  # a few generations, past any cold compile

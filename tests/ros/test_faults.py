@@ -376,8 +376,11 @@ def test_recorder_disk_full_ends_with_one_line(tmp_path):
     import bag_fixture_pub as fx
     from bagproc import Procs, executable, ros_env
 
+    die = sil.die_with_parent()
+
     def limit():
         resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, 64 * 1024))
+        die()
 
     procs = Procs(ros_env(), tmp_path / "logs")
     out = tmp_path / "full"

@@ -67,7 +67,7 @@ def _start(tmp_path):
                              "--rtf", "200", "--domain-id", str(did), "--log-dir", str(tmp_path / "logs"),
                              "--bag", str(tmp_path / "bag")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
-                            cwd=sil.ROOT)
+                            cwd=sil.ROOT, preexec_fn=sil.die_with_parent())
     end = time.monotonic() + 60
     while time.monotonic() < end and len(_node_pids(did)) < 4:
         time.sleep(0.1)

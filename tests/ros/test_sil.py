@@ -128,7 +128,7 @@ def live_controller(gains60, tmp_path):
     log = open(tmp_path / "controller.log", "w")
     proc = subprocess.Popen([str(exe), "--ros-args", "--params-file", str(sil.DEFAULT_SPACECRAFT), "--params-file",
                              str(gains60), "-p", "use_sim_time:=true"], env=env, stdout=log,
-                            stderr=subprocess.STDOUT, start_new_session=True)
+                            stderr=subprocess.STDOUT, start_new_session=True, preexec_fn=sil.die_with_parent())
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=lock.domain_id)
     node = Node("test_probe", context=ctx)
@@ -262,7 +262,8 @@ def test_ctrl_c_leaves_no_orphans(gains60, tmp_path):
         did = lock.domain_id
     proc = subprocess.Popen([sys.executable, "-m", "magtune_core", "sil", "--gains", str(gains60), "--orbits", "5",
                              "--domain-id", str(did), "--log-dir", str(tmp_path)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=sil.die_with_parent())
     try:
         end = time.monotonic() + 30
         while time.monotonic() < end and len(_magtune_node_pids(did)) < 3:

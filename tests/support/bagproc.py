@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from magtune_core.ros.sil import DomainLock
+from magtune_core.ros.sil import DomainLock, die_with_parent
 
 ROOT = Path(__file__).resolve().parents[2]
 SUPPORT = ROOT / "tests" / "support"
@@ -42,7 +42,8 @@ _locks: dict = {}
 
 
 class Procs:
-    """Starts processes in one environment; ``stop_all`` (call in ``finally``) ends them all."""
+    """Starts processes in one environment; ``stop_all`` (call in ``finally``) ends them all, and the
+    kernel sends each SIGTERM if the test process itself dies (``die_with_parent``)."""
 
     def __init__(self, env: dict, logdir: Path):
         self.env, self.logdir, self.procs = env, Path(logdir), []
@@ -51,7 +52,7 @@ class Procs:
     def start(self, name: str, cmd: list[str]) -> subprocess.Popen:
         out = open(self.logdir / f"{name}.out", "w+")
         p = subprocess.Popen(cmd, env=self.env, stdout=out, stderr=subprocess.STDOUT,
-                             cwd=ROOT, start_new_session=True)
+                             cwd=ROOT, start_new_session=True, preexec_fn=die_with_parent())
         p.log_path = self.logdir / f"{name}.out"  # type: ignore[attr-defined]
         self.procs.append(p)
         return p
