@@ -411,7 +411,7 @@ def hinfnorm(sys: LTPSystem, rtol: float = 1e-6, steps: int = DEFAULT_STEPS, gue
     found = np.ascontiguousarray(found_hi.reshape(N))
     gam, need = np.empty((N, 2)), np.empty((N, 2), dtype=bool)
     model, closing = np.empty(N, dtype=bool), np.empty(N, dtype=bool)
-    while L.plan_round(hist, lo, hi, cfac, bad, found, float(rtol), L._FRAC, gam, need, model, closing):
+    while L.plan_round(hist, lo, hi, cfac, bad, found, float(rtol), L.SCAN_FRAC, gam, need, model, closing):
         passed, marg = _test_some(sys, gam.reshape(batch + (2,)), steps, need.reshape(batch + (2,)), poly)
         L.update_round(hist, lo, hi, cfac, bad, gam, need, passed.reshape(N, 2), marg.reshape(N, 2, 2), model,
                        closing, _CHASE)
@@ -435,8 +435,8 @@ def predict_norm(hist: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray
     """
     hist = np.asarray(hist, dtype=float)
     batch = hist.shape[:-2]
-    lo, hi = (np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=float), batch).reshape(-1)) for v in (lo, hi))
-    est = L.predict_many(np.ascontiguousarray(hist.reshape((-1,) + hist.shape[-2:])), lo, hi, L._FRAC)
+    est = L.predict_many(_flat(hist, batch, hist.shape[-2:], float), _flat(lo, batch, (), float),
+                         _flat(hi, batch, (), float), L.SCAN_FRAC)
     return est.reshape(batch)
 
 
@@ -453,7 +453,7 @@ def quadratic_zero(g: np.ndarray, m: np.ndarray, lo: np.ndarray) -> np.ndarray:
         The zero where it exists, lies below g_1 and above ``lo``, and the margin increases with
         gamma there (m_2 > m_1 > 0); -inf elsewhere.
     """
-    return _zeros(g, m, lo, False, L._FRAC, power=False)
+    return _zeros(g, m, lo, False, L.SCAN_FRAC, power=False)
 
 
 def margin_zero(g: np.ndarray, m: np.ndarray, lo: np.ndarray, line=True, points: int = 256) -> np.ndarray:
@@ -473,17 +473,23 @@ def margin_zero(g: np.ndarray, m: np.ndarray, lo: np.ndarray, line=True, points:
     ndarray (*batch, q)
         The predicted zero per margin; -inf where there is no usable prediction.
     """
-    return _zeros(g, m, lo, line, L._FRAC if points == L.SCAN_POINTS else np.logspace(-9, 0, points), power=True)
+    return _zeros(g, m, lo, line, L.SCAN_FRAC if points == L.SCAN_POINTS else np.logspace(-9, 0, points), power=True)
 
 
 def _zeros(g, m, lo, line, frac, power):
     """quadratic_zero / margin_zero over any batch shape: flattened for :func:`.hinf_levels.zeros_many`."""
     g, m = np.asarray(g, dtype=float), np.asarray(m, dtype=float)
     batch = g.shape[:-1]
-    flat = lambda v, dt: np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=dt), batch).reshape(-1))  # noqa: E731
-    out = L.zeros_many(np.ascontiguousarray(g.reshape(-1, g.shape[-1])), np.ascontiguousarray(m.reshape((-1,) + m.shape[-2:])),
-                       flat(lo, float), flat(line, bool), frac, power)
+    out = L.zeros_many(_flat(g, batch, g.shape[-1:], float), _flat(m, batch, m.shape[-2:], float),
+                       _flat(lo, batch, (), float), _flat(line, batch, (), bool), frac, power)
     return out.reshape(batch + m.shape[-1:])
+
+
+def _flat(v, batch: tuple, inner: tuple, dtype):
+    """``v`` broadcast to ``batch + inner``, as a C-contiguous (N, *inner) array (N = the batch
+    flattened): the layout of the compiled loops of :mod:`.hinf_levels`."""
+    a = np.broadcast_to(np.asarray(v, dtype=dtype), batch + inner)
+    return np.ascontiguousarray(a.reshape((-1,) + inner))
 
 
 def exponent_polynomial(sys: LTPSystem, steps: int = DEFAULT_STEPS):

@@ -23,7 +23,7 @@ from numba import njit
 
 #: Points of the power-law scan of :func:`margin_zero_one` (log-spaced distances 1e-9 .. 1 below g_1).
 SCAN_POINTS = 256
-_FRAC = np.logspace(-9, 0, SCAN_POINTS)
+SCAN_FRAC = np.logspace(-9, 0, SCAN_POINTS)
 
 
 @njit(cache=True, error_model="numpy")
@@ -190,8 +190,8 @@ def compile_all() -> None:
     cfac, bad, found = np.full(1, 0.05), np.zeros(1, dtype=np.int64), np.ones(1, dtype=np.bool_)
     gam, need = np.empty((1, 2)), np.empty((1, 2), dtype=np.bool_)
     model, closing = np.empty(1, dtype=np.bool_), np.empty(1, dtype=np.bool_)
-    plan_round(hist, lo, hi, cfac, bad, found, 1e-4, _FRAC, gam, need, model, closing)
+    plan_round(hist, lo, hi, cfac, bad, found, 1e-4, SCAN_FRAC, gam, need, model, closing)
     update_round(hist, lo, hi, cfac, bad, gam, need, np.zeros((1, 2), dtype=np.bool_), np.full((1, 2, 2), np.nan),
                  model, closing, 0.05)
-    predict_many(hist, lo, hi, _FRAC)
-    zeros_many(np.ascontiguousarray(hist[:, :, 0]), np.ascontiguousarray(hist[:, :, 1:]), lo, found, _FRAC, True)
+    predict_many(hist, lo, hi, SCAN_FRAC)
+    zeros_many(np.ascontiguousarray(hist[:, :, 0]), np.ascontiguousarray(hist[:, :, 1:]), lo, found, SCAN_FRAC, True)
