@@ -57,23 +57,17 @@ def margin_zero_one(g1, g2, g3, m1, m2, m3, lo, line, frac):
         lin = -np.inf
     span = max(g1 - lo, 0.0)
     l12, l23 = np.log(m1 / m2), np.log(m2 / m3)
-    xa = Fa = xb = Fb = np.nan
-    found = False  # the first interval of the scan where F changes sign
     x_prev = F_prev = np.nan
-    for k in range(frac.shape[0]):
+    for k in range(frac.shape[0]):  # the first interval of the scan where F changes sign
         x = g1 - span * frac[k]
         F = l12 * np.log((g2 - x) / (g3 - x)) - l23 * np.log((g1 - x) / (g2 - x))
-        if k > 0 and ((F_prev > 0 and F < 0) or (F_prev < 0 and F > 0)):  # NaN: no change
-            xa, Fa, xb, Fb = x_prev, F_prev, x, F
-            found = True
-            break
+        if (F_prev > 0 and F < 0) or (F_prev < 0 and F > 0):  # never at k = 0 (F_prev NaN), nor for a NaN F
+            root = x_prev - F_prev * (x - x_prev) / (F - F_prev)
+            p = l12 / np.log((g1 - root) / (g2 - root))
+            if m1 > 0 and m2 > m1 and m3 > m2 and p >= 0.25 and p <= 2.0 and np.isfinite(root):
+                return root
+            return lin
         x_prev, F_prev = x, F
-    if not found:
-        return lin
-    root = xa - Fa * (xb - xa) / (Fb - Fa)
-    p = l12 / np.log((g1 - root) / (g2 - root))
-    if found and m1 > 0 and m2 > m1 and m3 > m2 and p >= 0.25 and p <= 2.0 and np.isfinite(root):
-        return root
     return lin
 
 
