@@ -13,6 +13,8 @@ from ..design.gains import load_gains
 from ..studies import front
 from .common import (
     GAIN_MARGIN_HELP,
+    START_SCALE_HELP,
+    START_SCALES,
     add_force_argument,
     check_outputs,
     field_model_argument,
@@ -38,6 +40,7 @@ def register(sub) -> None:
     p.add_argument("--popsize", type=int, default=8, help="candidates per generation (default 8)")
     p.add_argument("--ts", type=float, default=1.0, help="controller sample period of the hold constraint [s] (default 1)")
     p.add_argument("--gain-margin", type=float, default=2.0, help=GAIN_MARGIN_HELP)
+    p.add_argument("--start-scale", choices=START_SCALES, default="feasible", help=START_SCALE_HELP)
     p.add_argument("--start", nargs="+", default=[], metavar="GAINS",
                    help="gains files tried as the start of every sigma besides the LQ gain and the previous sigma's "
                         "optimum (the lowest J at that sigma wins), e.g. config/gains/sigma_*.yaml")
@@ -58,7 +61,8 @@ def run(args) -> int:
     check_outputs(out, OUTPUTS, force=args.force, option="--out-dir")
     starts = [(f"{Path(f).name}", load_gains(f).K) for f in args.start]  # bad files: one line, exit 2, before any work
     model = load_model(args)
-    settings = CmaSettings(popsize=args.popsize, max_evals=args.max_evals, workers=args.workers)
+    settings = CmaSettings(popsize=args.popsize, max_evals=args.max_evals, workers=args.workers,
+                           start_scale=args.start_scale)
     t0 = time.perf_counter()
     load0 = os.getloadavg()[0]
 
@@ -73,7 +77,7 @@ def run(args) -> int:
     table = front.front_table(points)
     front.plot_front(points, out / "front.png")
     cmd = ("magtune front --sigmas " + ",".join(f"{s:g}" for s in args.sigmas) + f" --seed {args.seed} "
-           f"--workers {args.workers} --max-evals {args.max_evals} --popsize {args.popsize}"
+           f"--workers {args.workers} --max-evals {args.max_evals} --popsize {args.popsize} --start-scale {args.start_scale}"
            + (" --start " + " ".join(args.start) if args.start else ""))  # one option, nargs="+": a repeated one would replace it
     load = f"load average {load0:.1f} at the start, {os.getloadavg()[0]:.1f} at the end (2-core machine)"
     (out / "front.md").write_text(

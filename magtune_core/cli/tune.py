@@ -14,6 +14,8 @@ from ..design.sampled import feasible_start, hold_provenance
 from .common import (
     ANALYSIS_STEPS,
     GAIN_MARGIN_HELP,
+    START_SCALE_HELP,
+    START_SCALES,
     CommandError,
     add_force_argument,
     check_output,
@@ -43,6 +45,7 @@ def register(sub) -> None:
     c.add_argument("--restarts", type=int, default=2,
                    help="consecutive non-improving local restarts that certify convergence (default 2)")
     c.add_argument("--gain-margin", type=float, default=2.0, help=GAIN_MARGIN_HELP)
+    c.add_argument("--start-scale", choices=START_SCALES, default="feasible", help=START_SCALE_HELP)
     p = t.add_argument_group("paper method")
     p.add_argument("--samples", type=int, default=540, help="candidates per iteration N (paper: 540)")
     p.add_argument("--r-max", type=float, default=0.995, help="stop when the rejection ratio reaches this")
@@ -64,7 +67,7 @@ def register(sub) -> None:
 
 #: Options that only one method reads, with their defaults: given to the other method they would be
 #: silently ignored (a paper-style ``--samples 200 --max-iter 6`` does not shorten a CMA-ES run).
-METHOD_ONLY = {"cma": {"popsize": 8, "max_evals": 30000, "restarts": 2, "gain_margin": 2.0},
+METHOD_ONLY = {"cma": {"popsize": 8, "max_evals": 30000, "restarts": 2, "gain_margin": 2.0, "start_scale": "feasible"},
                "paper": {"samples": 540, "r_max": 0.995, "mu": 1e-3, "max_iter": 300, "patience": 1}}
 
 
@@ -120,7 +123,7 @@ def run(args) -> int:
         from ..design.objective import HinfObjective
 
         settings = CmaSettings(popsize=args.popsize, max_evals=args.max_evals, certify=args.restarts,
-                               workers=args.workers, steps=steps)
+                               workers=args.workers, steps=steps, start_scale=args.start_scale)
         hold = hold_constraint(args)
         if hold is not None:
             try:
@@ -203,7 +206,8 @@ def _run_robust(args, model, out) -> int:
         from ..design.cmaes import CmaSettings
 
         settings = CmaSettings(**{k: getattr(args, a) for k, a in (("popsize", "popsize"), ("max_evals", "max_evals"),
-                                                                   ("certify", "restarts"), ("workers", "workers"))
+                                                                   ("certify", "restarts"), ("workers", "workers"),
+                                                                   ("start_scale", "start_scale"))
                                   if hasattr(args, a)})
         K0 = load_gains(args.start).K if getattr(args, "start", None) else None
         hold = hold_constraint(args)

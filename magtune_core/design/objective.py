@@ -45,6 +45,27 @@ def one_thread_per_worker() -> None:
     numba.set_num_threads(1)
 
 
+def model_feasible(model: AttitudeLTP, Ks: np.ndarray, steps: int, hold: tuple | None = None) -> np.ndarray:
+    """Whether each gain (n, 3, 6) is feasible on one model: the continuous-time closed loop is
+    exponentially stable (max |multiplier| < 1, Theorem 2.1) and, with ``hold`` = (SampledLoop,
+    gain_margin), the sample-and-hold loop meets the margin. The screen of :func:`model_norms`.
+
+    Returns
+    -------
+    ndarray of bool (n,)
+        True where J(K) is finite on this model.
+    """
+    Ks = np.asarray(Ks, dtype=float).reshape(-1, 3, 6)
+    if len(Ks) == 0:
+        return np.zeros(0, dtype=bool)
+    with np.errstate(all="ignore"):
+        rho = spectral_radius(attitude_system(model, Ks), steps)
+    ok = np.isfinite(rho) & (rho < 1.0)
+    if hold is not None and ok.any():
+        ok[ok] = sampled_margin_ok(hold[0], Ks[ok], hold[1])
+    return ok
+
+
 def model_norms(model: AttitudeLTP, sigma: float, Ks: np.ndarray, steps: int, rtol: float,
                 guess=None, spread: float | None = None, hold: tuple | None = None) -> np.ndarray:
     """||G_zTd^sigma(K)||_inf for a batch of gains (n, 3, 6) on one model; inf where unstable.
@@ -61,11 +82,7 @@ def model_norms(model: AttitudeLTP, sigma: float, Ks: np.ndarray, steps: int, rt
     out = np.full(len(Ks), np.inf)
     if len(Ks) == 0:
         return out
-    with np.errstate(all="ignore"):
-        rho = spectral_radius(attitude_system(model, Ks), steps)
-    ok = np.isfinite(rho) & (rho < 1.0)
-    if hold is not None and ok.any():
-        ok[ok] = sampled_margin_ok(hold[0], Ks[ok], hold[1])
+    ok = model_feasible(model, Ks, steps, hold)
     if not ok.any():
         return out
     g = None
@@ -178,6 +195,22 @@ class HinfObjective:
             J(K) for each gain of ``Ks`` (n, 3, 6).
         """
         return self.per_model(Ks, guess, spread, rtol).max(axis=-1)
+
+    def feasible(self, Ks) -> np.ndarray:
+        """Whether J(K) is finite, without computing it (stability and hold constraint on every model;
+        ~1 ms per gain, no bisection): what an optimizer repairs infeasible candidates with.
+
+        Returns
+        -------
+        ndarray of bool (n,)
+            True where every model's loop is stable and meets the hold constraint.
+        """
+        Ks = np.asarray(Ks, dtype=float).reshape(-1, 3, 6)
+        ok = np.ones(len(Ks), dtype=bool)
+        for i, m in enumerate(self.models):
+            if ok.any():
+                ok[ok] = model_feasible(m, Ks[ok], self.steps, None if self._holds is None else self._holds[i])
+        return ok
 
     def worst(self, Ks) -> np.ndarray:
         """Index (into ``models``) of the model with the largest norm, per gain (n,).

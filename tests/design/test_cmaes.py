@@ -3,11 +3,12 @@ import numpy as np
 import pytest
 from scipy.linalg import solve_continuous_are
 
-from magtune_core.design.cmaes import CmaSettings, gain_scale, tune_cma
+from magtune_core.design.cmaes import CmaSettings, feasible_scale, gain_scale, tune_cma
 from magtune_core.design.lq import lq_gain
 from magtune_core.design.model import Z_ATT, AttitudeLTP
 from magtune_core.design.objective import HinfObjective
 from magtune_core.design.params import SpacecraftParams
+from magtune_core.design.sampled import HoldConstraint
 from magtune_core.design.tuner import tune
 
 SIGMA = 60.0
@@ -158,10 +159,13 @@ def test_tune_and_front_commands(tmp_path):
     from magtune_core.design.gains import load_gains
 
     out = tmp_path / "g.yaml"
+    # --start-scale gain: on a constant field the start gain's own scale moves faster than the feasible
+    # ranges (README; measured: 12-40 evaluations in feasible-range units do not improve J here)
     assert main(["tune", "--sigma", "60", "--field-model", "constant", "--popsize", "4", "--max-evals", "12",
-                 "--out", str(out), "--quiet"]) == 0
+                 "--start-scale", "gain", "--out", str(out), "--quiet"]) == 0
     g = load_gains(out)
     assert g.provenance["method"] == "cma" and g.provenance["evaluations"] >= 12 and g.provenance["J"] > 0
+    assert g.provenance["tuner"]["start_scale"] == "gain"
     # tuned under the default hold constraint (6 dB at Ts = 1 s) and the file says what it achieved
     # (the reported margin is accurate to 1e-3: hold_gain_margin's docstring)
     assert g.provenance["hold_gain_margin_required"] == 2.0 and g.provenance["hold_gain_margin"] >= 2.0 * (1 - 1e-3)
@@ -247,3 +251,40 @@ def test_no_certificate_on_an_unresolved_grid_at_max_steps():
         assert obj.steps == steps
         # below max_steps the watch (_refine_steps) has already checked: nothing to do here
         assert _resolved_at_max(obj, K, J, CmaSettings(steps=steps, max_steps=2 * steps))
+
+
+def test_feasible_scale_is_each_entrys_feasible_range():
+    """An analytic feasible set, a box around K0 with half-widths W_lo below and W_hi above each entry:
+    the scale is the larger range, to within one step of the move grid (10^(8/56) = 1.39: the grid
+    spans 8 decades in 57 points) below it."""
+    K0 = np.linspace(-1.0, 1.0, 18).reshape(3, 6)
+    W_hi = np.logspace(-2, 2, 18).reshape(3, 6)
+    W_lo = W_hi[::-1, ::-1] * 0.3
+    calls = []
+
+    def feasible(Ks):
+        calls.append(len(Ks))
+        D = Ks - K0
+        return np.all((D < W_hi) & (D > -W_lo), axis=(1, 2))
+
+    S = feasible_scale(feasible, K0)
+    W = np.maximum(W_lo, W_hi)
+    ratio = 10 ** (8 / 56)
+    assert np.all(S < W) and np.all(S * ratio >= W * (1 - 1e-12))  # W on the grid: the next value is W itself
+    assert calls == [18 * 57, 18 * 57]  # two batches (up, down), no J evaluated
+
+
+def test_feasible_scale_on_the_held_paper_loop():
+    """The paper model held at Ts = 1 s with gain margin 2 (the default of magtune tune): every entry
+    of the LQ gain moved alone by its scale, in one direction at least, is still feasible, and the
+    scale is set by the constraint (not the grid's end) and 2-3 orders above the LQ gain's entries
+    where the LQ gain is (numerically) zero, as the optimum's are (README "Tuning to the optimum")."""
+    model = AttitudeLTP.from_params(SpacecraftParams())
+    K0 = lq_gain(model, SIGMA)
+    with HinfObjective(model, SIGMA, steps=64, hold=HoldConstraint(1.0, 2.0)) as obj:
+        S = feasible_scale(obj.feasible, K0)
+        E = np.eye(18).reshape(18, 3, 6) * S
+        ok = obj.feasible(np.concatenate([K0 + E, K0 - E]))
+    assert np.all(ok[:18] | ok[18:])
+    assert S.max() < np.abs(K0).max() * 1e4  # bounded by feasibility everywhere
+    assert S[0, 2] > 30 * gain_scale(K0)[0, 2]  # a coupling entry LQ leaves at ~1e-16 (measured 60x)

@@ -115,6 +115,10 @@ def test_objective_rejects_gains_that_fail_the_margin(paper):
     assert np.all(np.isfinite(free)) and g < 10.0
     assert held[1] == np.inf
     np.testing.assert_allclose(held[0], free[0], rtol=1e-6)  # same gain, the bisection's bracket 1e-6
+    # the screen alone (what the tuner's first coordinates are scaled with) agrees with J's finiteness,
+    # also for a gain unstable in continuous time
+    with HinfObjective(model, 60.0, steps=64, hold=hold) as obj:
+        assert obj.feasible(np.stack([K, 10.0 * K, -K])).tolist() == [True, False, False]
     K1, note = feasible_start(model, Ks[1], hold)
     assert note.startswith("scaled by") and hold_gain_margin(loop, K1) >= 10.0
 
