@@ -167,11 +167,21 @@ def main():
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--gain-margin", type=float, default=2.0,
                     help="hold constraint of the cma runs at Ts = 1 s (default 2, as magtune tune; 0 = none)")
+    ap.add_argument("--save", metavar="DIR", default=None,
+                    help="write each run's final gain and J at 512 steps to DIR/<method>_sigma<s>_seed<n>.npz "
+                         "(an existing file is an error: nothing is overwritten)")
     ap.add_argument("--skip-norm", action="store_true")
     ap.add_argument("--skip-methods", action="store_true")
     args = ap.parse_args()
     model = AttitudeLTP.from_params(SpacecraftParams())
     sigmas = [float(s) for s in args.sigmas.split(",")]
+    save = Path(args.save) if args.save else None
+    if save is not None:
+        save.mkdir(parents=True, exist_ok=True)
+        clash = [p.name for p in save.glob("*_sigma*_seed*.npz")]
+        if clash:
+            raise SystemExit(f"bench_tuner: --save {save}: holds results of an earlier run ({clash[0]}, ...); "
+                             "choose an empty directory")
     print(f"# magtune tuner benchmark ({os.cpu_count()} cores; {load()})")
     if not args.skip_norm:
         for path in (ROOT / "config" / "gains" / "paper_method" / f"sigma_{sigmas[0]:g}.yaml",
@@ -194,6 +204,9 @@ def main():
                 # the tuned grid's J may be below the resolved one by up to the resolution watch's 2e-3
                 J512 = float(hinfnorm(performance_system(model, res.K, sigma), rtol=1e-7, steps=512, guess=res.J))
                 finals.append((method, seed, J512))
+                if save is not None:
+                    np.savez(save / f"{method}_sigma{sigma:g}_seed{seed}.npz", K=res.K, J512=J512, J=res.J,
+                             evaluations=res.evaluations, seconds=res.seconds, stop=str(res.stop))
                 print(f"| {sigma:g} | {method} | {seed} | {bk:.2f} | {reach(rows, 1.01 * bk)} | {reach(rows, 1.002 * bk)} | "
                       f"{res.J:.3f} | {J512:.3f} | {100 * (J512 / bk - 1):+.2f} % | {res.evaluations} | {res.seconds:.0f} | "
                       f"{res.stop or res.converged} | "
