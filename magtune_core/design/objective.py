@@ -103,6 +103,16 @@ def _norms_job(models, sigma, Ks, steps, rtol, guess, spread, holds=None):
     return np.stack(cols, axis=-1)
 
 
+def _feasible_job(models, Ks, steps, holds=None):
+    """Worker body of :meth:`HinfObjective.feasible`: every model's screen, in turn, on the gains
+    still feasible (n,)."""
+    ok = np.ones(len(Ks), dtype=bool)
+    for i, m in enumerate(models):
+        if ok.any():
+            ok[ok] = model_feasible(m, Ks[ok], steps, None if holds is None else holds[i])
+    return ok
+
+
 class HinfObjective:
     """J(K) = max over ``models`` of ||G_zTd^sigma(K)||_inf (paper eq. 21), for batches of gains.
 
@@ -198,7 +208,8 @@ class HinfObjective:
 
     def feasible(self, Ks) -> np.ndarray:
         """Whether J(K) is finite, without computing it (stability and hold constraint on every model;
-        ~1 ms per gain, no bisection): what an optimizer repairs infeasible candidates with.
+        ~1 ms per gain, no bisection): what the tuner's feasible-range coordinates are measured with
+        (``cmaes.feasible_scale``, ~2,000 gains), split over the ``workers`` like :meth:`per_model`.
 
         Returns
         -------
@@ -206,11 +217,12 @@ class HinfObjective:
             True where every model's loop is stable and meets the hold constraint.
         """
         Ks = np.asarray(Ks, dtype=float).reshape(-1, 3, 6)
-        ok = np.ones(len(Ks), dtype=bool)
-        for i, m in enumerate(self.models):
-            if ok.any():
-                ok[ok] = model_feasible(m, Ks[ok], self.steps, None if self._holds is None else self._holds[i])
-        return ok
+        if self.workers == 1 or len(Ks) < 2 * self.workers:
+            return _feasible_job(self.models, Ks, self.steps, self._holds)
+        pool = self._get_pool()
+        futs = [pool.submit(_feasible_job, self.models, Ks[p], self.steps, self._holds)
+                for p in np.array_split(np.arange(len(Ks)), self.workers)]
+        return np.concatenate([f.result() for f in futs])
 
     def worst(self, Ks) -> np.ndarray:
         """Index (into ``models``) of the model with the largest norm, per gain (n,).

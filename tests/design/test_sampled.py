@@ -119,6 +119,8 @@ def test_objective_rejects_gains_that_fail_the_margin(paper):
     # also for a gain unstable in continuous time
     with HinfObjective(model, 60.0, steps=64, hold=hold) as obj:
         assert obj.feasible(np.stack([K, 10.0 * K, -K])).tolist() == [True, False, False]
+    with HinfObjective(model, 60.0, steps=64, hold=hold, workers=2) as obj:  # split over worker processes
+        assert obj.feasible(np.stack([K, 10.0 * K, -K, K])).tolist() == [True, False, False, True]
     K1, note = feasible_start(model, Ks[1], hold)
     assert note.startswith("scaled by") and hold_gain_margin(loop, K1) >= 10.0
 
