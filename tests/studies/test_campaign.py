@@ -68,7 +68,9 @@ def test_reference_campaign_outputs(reference):
     assert h["pointing_deg"].shape == (2 * RUNS, 7) and h["t"].tolist() == [0, 10, 20, 30, 40, 50, 60]  # 60 steps
     # the same dispersion with both gains files (paired comparison), different outcomes
     assert list(cols["inertia_x"][:RUNS]) == list(cols["inertia_x"][RUNS:])
-    assert not np.array_equal(cols["peak_dipole"][:RUNS], cols["peak_dipole"][RUNS:])
+    # (the peak dipole is no test of that: in these 60-s runs from up to 10 deg both gains saturate the
+    # dipole from the start, so their peaks are the same per-axis limit; the pointing differs)
+    assert not np.any(cols["rms_pointing_deg"][:RUNS] == cols["rms_pointing_deg"][RUNS:])
     # figures: the stored history samples are samples of the full-resolution series
     assert np.all(cols["final_pointing_deg"] == pytest.approx(h["pointing_deg"][:, -1], rel=1e-6))
 
