@@ -187,14 +187,8 @@ class HinfObjective:
             guess = np.broadcast_to(np.asarray(guess, dtype=float).reshape((-1, nm) if np.ndim(guess) == 2 else (-1, 1)),
                                     (n, nm))
         rtol = self.rtol if rtol is None else float(rtol)
-        if self.workers == 1 or n < 2 * self.workers:
-            return _norms_job(self.models, self.sigma, Ks, self.steps, rtol, guess, spread, self._holds)
-        parts = np.array_split(np.arange(n), self.workers)
-        pool = self._get_pool()
-        futs = [pool.submit(_norms_job, self.models, self.sigma, Ks[p], self.steps, rtol,
-                            None if guess is None else np.ascontiguousarray(guess[p]), spread, self._holds)
-                for p in parts]
-        return np.concatenate([f.result() for f in futs], axis=0)
+        return self._split(n, lambda p: (_norms_job, self.models, self.sigma, Ks[p], self.steps, rtol,
+                                         None if guess is None else np.ascontiguousarray(guess[p]), spread, self._holds))
 
     def __call__(self, Ks, guess=None, spread: float | None = None, rtol: float | None = None) -> np.ndarray:
         """J per gain: the max over models of the norm (n,); inf where any closed loop is unstable.
@@ -217,12 +211,17 @@ class HinfObjective:
             True where every model's loop is stable and meets the hold constraint.
         """
         Ks = np.asarray(Ks, dtype=float).reshape(-1, 3, 6)
-        if self.workers == 1 or len(Ks) < 2 * self.workers:
-            return _feasible_job(self.models, Ks, self.steps, self._holds)
+        return self._split(len(Ks), lambda p: (_feasible_job, self.models, Ks[p], self.steps, self._holds))
+
+    def _split(self, n: int, call) -> np.ndarray:
+        """``call(p)`` = (job, *args) for the gains at indices p: run in this process for one worker or
+        a small batch, else one part per worker in the pool; the parts' results concatenated (n, ...)."""
+        if self.workers == 1 or n < 2 * self.workers:
+            job, *args = call(np.arange(n))
+            return job(*args)
         pool = self._get_pool()
-        futs = [pool.submit(_feasible_job, self.models, Ks[p], self.steps, self._holds)
-                for p in np.array_split(np.arange(len(Ks)), self.workers)]
-        return np.concatenate([f.result() for f in futs])
+        futs = [pool.submit(*call(p)) for p in np.array_split(np.arange(n), self.workers)]
+        return np.concatenate([f.result() for f in futs], axis=0)
 
     def worst(self, Ks) -> np.ndarray:
         """Index (into ``models``) of the model with the largest norm, per gain (n,).
