@@ -4,8 +4,10 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
+
 from ..design.gains import load_gains
-from ..design.problem import figures
+from ..design.problem import cost_gradient, figures
 from ..design.resolution import resolved_steps
 from ..design.sampled import SampledLoop, hold_gain_margin
 from .common import ANALYSIS_STEPS, field_model_argument, load_model
@@ -22,6 +24,9 @@ def register(sub) -> None:
     a.add_argument("--robust", metavar="SPEC", default=None,
                    help="robust spec YAML (docs/robust.md): also J, c1, c2, rho on every model of the set, "
                         "the worst case and the worst model")
+    a.add_argument("--sensitivity", action="store_true",
+                   help="also the exact gradient of J: K_ij dJ/dK_ij / J per gain entry (the %% change of J per %% "
+                        "change of the entry) and the worst-case disturbance frequency (magtune_core/ltp/hinf_gradient.py)")
     field_model_argument(a)
     a.set_defaults(func=run)
 
@@ -36,9 +41,10 @@ def run(args) -> int:
     d = fig.as_dict()
     # the digital implementation at the file's ts (design/sampled.py): 0 = unstable when held
     margin = hold_gain_margin(SampledLoop.build(model, g.ts), g.K)
+    sens = _sensitivity(model, g, args.steps) if args.sensitivity and fig.stable else None
     if args.json:
         print(json.dumps({**{k: d[k] for k in ("J", "c1", "c2", "rho", "stable")}, "ts": g.ts,
-                          "hold_gain_margin": margin}))
+                          "hold_gain_margin": margin, **(sens or {})}))
         return 0
     print(f"{args.path}: sigma={g.sigma:g}, field model {model.field.name}, {args.steps} Magnus steps")
     for key, label in (("J", "H-inf T_d -> z"), ("c1", "H-inf T_d -> dq"), ("c2", "H2 T_d -> m"), ("rho", "max |multiplier|")):
@@ -50,7 +56,23 @@ def run(args) -> int:
             f"sample-and-hold at Ts = {g.ts:g} s: gain margin {margin:.3g}"
             + (" or more" if margin >= 16 else f" ({20 * math.log10(margin):.1f} dB)"))
     print(f"  {held}")
+    if sens:
+        print(f"  worst-case disturbance: multiplier angle {sens['worst_multiplier_angle']:.4f} rad, i.e. frequency "
+              f"{sens['worst_frequency_mod_orbit']:.4g} rad/s modulo the orbital rate {sens['orbit_rate']:.4g} rad/s")
+        print("  elasticity K_ij dJ/dK_ij / J (gradient of the active peak; at a tuned optimum J has a kink):")
+        print("           " + " ".join(f"{c:>8s}" for c in ("dq_x", "dq_y", "dq_z", "dw_x", "dw_y", "dw_z")))
+        for i, row in enumerate(sens["elasticity"]):
+            print(f"    u_{'xyz'[i]}    " + " ".join(f"{v:8.3f}" for v in row))
     return 0
+
+
+def _sensitivity(model, g, steps: int) -> dict:
+    """Exact dJ/dK of the gains file (design/problem.cost_gradient) and the worst-case frequency."""
+    J, dK, grad = cost_gradient(model, g.K, g.sigma, steps=steps)
+    angle = float(abs(np.angle(grad.multipliers).mean()))
+    w_orbit = 2.0 * math.pi / model.period
+    return {"dJ_dK": dK.tolist(), "elasticity": (np.asarray(g.K).reshape(3, 6) * dK / J).tolist(),
+            "worst_multiplier_angle": angle, "worst_frequency_mod_orbit": angle / model.period, "orbit_rate": w_orbit}
 
 
 def run_robust(args, model, g) -> int:

@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ..ltp import DEFAULT_STEPS, LTPSystem, h2norm, hinfnorm, spectral_radius
+from ..ltp import DEFAULT_STEPS, LTPSystem, h2norm, hinfnorm, hinfnorm_gradient, spectral_radius
 from .model import Z_ATT, AttitudeLTP
 
 
@@ -25,6 +25,26 @@ def performance_output(K, sigma: float) -> np.ndarray:
 def performance_system(model: AttitudeLTP, K, sigma: float) -> LTPSystem:
     """G_zTd^sigma = [A + B(t) K, B_T, C_sigma, 0] (paper eq. 21)."""
     return LTPSystem(model.closed_loop(K), model.BT, performance_output(K, sigma), None, model.period)
+
+
+def cost_gradient(model: AttitudeLTP, K, sigma: float, steps: int = DEFAULT_STEPS, rtol: float = 1e-10):
+    """J(K) of paper eq. (21) and its exact gradient dJ/dK (3x6), by the chain rule through
+    A_cl(t) = A + B(t) K and C_sigma = [Z; sigma K] (eqs. 19-20) from :func:`..ltp.hinfnorm_gradient`.
+
+    Returns
+    -------
+    J : float
+        ||G_zTd^sigma||_inf on ``steps`` Magnus intervals.
+    dJ_dK : ndarray (3, 6)
+        Its gradient (of the active peak: J is nonsmooth where several peaks are active).
+    grad : HinfGradient
+        The node gradients and the worst-case multiplier pair.
+    """
+    K = np.asarray(K, dtype=float).reshape(3, 6)
+    grad = hinfnorm_gradient(performance_system(model, K, sigma), steps=steps, rtol=rtol)
+    Bn = model.B(grad.t.ravel()).reshape(grad.t.shape + (6, 3))  # B(t) at the Magnus nodes
+    dK = np.einsum("knai,knaj->ij", Bn, grad.dA) + sigma * grad.dC[..., 3:, :].sum(axis=(0, 1))
+    return grad.J, dK, grad
 
 
 def attitude_system(model: AttitudeLTP, K) -> LTPSystem:

@@ -6,6 +6,7 @@ import sys
 import numpy as np
 import pytest
 
+from magtune_core.design.gains import load_gains
 from magtune_core.design.lq import lq_gain
 from magtune_core.design.model import AttitudeLTP
 from magtune_core.design.params import SpacecraftParams
@@ -80,6 +81,24 @@ def test_analyze_json_on_shipped_gains():
         # same steps; the bisection brackets J, c1 to rtol 1e-7 (figures()), so that is the bar
         assert d[k] == pytest.approx(prov[k], rel=2e-7)
     assert d["J"] < SPEC_LQ[60][1]  # the shipped gain beats the LQ start
+
+
+def test_analyze_sensitivity_is_the_exact_gradient():
+    r = _magtune("analyze", "config/gains/sigma_240.yaml", "--json", "--sensitivity", "--steps", "64")
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    g = np.array(d["dJ_dK"])
+    K = np.asarray(load_gains("config/gains/sigma_240.yaml").K).reshape(3, 6)
+    # elasticity divides by the gradient's own J (rtol 1e-10); d["J"] is bisected to 1e-7
+    np.testing.assert_allclose(np.array(d["elasticity"]), K * g / d["J"], rtol=1e-6, atol=1e-9)
+    assert 0.0 <= d["worst_multiplier_angle"] <= np.pi
+    # along the file's own gain direction, J(s K) by central differences (s = 1 +- 1e-5; rtol 1e-12
+    # bisection): 64 steps are not the tuned grid, so J is smooth there (kink term checked)
+    model = AttitudeLTP.from_params(SpacecraftParams())
+    Jf = [float(hinfnorm(performance_system(model, s * K, 240.0), rtol=1e-12, steps=64)) for s in (1 - 1e-5, 1.0, 1 + 1e-5)]
+    fd = (Jf[2] - Jf[0]) / 2e-5
+    assert abs(Jf[2] - 2 * Jf[1] + Jf[0]) < 1e-2 * abs(Jf[2] - Jf[0])
+    assert float(np.sum(g * K)) == pytest.approx(fd, rel=1e-4)  # FD error ~1e-7 (truncation, round-off)
 
 
 @pytest.mark.parametrize("content, field", [
