@@ -42,9 +42,13 @@ def cost_gradient(model: AttitudeLTP, K, sigma: float, steps: int = DEFAULT_STEP
     """
     K = np.asarray(K, dtype=float).reshape(3, 6)
     grad = hinfnorm_gradient(performance_system(model, K, sigma), steps=steps, rtol=rtol)
-    Bn = model.B(grad.t.ravel()).reshape(grad.t.shape + (6, 3))  # B(t) at the Magnus nodes
-    dK = np.einsum("knai,knaj->ij", Bn, grad.dA) + sigma * grad.dC[..., 3:, :].sum(axis=(0, 1))
-    return grad.J, dK, grad
+    return grad.J, _gain_gradient(model, sigma, grad.t, grad.dA, grad.dC), grad
+
+
+def _gain_gradient(model: AttitudeLTP, sigma: float, t, dA, dC) -> np.ndarray:
+    """dJ/dK from node gradients: A_cl = A + B(t) K and C_sigma = [Z; sigma K] (eqs. 19-20)."""
+    Bn = model.B(np.ravel(t)).reshape(np.shape(t) + (6, 3))  # B(t) at the Magnus nodes
+    return np.einsum("knai,knaj->ij", Bn, dA) + sigma * dC[..., 3:, :].sum(axis=(0, 1))
 
 
 def attitude_system(model: AttitudeLTP, K) -> LTPSystem:

@@ -135,32 +135,16 @@ def _colliding_pair(lam: np.ndarray) -> np.ndarray:
     return np.array(min(pairs, key=lambda ij: abs(lam[ij[0]] - lam[ij[1]]) + dist[ij[0]] + dist[ij[1]]))
 
 
-def hinfnorm_gradient(sys: LTPSystem, steps: int = DEFAULT_STEPS, rtol: float = 1e-10,
-                      theta: float = THETA) -> HinfGradient:
-    """Gradient of ||G||_inf (paper eq. 21) with respect to A(t), B(t), C(t) at the Magnus nodes.
-
-    One stable system without feedthrough (no batch axes). J is computed by :func:`.hinf.hinfnorm`
-    to ``rtol`` (the gradient's relative error is ~ (gamma - J) / J times the curvature: ~4e-5 at
-    rtol 1e-8 on the shipped gains, measured; keep rtol <= 1e-9).
-
-    Returns
-    -------
-    HinfGradient
-        J, the node gradients dA, dB, dC and the colliding multiplier pair.
-    """
-    if sys.has_feedthrough:
-        raise ValueError("hinfnorm_gradient: systems with feedthrough D are not supported")
+def _flow(sys: LTPSystem, gamma: float, steps: int, theta: float) -> dict:
+    """The Hamiltonian flow at level gamma in scattering form: node matrices, Magnus exponents,
+    sub-step powers, prefix / suffix segments and the period's pencil (see the module docstring)."""
     A1, A2, h = generator_at_nodes(lambda t: sys.sample("A", t), sys.period, steps)
     B1, B2, _ = generator_at_nodes(lambda t: sys.sample("B", t), sys.period, steps)
     C1, C2, _ = generator_at_nodes(lambda t: sys.sample("C", t), sys.period, steps)
     if A1.ndim != 3 or B1.ndim != 3 or C1.ndim != 3:
         raise ValueError("hinfnorm_gradient: one system at a time (no batch axes)")
     An, Bn, Cn = np.stack([A1, A2], 1), np.stack([B1, B2], 1), np.stack([C1, C2], 1)  # (steps, 2, ., .)
-    J = float(hinfnorm(sys, rtol=rtol, steps=steps))
-    if not np.isfinite(J):
-        raise ValueError("hinfnorm_gradient: the system is unstable (J = inf)")
     n = An.shape[-1]
-    gamma = J
     BB, CC = Bn @ _T(Bn), _T(Cn) @ Cn
     alpha = gamma * np.sqrt(np.abs(CC).max() / np.abs(BB).max())  # the balancing of hinf.hamiltonian
     H = np.zeros(An.shape[:2] + (2 * n, 2 * n))
@@ -178,19 +162,30 @@ def hinfnorm_gradient(sys: LTPSystem, steps: int = DEFAULT_STEPS, rtol: float = 
         pre, suf = _exclusive_scan(powers[m]), _exclusive_scan(powers[m], reverse=True)
     E, G, Hs, F = (x[-1] for x in pre)
     if not (ok.all() and all(np.all(np.isfinite(x)) for x in (E, G, Hs, F))):
-        raise ArithmeticError("hinfnorm_gradient: the scattering blocks are not finite at the norm")
+        raise ArithmeticError("hinfnorm_gradient: the scattering blocks are not finite at this level")
     eye, zero = np.eye(n), np.zeros((n, n))
     P_a = np.block([[E, zero], [-Hs, eye]])
     P_b = np.block([[eye, -G], [zero, F]])
-    lam = sla.eigvals(P_a, P_b)
-    pair = lam[_colliding_pair(lam)]
-    tol = 1e-6 * np.abs(pair).max()
+    _, _, nodes = interval_grid(sys.period, steps)
+    return dict(n=n, m=m, h=h, gamma=gamma, alpha=alpha, Bn=Bn, Cn=Cn, BB=BB, M1=M1, M2=M2, Osub=Osub,
+                powers=powers, pre=pre, suf=suf, P_a=P_a, P_b=P_b, lam=sla.eigvals(P_a, P_b), t=nodes)
 
-    def select(a, b):
+
+def _pair_level(f: dict, pair: np.ndarray):
+    """Collision level of the multiplier pair ``pair`` (one Newton step on Delta from f's gamma) and
+    its gradient with respect to A, B, C at the nodes: (level, dA, dB, dC)."""
+    n, m, h, gamma, alpha = f["n"], f["m"], f["h"], f["gamma"], f["alpha"]
+    powers, pre, suf, M1, M2 = f["powers"], f["pre"], f["suf"], f["M1"], f["M2"]
+    steps = M1.shape[0]
+    def select(a, b):  # the two of the QZ's own eigenvalues nearest the pair (a near-double pair moves by ~sqrt(eps))
         with np.errstate(all="ignore"):
-            return (np.abs(a / b - pair[0]) <= tol) | (np.abs(a / b - pair[1]) <= tol)
+            lam = np.atleast_1d(a / b)
+        d = np.minimum(np.abs(lam - pair[0]), np.abs(lam - pair[1]))
+        out = np.zeros(lam.shape, dtype=bool)
+        out[np.argsort(np.where(np.isfinite(d), d, np.inf))[:2]] = True
+        return out
 
-    S, Tm, _, _, _, Z = sla.ordqz(P_a.astype(complex), P_b.astype(complex), sort=select, output="complex")
+    S, Tm, _, _, _, Z = sla.ordqz(f["P_a"].astype(complex), f["P_b"].astype(complex), sort=select, output="complex")
     X = Z[:, :2]  # right invariant subspace of the pair: Psi X = X Mr
     Mr = np.linalg.solve(Tm[:2, :2], S[:2, :2])
     X_end = X @ Mr
@@ -201,6 +196,7 @@ def hinfnorm_gradient(sys: LTPSystem, steps: int = DEFAULT_STEPS, rtol: float = 
         x_start, p_end = bounds[:-1, :n], bounds[1:, n:]
         R.append(np.stack([_two_point(powers[i], powers[m - i], x_start, p_end) for i in range(m + 1)], axis=1))
     R = np.stack(R, axis=-1)  # (steps, m + 1, 2n, 2)
+    eye, zero = np.eye(n), np.zeros((n, n))
     Jsym = np.block([[zero, eye], [-eye, zero]])
     Minv = np.linalg.inv(Mr)
     # left solutions: Y^H (flow after the sub-step) = (J R_next Mr^-1)^H, with Y = J X (symplectic flow)
@@ -209,17 +205,40 @@ def hinfnorm_gradient(sys: LTPSystem, steps: int = DEFAULT_STEPS, rtol: float = 
     # dDelta = 2 tr(Mr) tr(D) - 4 det(Mr) tr(Mr^-1 D), D = N0^-1 (Y_i^H dPsi X_j): weights of the (i, j) pairings
     w = (2 * np.trace(Mr) * N0inv - 4 * np.linalg.det(Mr) * (Minv @ N0inv)).T
     W = np.einsum("ij,ksai,ksbj->kab", w, Lft.conj(), R[:, :-1])  # sum over sub-steps and pairings
-    P = _frechet_adjoint(Osub, W) / m  # dDelta / dOmega_k
+    P = _frechet_adjoint(f["Osub"], W) / m  # dDelta / dOmega_k
     g1 = 0.5 * h * P - _C2 * h * h * (P @ _T(M2) - _T(M2) @ P)
     g2 = 0.5 * h * P - _C2 * h * h * (_T(M1) @ P - P @ _T(M1))
     gH = np.stack([g1, g2], axis=1)  # dDelta / dH at the nodes, (steps, 2, 2n, 2n)
-    d_gamma = np.sum(gH[..., :n, n:] * (-2.0 * alpha * BB / gamma**3))
-    Rg = -(gH * np.conj(d_gamma)).real / abs(d_gamma) ** 2  # dJ / dH: implicit function theorem
+    d_gamma = np.sum(gH[..., :n, n:] * (-2.0 * alpha * f["BB"] / gamma**3))
+    Rg = -(gH * np.conj(d_gamma)).real / abs(d_gamma) ** 2  # d level / dH: implicit function theorem
+    Bn, Cn = f["Bn"], f["Cn"]
     dA = Rg[..., :n, :n] - _T(Rg[..., n:, n:])
     dB = (alpha / gamma**2) * (Rg[..., :n, n:] + _T(Rg[..., :n, n:])) @ Bn
     dC = -(1.0 / alpha) * Cn @ (Rg[..., n:, :n] + _T(Rg[..., n:, :n]))
     Delta = np.trace(Mr) ** 2 - 4 * np.linalg.det(Mr)
-    J_newton = gamma - float((Delta * np.conj(d_gamma)).real / abs(d_gamma) ** 2)
-    _, _, nodes = interval_grid(sys.period, steps)
-    return HinfGradient(J, gamma, J_newton, dA, dB, dC, nodes, pair)
+    level = gamma - float((Delta * np.conj(d_gamma)).real / abs(d_gamma) ** 2)
+    return level, dA, dB, dC
 
+
+def hinfnorm_gradient(sys: LTPSystem, steps: int = DEFAULT_STEPS, rtol: float = 1e-10,
+                      theta: float = THETA) -> HinfGradient:
+    """Gradient of ||G||_inf (paper eq. 21) with respect to A(t), B(t), C(t) at the Magnus nodes.
+
+    One stable system without feedthrough (no batch axes). J is computed by :func:`.hinf.hinfnorm`
+    to ``rtol`` (the gradient's relative error is ~ (gamma - J) / J times the curvature: ~4e-5 at
+    rtol 1e-8 on the shipped gains, measured; keep rtol <= 1e-9).
+
+    Returns
+    -------
+    HinfGradient
+        J, the node gradients dA, dB, dC and the colliding multiplier pair.
+    """
+    if sys.has_feedthrough:
+        raise ValueError("hinfnorm_gradient: systems with feedthrough D are not supported")
+    J = float(hinfnorm(sys, rtol=rtol, steps=steps))
+    if not np.isfinite(J):
+        raise ValueError("hinfnorm_gradient: the system is unstable (J = inf)")
+    f = _flow(sys, J, steps, theta)
+    pair = f["lam"][_colliding_pair(f["lam"])]
+    level, dA, dB, dC = _pair_level(f, pair)
+    return HinfGradient(J, J, level, dA, dB, dC, f["t"], pair)
