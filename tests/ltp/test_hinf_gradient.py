@@ -117,3 +117,31 @@ def test_feedthrough_is_refused():
     s = LTPSystem(np.array([[-1.0]]), np.array([[1.0]]), np.array([[1.0]]), np.array([[0.5]]), 1.0)
     with pytest.raises(ValueError, match="feedthrough"):
         hinfnorm_gradient(s)
+
+
+# A 90-s CMA-ES gain at sigma = 60 (issue 9, eleventh pass): the norm's pair collides at -1 as a nearly
+# double real pair, which moved by ~sqrt(eps) between eigvals and ordqz and was once missed by the selection.
+K_COLLIDE_AT_MINUS_ONE = np.array([
+    [3.6446269364015650e-03, -2.8971974781261820e-02, -6.5582938464818816e-02, -3.7514797650046566e-01,
+     -1.2608604641474955e-02, -3.3257307650408618e-01],
+    [1.4880429217778138e-02, -1.8528027934058645e-02, -1.4097542425114215e-01, -4.9983586930995350e-01,
+     -2.4308030358526872e-01, -1.0419577849777779e+01],
+    [1.1536521546710496e-01, -4.3943283598321481e-01, -2.4059909749994426e+00, -4.1115568882074074e+00,
+     -7.6357754315365345e-01, -1.0690481791941554e+01]])
+
+
+def test_gradient_at_a_collision_on_the_negative_real_axis():
+    model = AttitudeLTP.from_params(SpacecraftParams())
+    K, steps = K_COLLIDE_AT_MINUS_ONE, 256
+    J, dK, grad = cost_gradient(model, K, 60.0, steps=steps, rtol=1e-11)  # the old selection failed at 1e-10 and 1e-11
+    assert np.all(np.abs(grad.multipliers + 1.0) < 1e-3)
+    D = np.random.default_rng(0).standard_normal((3, 6)) * np.abs(K) * 1e-6
+
+    def Jf(eps):
+        return float(hinfnorm(performance_system(model, K + eps * D, 60.0), rtol=1e-12, steps=steps))
+
+    fd, kink = _central(Jf, 0.0, 1.0)
+    assert abs(kink) < 1e-2 * abs(fd)
+    # measured 1e-6 (central differences at 1e-6 of |K|; the curvature is large here); the missed
+    # selection gave an unrelated vector (errors of order 1)
+    assert float(np.sum(dK * D)) == pytest.approx(fd, rel=1e-4)
