@@ -6,11 +6,12 @@ import math
 
 import numpy as np
 
+from ..base.errors import ConfigError
 from ..design.gains import load_gains
 from ..design.problem import cost_gradient, figures
 from ..design.resolution import resolved_steps
 from ..design.sampled import SampledLoop, hold_gain_margin
-from .common import ANALYSIS_STEPS, field_model_argument, load_model
+from .common import ANALYSIS_STEPS, CommandError, field_model_argument, load_model
 
 
 def register(sub) -> None:
@@ -32,6 +33,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    if args.robust and args.sensitivity:
+        raise ConfigError("--sensitivity", None, "is for the nominal model: leave out --robust (or --sensitivity)")
     model = load_model(args)
     g = load_gains(args.path)
     if args.robust:
@@ -68,7 +71,10 @@ def run(args) -> int:
 
 def _sensitivity(model, g, steps: int) -> dict:
     """Exact dJ/dK of the gains file (design/problem.cost_gradient) and the worst-case frequency."""
-    J, dK, grad = cost_gradient(model, g.K, g.sigma, steps=steps)
+    try:
+        J, dK, grad = cost_gradient(model, g.K, g.sigma, steps=steps)
+    except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:  # e.g. flow not finite at the norm
+        raise CommandError(f"--sensitivity: the gradient of J could not be computed ({exc})") from None
     angle = float(abs(np.angle(grad.multipliers).mean()))
     w_orbit = 2.0 * math.pi / model.period
     return {"dJ_dK": dK.tolist(), "elasticity": (np.asarray(g.K).reshape(3, 6) * dK / J).tolist(),

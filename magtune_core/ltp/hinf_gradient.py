@@ -56,7 +56,7 @@ class HinfGradient:
     ``dA`` (steps, 2, n, n), ``dB`` (steps, 2, n, m), ``dC`` (steps, 2, p, n): the derivative of J
     with respect to the matrix values at the two Gauss nodes ``t`` (steps, 2) of every interval;
     for a constant matrix, the gradient is the sum over all nodes. ``gamma``: the level the
-    gradient was taken at (the bisection's upper bound); ``J_newton``: one Newton step on Delta from
+    gradient was taken at (hinfnorm's value, within its rtol of the norm); ``J_newton``: one Newton step on Delta from
     it (a sharper estimate of the norm); ``multipliers``: the colliding pair, whose angle is
     omega* T modulo 2 pi.
     """

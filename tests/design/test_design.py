@@ -101,6 +101,12 @@ def test_analyze_sensitivity_is_the_exact_gradient():
     assert float(np.sum(g * K)) == pytest.approx(fd, rel=1e-4)  # FD error ~1e-7 (truncation, round-off)
 
 
+def test_analyze_sensitivity_refuses_robust_before_any_work():
+    r = _magtune("analyze", "config/gains/sigma_60.yaml", "--sensitivity", "--robust", "does/not/matter.yaml")
+    assert r.returncode == 2 and r.stdout == ""
+    assert len(r.stderr.strip().splitlines()) == 1 and "--sensitivity" in r.stderr and "--robust" in r.stderr
+
+
 @pytest.mark.parametrize("content, field", [
     ("controller:\n  ros__parameters:\n    gain: [1, 2, 3]\n    sigma: 60.0\n", "gain"),
     ("controller:\n  ros__parameters:\n    gain: [.nan, 0,0,0,0,0, 0,0,0,0,0,0, 0,0,0,0,0,0]\n    sigma: 60.0\n", "gain"),
