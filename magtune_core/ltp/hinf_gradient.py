@@ -55,14 +55,13 @@ class HinfGradient:
 
     ``dA`` (steps, 2, n, n), ``dB`` (steps, 2, n, m), ``dC`` (steps, 2, p, n): the derivative of J
     with respect to the matrix values at the two Gauss nodes ``t`` (steps, 2) of every interval;
-    for a constant matrix, the gradient is the sum over all nodes. ``gamma``: the level the
-    gradient was taken at (hinfnorm's value, within its rtol of the norm); ``J_newton``: one Newton step on Delta from
-    it (a sharper estimate of the norm); ``multipliers``: the colliding pair, whose angle is
+    for a constant matrix, the gradient is the sum over all nodes. The gradient is taken at the
+    level ``J`` (hinfnorm's value, within its rtol of the norm); ``J_newton``: one Newton step on
+    Delta from it (a sharper estimate of the norm); ``multipliers``: the colliding pair, whose angle is
     omega* T modulo 2 pi.
     """
 
     J: float
-    gamma: float
     J_newton: float
     dA: np.ndarray
     dB: np.ndarray
@@ -241,4 +240,4 @@ def hinfnorm_gradient(sys: LTPSystem, steps: int = DEFAULT_STEPS, rtol: float = 
     f = _flow(sys, J, steps, theta)
     pair = f["lam"][_colliding_pair(f["lam"])]
     level, dA, dB, dC = _pair_level(f, pair)
-    return HinfGradient(J, J, level, dA, dB, dC, f["t"], pair)
+    return HinfGradient(J, level, dA, dB, dC, f["t"], pair)
