@@ -16,3 +16,7 @@ class ConfigError(ValueError):
         self.path, self.field, self.expected = str(path), field_name, expected
         where = f"{self.path}: " + (f"field '{field_name}': " if field_name else "")
         super().__init__(where + expected)
+
+
+class SilError(RuntimeError):
+    """A node run (SIL, replay) could not be started or a node failed: exit status 1 in the CLI."""

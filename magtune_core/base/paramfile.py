@@ -112,10 +112,27 @@ def _walk(prefix, params, path):
                                               "(write 1.0 rather than 1 in a list of numbers; quote 'y'/'n')")
 
 
-def check_ros_params(path, node: str | None = None) -> dict:
-    """Validate every node's ``ros__parameters`` of ``path`` as rcl would; return the parameters
-    :func:`read_ros_params` returns for ``node`` (one read of the file for both)."""
+def load_ros_params(path) -> dict:
+    """Read ``path`` once and validate every node's ``ros__parameters`` as rcl would.
+
+    Returns
+    -------
+    dict
+        the file's sections, ``{node key: {"ros__parameters": {...}}}``, for :func:`merge_ros_params`.
+    """
     doc = _load(path)  # file, YAML and layout errors
     for body in doc.values():
         _walk("", body["ros__parameters"], path)
+    return doc
+
+
+def merge_ros_params(doc: dict, node: str | None = None) -> dict:
+    """The parameters of the sections of ``doc`` (:func:`load_ros_params`) that apply to ``node``
+    (every section if None), merged as rcl merges them."""
     return _merge(doc, node)
+
+
+def check_ros_params(path, node: str | None = None) -> dict:
+    """Validate every node's ``ros__parameters`` of ``path`` as rcl would; return the parameters
+    :func:`read_ros_params` returns for ``node`` (one read of the file for both)."""
+    return _merge(load_ros_params(path), node)

@@ -12,9 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from ..base.ament import ROOT, AmentNotFound
-from ..base.errors import ConfigError
+from ..base.errors import ConfigError, SilError
 from ..design.field import FIELD_MODELS
-from ..ros.sil import SilError
 from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions
 
 

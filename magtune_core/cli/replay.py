@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import argparse
 
+from ..bags.live import DEFAULT_PORT
+from ..bags.playback import DEFAULT_WAIT_SUBSCRIBERS, ReplayOptions
 from ..bags.scan import check_file
-from ..ros.live import DEFAULT_PORT
-from ..ros.replay import DEFAULT_WAIT_SUBSCRIBERS, ReplayOptions, run_player
+from ..ros.replay import run_player
 
 
 def register(sub) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 
 from ..ros import sil
+from ..ros.scenario import SilScenario, normalize_namespace
 from .common import CommandError, add_environment_arguments, environment_options, plain_summary
 
 
@@ -58,17 +59,19 @@ def run(args) -> int:
             print(f"magtune sil: step {k}/{n} ({100 * k // max(n, 1)} %)", file=sys.stderr, flush=True)
 
     sats = satellites(args.gains)
+    # every input validated before anything starts (one line and exit 2 for a bad one)
+    scenario = SilScenario.build(sats, orbits=args.orbits, steps=args.steps, ts=args.ts, substeps=args.substeps,
+                                 spacecraft=_spacecraft(args), real_time_factor=args.rtf, bag=args.bag,
+                                 results=args.results, log_dir=args.log_dir, domain_id=args.domain_id,
+                                 timeout=args.timeout, environment=args.environment,
+                                 env_options=environment_options(args), field=args.field, epoch_time=args.epoch_time,
+                                 foxglove=args.foxglove, bag_topics=args.bag_topics, bag_exclude=args.bag_exclude)
     if not args.quiet:
         print("magtune sil: starting the nodes (discovery takes a few seconds)", file=sys.stderr, flush=True)
         if args.foxglove is not None:
             print(f"magtune sil: Foxglove live view at ws://127.0.0.1:{args.foxglove} (Open connection -> "
                   "Foxglove WebSocket; layout docs/foxglove_layout.json)", file=sys.stderr, flush=True)
-    runs = sil.run_fleet(sats, orbits=args.orbits, steps=args.steps, ts=args.ts, substeps=args.substeps,
-                      spacecraft=_spacecraft(args), real_time_factor=args.rtf, bag=args.bag, results=args.results,
-                      log_dir=args.log_dir, domain_id=args.domain_id, timeout=args.timeout,
-                      environment=args.environment, env_options=environment_options(args), field=args.field,
-                      progress=progress, epoch_time=args.epoch_time, foxglove=args.foxglove,
-                      bag_topics=args.bag_topics, bag_exclude=args.bag_exclude)
+    runs = sil.run_fleet(scenario, progress=progress)
     def as_json(res):
         return dict(res.figures, **{"missed_steps": res.counters.get("missed_steps", 0),
                                     "wall_time": res.wall_time, "real_time_factor": res.real_time_factor,
@@ -80,18 +83,18 @@ def run(args) -> int:
         print(json.dumps({ns or "/": as_json(r) for ns, r in runs.items()}))
     else:
         for ns, r in runs.items():
-            print(f"== {ns or '/'} ({sats[ns]})\n{r.summary()}")
+            print(f"== {ns or '/'} ({sats.get(ns, '')})\n{r.summary()}")
     return 0
 
 
 def satellites(values: list[str]) -> dict:
     """``--gains`` values -> {namespace: gains file}: ``FILE`` is the root namespace, ``NS=FILE``
-    the namespace /NS (normalized and checked by :func:`magtune_core.ros.sil.normalize_namespace`)."""
+    the namespace /NS (normalized and checked by :func:`magtune_core.ros.scenario.normalize_namespace`)."""
     out: dict = {}
     for v in values:
         ns, sep, path = v.partition("=")
         ns, path = (ns, path) if sep else ("", v)
-        ns = sil.normalize_namespace(ns)
+        ns = normalize_namespace(ns)
         if ns in out:
             raise CommandError(f"--gains: namespace {ns or '/'} given twice", code=2)
         out[ns] = path

@@ -64,7 +64,7 @@ def test_section_matching_agrees_with_rclpy(tmp_path):
     """read_ros_params(file, fqn) == the parameters rclpy hands a node of that name/namespace,
     for every kind of section key and conflicting values (file order decides, as in rcl)."""
     pytest.importorskip("rclpy")
-    from magtune_core.ros.sil import DomainLock
+    from magtune_core.ros.process import DomainLock
 
     f = tmp_path / "p.yaml"
     f.write_text("controller:\n  ros__parameters: {a: 3, only_root: 1}\n"

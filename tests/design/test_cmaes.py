@@ -201,7 +201,7 @@ def test_interrupted_tune_keeps_the_best_gain(tmp_path, sig, workers):
     import time
 
     from magtune_core.design.gains import load_gains
-    from magtune_core.ros.sil import die_with_parent  # the kernel's SIGTERM if pytest dies
+    from magtune_core.ros.process import die_with_parent  # the kernel's SIGTERM if pytest dies
 
     out = tmp_path / "g.yaml"
     proc = subprocess.Popen([sys.executable, "-m", "magtune_core", "tune", "--sigma", "60", "--workers", str(workers),

@@ -23,7 +23,7 @@ from magtune_core.design.gains import save_gains
 from magtune_core.design.lq import lq_gains
 from magtune_core.design.model import AttitudeLTP
 from magtune_core.design.params import SpacecraftParams
-from magtune_core.ros import sil
+from magtune_core.ros import scenario, sil
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(180)]
 STEPS = 300
@@ -66,7 +66,7 @@ def test_replayed_sensors_reproduce_dipole_commands(tmp_path):
             "-o", str(rec2), "--topics", f"{DIPOLE}:geometry_msgs/msg/Vector3Stamped"])
         procs.wait_for_line(rec, "magtune-recorder ready")
         procs.start("controller", executable("controller") + [
-            "--ros-args", "--params-file", str(sil.DEFAULT_SPACECRAFT), "--params-file",
+            "--ros-args", "--params-file", str(scenario.DEFAULT_SPACECRAFT), "--params-file",
             str(gains), "-p", "use_sim_time:=true"])
         time.sleep(1.5)  # let the recorder discover the controller's publisher
         ply = procs.start("player", executable("player") + [

@@ -33,11 +33,12 @@ from magtune_core import bags as bag
 from magtune_core.bags import recover as bag_recover
 from magtune_core.bags import scan as bag_scan
 from magtune_core.bags.decode import Decoder
+from magtune_core.base.errors import SilError
 from magtune_core.design.gains import load_gains, save_gains
 from magtune_core.design.lq import lq_gains
 from magtune_core.design.model import AttitudeLTP
 from magtune_core.design.params import SpacecraftParams
-from magtune_core.ros import sil
+from magtune_core.ros import process, sil
 from magtune_core.sim.simulate import SimResult, simulate
 
 pytestmark = [pytest.mark.ros, pytest.mark.fault]
@@ -51,7 +52,7 @@ TIMEOUT = 0.25  # lockstep timeout [wall s]: a missed step costs this much
 
 def _ros_available():
     try:
-        sil.resolve_executable("controller")
+        process.resolve_executable("controller")
         import rclpy  # noqa: F401
     except Exception:
         return False
@@ -84,9 +85,9 @@ class Rig:
         self.relay_args = relay_args
         self.bag = tmp_path / "bag" if record else None
         self.results = tmp_path / "results.npz"
-        self.procs: list[sil.NodeProcess] = []
-        self.lock = sil.DomainLock()
-        self.env = sil.child_env(self.lock.domain_id, sil.package_prefix())
+        self.procs: list[process.NodeProcess] = []
+        self.lock = process.DomainLock()
+        self.env = process.child_env(self.lock.domain_id, process.package_prefix())
         self.env["PYTHONUNBUFFERED"] = "1"
         self.env["RCUTILS_LOGGING_BUFFERED_STREAM"] = "0"  # progress lines reach the log at once
         common = {"use_sim_time": True, "ts": 1.0}
@@ -101,7 +102,7 @@ class Rig:
         self.sc = ["--params-file", str(SPACECRAFT)]
 
     def start_controller(self, name="controller"):
-        p = sil.start_node(name, sil.resolve_executable("controller"),
+        p = process.start_node(name, process.resolve_executable("controller"),
                            self.sc + ["--params-file", str(self.gains), "--params-file", str(self.pfile)],
                            self.env, self.dir)
         self.procs.append(p)
@@ -109,7 +110,7 @@ class Rig:
 
     def start(self):
         if self.bag:
-            self.procs.append(sil.start_node("recorder", sil.resolve_executable("recorder"),
+            self.procs.append(process.start_node("recorder", process.resolve_executable("recorder"),
                                              sil.recorder_args(self.bag), self.env, self.dir))
         self.start_controller()
         remap = []
@@ -120,16 +121,16 @@ class Rig:
             with open(log, "wb") as fh:
                 pop = subprocess.Popen([sys.executable, str(SUPPORT / "fault_relay.py"), *map(str, self.relay_args)],
                                        env=self.env, stdout=fh, stderr=subprocess.STDOUT, start_new_session=True,
-                                       preexec_fn=sil.die_with_parent())
-            self.procs.append(sil.NodeProcess("relay", pop, log))
-        self.procs.append(sil.start_node("attitude_sensors", sil.resolve_executable("attitude_sensors"),
+                                       preexec_fn=process.die_with_parent())
+            self.procs.append(process.NodeProcess("relay", pop, log))
+        self.procs.append(process.start_node("attitude_sensors", process.resolve_executable("attitude_sensors"),
                                          self.sc + ["--params-file", str(self.pfile)] + remap, self.env, self.dir))
-        self.sim = sil.start_node("simulator", sil.resolve_executable("simulator"),
+        self.sim = process.start_node("simulator", process.resolve_executable("simulator"),
                                   self.sc + ["--params-file", str(self.pfile)], self.env, self.dir)
         self.procs.append(self.sim)
         return self
 
-    def node(self, name) -> sil.NodeProcess:
+    def node(self, name) -> process.NodeProcess:
         return [p for p in self.procs if p.name == name][-1]
 
     def wait_step(self, k: int, timeout: float = 90.0) -> int:
@@ -158,8 +159,8 @@ class Rig:
 
     def stop(self):
         try:
-            sil.stop_nodes([p for p in self.procs if p.name != "recorder"])
-            sil.stop_nodes([p for p in self.procs if p.name == "recorder"], grace=10.0)
+            process.stop_nodes([p for p in self.procs if p.name != "recorder"])
+            process.stop_nodes([p for p in self.procs if p.name == "recorder"], grace=10.0)
         finally:
             self.lock.release()
 
@@ -328,7 +329,7 @@ def test_log_time_equals_stamp_under_cpu_load(tmp_path, gains60):
     logged at its stamp (|log_time - stamp| = 0 <= ts), and bag info reports /clock exactly:
     samples + missing = N + 1."""
     busy = [subprocess.Popen([sys.executable, "-c", "import time\nt = time.time() + 60\nwhile time.time() < t: pass"],
-                             preexec_fn=sil.die_with_parent()) for _ in range(3)]  # bounded: 60 s at most
+                             preexec_fn=process.die_with_parent()) for _ in range(3)]  # bounded: 60 s at most
     try:
         rig = Rig(tmp_path, gains60).start()
         try:
@@ -358,7 +359,7 @@ def test_diverging_simulation_stops_with_the_step(tmp_path, gains60):
     and sil exited 0. The runner's own check refuses --ts 100 (test_bad_input); here the nodes
     are handed ts = 100 directly, and the simulator stops at the first diverged step."""
     slow = {"ts": 100.0}
-    with pytest.raises(sil.SilError, match=r"diverged .*at step (\d+) \(t=\d+\.\d+ s\)") as err:
+    with pytest.raises(SilError, match=r"diverged .*at step (\d+) \(t=\d+\.\d+ s\)") as err:
         sil.run_sil(gains60, steps=2000, log_dir=tmp_path, timeout=120, simulator_params=slow,
                     sensor_params=slow, controller_params=slow)
     k = int(re.search(r"at step (\d+)", str(err.value)).group(1))
@@ -376,7 +377,7 @@ def test_recorder_disk_full_ends_with_one_line(tmp_path):
     import bag_fixture_pub as fx
     from bagproc import Procs, executable, ros_env
 
-    die = sil.die_with_parent()
+    die = process.die_with_parent()
 
     def limit():
         resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, 64 * 1024))

@@ -13,21 +13,23 @@ import pytest
 
 from magtune_core import bags as baglib
 from magtune_core.bags.decode import Decoder, stamp_ns
+from magtune_core.base.errors import SilError
 from magtune_core.base.rotations import rotation_matrix
 from magtune_core.design.gains import load_gains, save_gains
 from magtune_core.design.lq import lq_gains
 from magtune_core.design.model import AttitudeLTP
 from magtune_core.design.params import SpacecraftParams
-from magtune_core.ros import sil
+from magtune_core.ros import process, sil
+from magtune_core.ros.scenario import SilScenario
 from magtune_core.sim.simulate import simulate
 from magtune_core.studies import report
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(240)]
 
 try:
-    sil.resolve_executable("controller")
-    sil.resolve_executable("recorder")
-except sil.SilError:  # pragma: no cover
+    process.resolve_executable("controller")
+    process.resolve_executable("recorder")
+except SilError:  # pragma: no cover
     pytest.skip("magtune_ros not built (run scripts/bootstrap.sh)", allow_module_level=True)
 
 STEPS = 150
@@ -41,8 +43,8 @@ def test_two_namespaced_satellites_one_bag(tmp_path):
         save_gains(files[ns], lq_gains(model, sigma, 1.0))
     procs = []
     bag = tmp_path / "two"
-    runs = sil.run_fleet(files, steps=STEPS, bag=bag, log_dir=tmp_path / "logs", timeout=180,
-                         on_start=lambda did, ps: procs.extend(ps))
+    fleet = SilScenario.build(files, steps=STEPS, bag=bag, log_dir=tmp_path / "logs", timeout=180)
+    runs = sil.run_fleet(fleet, on_start=lambda did, ps: procs.extend(ps))
     assert sorted(runs) == ["/sat1", "/sat2"]
     assert len(procs) == 7 and all(p.popen.poll() is not None for p in procs)  # 2 x 3 nodes + recorder
     assert (tmp_path / "logs" / "sat1_controller.log").is_file() and (tmp_path / "logs" / "sat2_simulator.log").is_file()

@@ -24,7 +24,7 @@ from magtune_core.design.gains import save_gains
 from magtune_core.design.lq import lq_gains
 from magtune_core.design.model import AttitudeLTP
 from magtune_core.design.params import SpacecraftParams
-from magtune_core.ros import sil
+from magtune_core.ros import scenario, sil
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(240)]
 STEPS = 300
@@ -77,7 +77,7 @@ def test_sil_live_view_epoch_time_and_bag_selection(tmp_path):
     got.pop("_thread").join(30)
     assert "error" not in got, got.get("error")
     assert run.counters["missed_steps"] == 0
-    epoch = sil.epoch_ns(SpacecraftParams().epoch)          # 2026-03-20T00:00:00Z
+    epoch = scenario.epoch_ns(SpacecraftParams().epoch)          # 2026-03-20T00:00:00Z
     assert epoch == 1_773_964_800 * 10**9
     assert got["_server"]["name"] == "magtune sil"
     tf = _decode(got, "/tf")

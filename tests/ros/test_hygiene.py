@@ -16,15 +16,17 @@ import time
 
 import pytest
 
-from magtune_core.ros import sil
+from magtune_core.base.ament import ROOT
+from magtune_core.base.errors import SilError
+from magtune_core.ros import process
 
 pytestmark = [pytest.mark.ros, pytest.mark.fault]
-GAINS = sil.ROOT / "config" / "gains" / "sigma_60.yaml"
+GAINS = ROOT / "config" / "gains" / "sigma_60.yaml"
 
 
 def _ros_available():
     try:
-        sil.resolve_executable("recorder")
+        process.resolve_executable("recorder")
         import rclpy  # noqa: F401
     except Exception:
         return False
@@ -54,20 +56,20 @@ def _node_pids(domain_id):
 
 def _domain_free(domain_id) -> bool:
     try:
-        sil.DomainLock(domain_id).release()
+        process.DomainLock(domain_id).release()
         return True
-    except sil.SilError:
+    except SilError:
         return False
 
 
 def _start(tmp_path):
-    with sil.DomainLock() as lock:
+    with process.DomainLock() as lock:
         did = lock.domain_id
     proc = subprocess.Popen([sys.executable, "-m", "magtune_core", "sil", "--gains", str(GAINS), "--orbits", "5",
                              "--rtf", "200", "--domain-id", str(did), "--log-dir", str(tmp_path / "logs"),
                              "--bag", str(tmp_path / "bag")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
-                            cwd=sil.ROOT, preexec_fn=sil.die_with_parent())
+                            cwd=ROOT, preexec_fn=process.die_with_parent())
     end = time.monotonic() + 60
     while time.monotonic() < end and len(_node_pids(did)) < 4:
         time.sleep(0.1)

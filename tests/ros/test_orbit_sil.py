@@ -10,12 +10,12 @@ import sys
 import numpy as np
 import pytest
 
-from magtune_core.base.errors import ConfigError
+from magtune_core.base.errors import ConfigError, SilError
 from magtune_core.base.paramfile import read_ros_params
 from magtune_core.design.fitfield import field_for_spacecraft
 from magtune_core.design.gains import load_gains
 from magtune_core.design.params import load_spacecraft
-from magtune_core.ros import sil
+from magtune_core.ros import process, sil
 from magtune_core.sim.fullenv import nominal_orbit_period
 from magtune_core.sim.simulate import simulate
 
@@ -26,8 +26,8 @@ EXAMPLE = "config/examples/cubesat12u"
 @pytest.fixture(scope="module", autouse=True)
 def _built():
     try:
-        sil.resolve_executable("simulator")
-    except sil.SilError:
+        process.resolve_executable("simulator")
+    except SilError:
         pytest.skip("magtune_ros not built (run scripts/bootstrap.sh)")
 
 
@@ -73,9 +73,9 @@ def test_bad_orbit_one_line_in_cli_and_node(tmp_path):
                           "--config", str(bad), "--quiet"], capture_output=True, text=True, timeout=60)
     assert cli.returncode == 2 and len(cli.stderr.strip().splitlines()) == 1
     assert "field 'altitude': expected a number in [150000, 2e+06] m, got 100000" in cli.stderr
-    with sil.DomainLock() as lock:
-        env = sil.child_env(lock.domain_id, sil.package_prefix())
-        r = subprocess.run([str(sil.resolve_executable("simulator")), "--ros-args", "--params-file", str(bad)],
+    with process.DomainLock() as lock:
+        env = process.child_env(lock.domain_id, process.package_prefix())
+        r = subprocess.run([str(process.resolve_executable("simulator")), "--ros-args", "--params-file", str(bad)],
                            env=env, capture_output=True, text=True, timeout=30)
     assert r.returncode == 2
     assert r.stderr.strip().splitlines()[-1].startswith("simulator: parameter 'altitude': expected a number in [150000, 2e+06] m")

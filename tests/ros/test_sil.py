@@ -1,7 +1,7 @@
 """ROS 2 nodes over real DDS (separate processes): lockstep SIL equivalence, controller input
 validation and diagnostics, parameter-file errors, clean shutdown.
 
-Every test isolates itself with a ROS_DOMAIN_ID reserved through magtune_core.ros.sil.DomainLock and
+Every test isolates itself with a ROS_DOMAIN_ID reserved through magtune_core.ros.process.DomainLock and
 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST, and stops every process it started in ``finally``.
 """
 import math
@@ -14,13 +14,13 @@ import time
 import numpy as np
 import pytest
 
-from magtune_core.base.errors import ConfigError
+from magtune_core.base.errors import ConfigError, SilError
 from magtune_core.design.gains import Gains, load_gains, save_gains
 from magtune_core.design.law import ProjectionController, linear_state
 from magtune_core.design.lq import lq_gains
 from magtune_core.design.model import AttitudeLTP
 from magtune_core.design.params import SpacecraftParams
-from magtune_core.ros import sil
+from magtune_core.ros import process, scenario, sil
 from magtune_core.sim.simulate import simulate
 
 pytestmark = pytest.mark.ros
@@ -28,7 +28,7 @@ pytestmark = pytest.mark.ros
 
 def _ros_available():
     try:
-        sil.resolve_executable("controller")
+        process.resolve_executable("controller")
         import rclpy  # noqa: F401
     except Exception:
         return False
@@ -78,7 +78,7 @@ def test_sil_failing_node_stops_everything(tmp_path, gains60):
     with pytest.raises(ConfigError, match="field 'sigma'"):
         sil.run_sil(bad, steps=10, log_dir=tmp_path, timeout=60)
     procs = []
-    with pytest.raises(sil.SilError, match="controller.*sigma"):
+    with pytest.raises(SilError, match="controller.*sigma"):
         sil.run_sil(gains60, steps=10, ts=1.0, log_dir=tmp_path, timeout=60, controller_params={"sigma": -60.0},
                     on_start=lambda did, ps: procs.extend(ps))
     assert procs and all(p.popen.poll() is not None for p in procs)
@@ -86,8 +86,8 @@ def test_sil_failing_node_stops_everything(tmp_path, gains60):
 
 # ------------------------------------------------------------------ parameter files
 def _run_controller(args, tmp_path, domain):
-    exe = sil.resolve_executable("controller")
-    env = sil.child_env(domain, sil.package_prefix())
+    exe = process.resolve_executable("controller")
+    env = process.child_env(domain, process.package_prefix())
     return subprocess.run([str(exe), "--ros-args", *args], env=env, capture_output=True, text=True, timeout=30)
 
 
@@ -99,7 +99,7 @@ def _run_controller(args, tmp_path, domain):
 def test_bad_gains_file_exits_with_one_line(tmp_path, gains60, edit, name):
     bad = tmp_path / "bad.yaml"
     bad.write_text(edit(gains60.read_text()))
-    with sil.DomainLock() as lock:
+    with process.DomainLock() as lock:
         r = _run_controller(["--params-file", str(bad)], tmp_path, lock.domain_id)
     assert r.returncode == 2
     lines = [ln for ln in r.stderr.strip().splitlines() if ln]
@@ -109,7 +109,7 @@ def test_bad_gains_file_exits_with_one_line(tmp_path, gains60, edit, name):
 def test_malformed_params_file(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("controller: {ros__parameters: {gain: [1.0, 2.0\n")
-    with sil.DomainLock() as lock:
+    with process.DomainLock() as lock:
         r = _run_controller(["--params-file", str(bad)], tmp_path, lock.domain_id)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "malformed YAML" in r.stderr
 
@@ -121,14 +121,14 @@ def live_controller(gains60, tmp_path):
     import rclpy
     from rclpy.node import Node
 
-    lock = sil.DomainLock()
+    lock = process.DomainLock()
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    exe = sil.resolve_executable("controller")
-    env = sil.child_env(lock.domain_id, sil.package_prefix())
+    exe = process.resolve_executable("controller")
+    env = process.child_env(lock.domain_id, process.package_prefix())
     log = open(tmp_path / "controller.log", "w")
-    proc = subprocess.Popen([str(exe), "--ros-args", "--params-file", str(sil.DEFAULT_SPACECRAFT), "--params-file",
+    proc = subprocess.Popen([str(exe), "--ros-args", "--params-file", str(scenario.DEFAULT_SPACECRAFT), "--params-file",
                              str(gains60), "-p", "use_sim_time:=true"], env=env, stdout=log,
-                            stderr=subprocess.STDOUT, start_new_session=True, preexec_fn=sil.die_with_parent())
+                            stderr=subprocess.STDOUT, start_new_session=True, preexec_fn=process.die_with_parent())
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=lock.domain_id)
     node = Node("test_probe", context=ctx)
@@ -137,7 +137,7 @@ def live_controller(gains60, tmp_path):
     finally:
         node.destroy_node()
         rclpy.shutdown(context=ctx)
-        sil.stop_nodes([sil.NodeProcess("controller", proc, tmp_path / "controller.log")])
+        process.stop_nodes([process.NodeProcess("controller", proc, tmp_path / "controller.log")])
         log.close()
         lock.release()
 
@@ -149,7 +149,7 @@ def test_controller_rejects_bad_inputs(live_controller, gains60):
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import Imu, MagneticField
 
-    sys.path.insert(0, str(sil.package_prefix() / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}"
+    sys.path.insert(0, str(process.package_prefix() / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}"
                            / "site-packages"))
     from magtune_ros import common as c
 
@@ -258,12 +258,12 @@ def _magtune_node_pids(domain_id):
 
 
 def test_ctrl_c_leaves_no_orphans(gains60, tmp_path):
-    with sil.DomainLock() as lock:
+    with process.DomainLock() as lock:
         did = lock.domain_id
     proc = subprocess.Popen([sys.executable, "-m", "magtune_core", "sil", "--gains", str(gains60), "--orbits", "5",
                              "--domain-id", str(did), "--log-dir", str(tmp_path)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
-                            preexec_fn=sil.die_with_parent())
+                            preexec_fn=process.die_with_parent())
     try:
         end = time.monotonic() + 30
         while time.monotonic() < end and len(_magtune_node_pids(did)) < 3:
@@ -283,9 +283,10 @@ def test_ctrl_c_leaves_no_orphans(gains60, tmp_path):
 def test_simulator_alone_counts_missed_steps(tmp_path):
     """No controller: every step times out, the (zero) command is held, the run still ends."""
     out = tmp_path / "alone.npz"
-    with sil.DomainLock() as lock:
-        env = sil.child_env(lock.domain_id, sil.package_prefix())
-        r = subprocess.run([str(sil.resolve_executable("simulator")), "--ros-args", "--params-file", str(sil.DEFAULT_SPACECRAFT), "-p", "steps:=5",
+    with process.DomainLock() as lock:
+        env = process.child_env(lock.domain_id, process.package_prefix())
+        r = subprocess.run([str(process.resolve_executable("simulator")), "--ros-args", "--params-file",
+                            str(scenario.DEFAULT_SPACECRAFT), "-p", "steps:=5",
                             "-p", "wait_for_peers:=false", "-p", "startup_timeout:=0.2", "-p",
                             "lockstep_timeout:=0.05", "-p", f"results_path:={out}"],
                            env=env, capture_output=True, text=True, timeout=60)
@@ -334,7 +335,7 @@ def test_ros_incompatible_provenance_is_named(tmp_path, gains60):
     """PyYAML accepts [1, 2.5] and nested lists; rcl does not: the node names the parameter."""
     bad = tmp_path / "bad.yaml"
     bad.write_text(gains60.read_text() + "    history:\n      costs: [1, 2.5]\n")
-    with sil.DomainLock() as lock:
+    with process.DomainLock() as lock:
         r = _run_controller(["--params-file", str(bad)], tmp_path, lock.domain_id)
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1 and "'history.costs'" in lines[0]
@@ -352,9 +353,9 @@ def test_simulator_disturbance_plugin(gains60, tmp_path):
     off = simulate(load_gains(gains60).K, p, steps=60, residual_dipole=None,
                    disturbances=[residual_dipole_disturbance([2.0, 2.0, 2.0])])
     assert np.array_equal(run.result.q, off.q) and np.array_equal(run.result.m, off.m)
-    with sil.DomainLock() as lock:
-        env = sil.child_env(lock.domain_id, sil.package_prefix())
-        r = subprocess.run([str(sil.resolve_executable("simulator")), "--ros-args", "--params-file", str(sil.DEFAULT_SPACECRAFT), "-p",
+    with process.DomainLock() as lock:
+        env = process.child_env(lock.domain_id, process.package_prefix())
+        r = subprocess.run([str(process.resolve_executable("simulator")), "--ros-args", "--params-file", str(scenario.DEFAULT_SPACECRAFT), "-p",
                             "field_plugin:=no_such_module:f"], env=env, capture_output=True, text=True, timeout=30)
     assert r.returncode == 2 and "parameter 'field_plugin'" in r.stderr.strip().splitlines()[-1]
 
@@ -363,11 +364,11 @@ def test_spacecraft_schema_same_error_in_cli_and_node(tmp_path, gains60):
     """One schema per parameter file: the CLI and the controller node reject the same bad
     spacecraft file with the same words (field name and what was expected), exit status 2."""
     bad = tmp_path / "spacecraft.yaml"
-    bad.write_text(sil.DEFAULT_SPACECRAFT.read_text().replace("wheel_inertia: 0.01", "wheel_inertia: -0.01"))
+    bad.write_text(scenario.DEFAULT_SPACECRAFT.read_text().replace("wheel_inertia: 0.01", "wheel_inertia: -0.01"))
     assert "wheel_inertia: -0.01" in bad.read_text()
     cli = subprocess.run([sys.executable, "-m", "magtune_core", "--config", str(bad), "analyze", str(gains60)],
                          capture_output=True, text=True, timeout=60)
-    with sil.DomainLock() as lock:
+    with process.DomainLock() as lock:
         node = _run_controller(["--params-file", str(bad), "--params-file", str(gains60)], tmp_path, lock.domain_id)
     expected = "expected a positive number, got -0.01"
     assert cli.returncode == 2 and node.returncode == 2

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from magtune_core.base.errors import SilError
 from magtune_core.base.rotations import rotation_matrix
 from magtune_core.design.gains import load_gains
 from magtune_core.design.params import SpacecraftParams
@@ -174,11 +175,11 @@ def test_sil_full_environment_matches_offline(tmp_path):
     Both build the same FullDynamics (same vectorized environment chunks, same scalar RK4) and the
     controller node receives float64 exactly, so 1e-9 is a loose bound on what is in fact 0.
     """
-    from magtune_core.ros import sil
+    from magtune_core.ros import process, scenario, sil  # noqa: F401
 
     try:
-        sil.resolve_executable("simulator")
-    except sil.SilError:
+        process.resolve_executable("simulator")
+    except SilError:
         pytest.skip("magtune_ros not built (run scripts/bootstrap.sh)")
     run = sil.run_sil(GAINS60, steps=600, ts=1.0, environment="full", log_dir=tmp_path, timeout=120)
     assert run.counters["missed_steps"] == 0
@@ -189,10 +190,10 @@ def test_sil_full_environment_matches_offline(tmp_path):
     # a bad environment name is a one-line parameter error (exit status 2)
     import subprocess
 
-    with sil.DomainLock() as lock:
-        env = sil.child_env(lock.domain_id, sil.package_prefix())
-        r = subprocess.run([str(sil.resolve_executable("simulator")), "--ros-args", "--params-file",
-                            str(sil.DEFAULT_SPACECRAFT), "-p", "environment:=orbit"],
+    with process.DomainLock() as lock:
+        env = process.child_env(lock.domain_id, process.package_prefix())
+        r = subprocess.run([str(process.resolve_executable("simulator")), "--ros-args", "--params-file",
+                            str(scenario.DEFAULT_SPACECRAFT), "-p", "environment:=orbit"],
                            env=env, capture_output=True, text=True, timeout=30)
     assert r.returncode == 2 and "parameter 'environment'" in r.stderr.strip().splitlines()[-1]
 
@@ -201,11 +202,11 @@ def test_sil_full_environment_matches_offline(tmp_path):
 def test_sampling_sil_backend_equals_offline(tmp_path):
     """`magtune sampling --backend sil` (the nodes over DDS) writes the same numbers as offline."""
     from magtune_core.cli import main as cli_main
-    from magtune_core.ros import sil
+    from magtune_core.ros import process, scenario, sil  # noqa: F401
 
     try:
-        sil.resolve_executable("simulator")
-    except sil.SilError:
+        process.resolve_executable("simulator")
+    except SilError:
         pytest.skip("magtune_ros not built (run scripts/bootstrap.sh)")
     args = ["--sigmas", "240", "--ts", "20", "--orbits", "0.2", "--workers", "1"]
     assert cli_main(["sampling", *args] + ["--backend", "sil", "--out-dir", str(tmp_path / "sil")]) == 0

@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from magtune_core.ros.sil import DomainLock, die_with_parent
+from magtune_core.ros.process import DomainLock, die_with_parent
 
 ROOT = Path(__file__).resolve().parents[2]
 SUPPORT = ROOT / "tests" / "support"
@@ -24,7 +24,7 @@ def executable(name: str) -> list[str]:
 
 
 def ros_env(lock=None) -> dict:
-    """Environment with a ROS_DOMAIN_ID reserved by ``lock`` (a ``sil.DomainLock``: a lock
+    """Environment with a ROS_DOMAIN_ID reserved by ``lock`` (a ``process.DomainLock``: a lock
     file per id, so concurrent test runs on this machine never share a domain), discovery
     limited to this host."""
     env = dict(os.environ)

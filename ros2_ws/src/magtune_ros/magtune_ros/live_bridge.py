@@ -7,7 +7,7 @@ Usage::
 Subscribes raw (CDR bytes, nothing deserialized) to the project's topics
 (:data:`magtune_core.base.topics.PROJECT_TOPICS`, or ``--topics``) with QoS compatible with
 their publishers, and logs each message to a Foxglove WebSocket server
-(:class:`magtune_core.ros.live.LiveServer`: one ``cdr`` channel with a ``ros2msg`` schema per
+(:class:`magtune_core.bags.live.LiveServer`: one ``cdr`` channel with a ``ros2msg`` schema per
 topic) at the sim time of the last ``/clock`` received. Prints ``magtune-live ws://HOST:PORT``
 once the server listens. SIGINT/SIGTERM stop it.
 
@@ -26,8 +26,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
+from magtune_core.bags.live import DEFAULT_PORT, LiveServer
 from magtune_core.base.topics import PROJECT_TOPICS
-from magtune_core.ros.live import DEFAULT_PORT, LiveServer
 
 from .bag_common import install_stop_handlers, message_class
 

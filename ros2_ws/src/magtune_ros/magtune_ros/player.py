@@ -7,7 +7,7 @@ Usage (``ros2 run magtune_ros player`` or ``install/magtune_ros/lib/magtune_ros/
                      [--no-clock] [--depth N] [--wait-subscribers S] [--progress auto|on|off]
                      [--foxglove PORT] [--ros-args -r /a:=/b ...]
 
-Options are validated against the bag first (:func:`magtune_core.ros.replay.validate`): a bad
+Options are validated against the bag first (:func:`magtune_core.bags.playback.validate`): a bad
 rate, a start past the end, an unknown topic, ... print one line and exit with status 2.
 
 * every message is published as its recorded CDR bytes (``Publisher.publish(bytes)`` ->
@@ -29,7 +29,7 @@ rate, a start past the end, an unknown topic, ... print one line and exit with s
   until every selected topic has a subscriber (0: do not wait);
 * progress on stderr (``[RUNNING] bag time ... progress ...``), by default when it is a terminal;
 * ``--foxglove PORT``: also stream every published message to a Foxglove WebSocket server
-  (:mod:`magtune_core.ros.live`) at its log time;
+  (:mod:`magtune_core.bags.live`) at its log time;
 * a truncated/corrupt bag (no summary) is scanned: what is readable is replayed and the
   final JSON line on stdout reports what was not (``unreadable``).
 """
@@ -52,8 +52,8 @@ from rclpy.utilities import remove_ros_args
 from rosbag2_interfaces import srv as bag_srv
 
 from magtune_core import bags as baglib
+from magtune_core.bags.playback import DEFAULT_WAIT_SUBSCRIBERS, SERVICES, ReplayOptions, validate
 from magtune_core.base.errors import ConfigError
-from magtune_core.ros.replay import DEFAULT_WAIT_SUBSCRIBERS, SERVICES, ReplayOptions, validate
 
 from .bag_common import install_stop_handlers, message_class, offer_from_recorded
 
@@ -136,7 +136,7 @@ class Player(Node):
                 ClockMsg, CLOCK, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
         self.live = None
         if args.foxglove is not None:
-            from magtune_core.ros.live import LiveServer
+            from magtune_core.bags.live import LiveServer
             self.live = LiveServer(args.foxglove, name="magtune replay")
             for name, info in self.topics.items():
                 self.live.add_topic(name, info.type)

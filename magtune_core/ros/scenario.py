@@ -1,0 +1,314 @@
+"""A SIL scenario: every input of a run read once, validated before any process starts.
+
+:meth:`SilScenario.build` reads the spacecraft file and each gains file once, validates them
+with their schemas (``SpacecraftParams.FIELDS``, ``Gains.FIELDS``) and the run options, and
+derives the nominal orbit period once (``period_model``, or the actual orbit's for the full
+environment, :func:`magtune_core.sim.fullenv.full_params`). :meth:`SilScenario.write_parameter_files`
+then writes one ROS 2 parameter file per node, holding everything that node takes (spacecraft
+parameters with the derived ``orbit_period``, the gains for the controller, the run's own
+settings): each node reads one file and validates it once. Any bad input raises ConfigError
+(one line, exit status 2 in the CLI).
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import os
+import re
+import tempfile
+from dataclasses import dataclass
+from dataclasses import field as _field
+from pathlib import Path
+
+import yaml
+
+from ..base.ament import ROOT
+from ..base.errors import ConfigError, SilError
+from ..base.paramfile import check_ros_params, load_ros_params, merge_ros_params
+from ..design.fitfield import field_for_spacecraft
+from ..design.gains import CONTROLLER_NODE, Gains
+from ..design.params import SpacecraftParams, check_sample_period
+from ..sim.fullenv import FullEnvironmentOptions, full_params
+
+DEFAULT_SPACECRAFT = ROOT / "config" / "spacecraft.yaml"
+#: The SIL nodes of one satellite, in start order after the recorder.
+NODES = ("controller", "attitude_sensors", "simulator")
+#: A ROS namespace as ``magtune sil --gains NS=FILE`` takes it: tokens of letters, digits, _.
+NAMESPACE = re.compile(r"^(/[A-Za-z][A-Za-z0-9_]*)+$")
+
+
+def normalize_namespace(ns: str) -> str:
+    """``sat1`` / ``/sat1/`` -> ``/sat1``; ``""`` or ``/`` -> ``""`` (root). Raises ConfigError
+    for a name ROS would reject."""
+    ns = "/" + str(ns).strip().strip("/")
+    if ns == "/":
+        return ""
+    if not NAMESPACE.match(ns):
+        raise ConfigError(ns, None, "not a valid ROS namespace (tokens of letters, digits and '_', "
+                                    "each starting with a letter, e.g. /sat1)")
+    return ns
+
+
+def tag(ns: str) -> str:
+    """File-name form of a namespace: ``/sat1/a`` -> ``sat1_a``."""
+    return ns.strip("/").replace("/", "_")
+
+
+def epoch_ns(epoch) -> int:
+    """A naive UTC ``datetime`` (the spacecraft file's ``epoch``) in integer ns since 1970."""
+    import calendar
+
+    return calendar.timegm(epoch.timetuple()) * 1_000_000_000 + epoch.microsecond * 1000
+
+
+def _positive_finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+
+
+def check_run_arguments(*, orbits=None, steps=None, substeps=2, real_time_factor=0.0, timeout=None) -> None:
+    """ConfigError for a non-physical run length or setting (before any node starts)."""
+    if steps is not None and not (isinstance(steps, int) and 0 < steps <= 10**8):
+        raise ConfigError("--steps", None, f"expected a positive number of steps (at most 1e8), got {steps!r}")
+    if steps is None and not (_positive_finite(orbits) and orbits <= 1e4):
+        raise ConfigError("--orbits", None, f"expected a positive run length in orbits (at most 1e4), got {orbits!r}")
+    if not (isinstance(substeps, int) and 1 <= substeps <= 1000):
+        raise ConfigError("--substeps", None, f"expected an integer in [1, 1000], got {substeps!r}")
+    if not (real_time_factor == 0 or _positive_finite(real_time_factor)):
+        raise ConfigError("--rtf", None, f"expected 0 (as fast as possible) or a positive factor, got {real_time_factor!r}")
+    if timeout is not None and not _positive_finite(timeout):
+        raise ConfigError("--timeout", None, f"expected a positive number of wall seconds, got {timeout!r}")
+
+
+def check_writable(path, flag: str, *, directory: bool = False, empty: bool = False) -> None:
+    """ConfigError unless ``path`` (a file, or a directory with ``directory``) can be written
+    now, so an unwritable output is reported before the run, not after it. Probed for real (a
+    temporary file created and removed in the nearest existing directory): permission bits say
+    nothing for root or a read-only file system. ``empty``: an existing directory must be empty
+    (a bag directory). Nothing is left behind."""
+    p = Path(path)
+    if directory and p.exists() and not p.is_dir():
+        raise ConfigError(flag, None, f"{p} exists and is not a directory")
+    if not directory and p.is_dir():
+        raise ConfigError(flag, None, f"{p} is a directory; give a file name")
+    if empty and p.is_dir() and any(p.iterdir()):
+        raise ConfigError(flag, None, f"{p} exists and is not empty; choose a new name")
+    probe_dir = p if directory else p.parent
+    while not probe_dir.exists() and probe_dir != probe_dir.parent:
+        probe_dir = probe_dir.parent
+    if not probe_dir.is_dir():
+        raise ConfigError(flag, None, f"cannot create {p}: {probe_dir} is not a directory")
+    try:
+        fd, name = tempfile.mkstemp(prefix=".magtune_probe_", dir=probe_dir)
+        os.close(fd)
+        os.unlink(name)
+        if not directory and p.exists():
+            with open(p, "ab"):
+                pass
+    except OSError as exc:
+        raise ConfigError(flag, None, f"cannot write {p}: {exc.strerror or exc}") from None
+
+
+def _plain(v):
+    """A parameter value as a plain YAML scalar/list rcl reads back identically."""
+    if isinstance(v, (_dt.datetime, _dt.date)):
+        return v.isoformat()
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if hasattr(v, "tolist"):
+        return v.tolist()
+    return v
+
+
+@dataclass(frozen=True)
+class Satellite:
+    """One satellite of a scenario: its namespace, gains file and the controller's parameters."""
+
+    namespace: str
+    gains_path: Path
+    gains: Gains
+    #: the gains file's parameters for the controller, as read (provenance included)
+    gains_params: dict
+    ts: float
+
+
+@dataclass(frozen=True)
+class SilScenario:
+    """Everything a SIL run needs, validated; built by :meth:`build` (see the module docstring)."""
+
+    satellites: tuple[Satellite, ...]
+    spacecraft_path: Path
+    spacecraft: SpacecraftParams   # orbit_period: the nominal period every node is given
+    spacecraft_doc: dict           # the spacecraft parameter file as read (sections per node)
+    orbits: float = 5.0
+    steps: int | None = None
+    substeps: int = 2
+    real_time_factor: float = 0.0
+    lockstep: bool = True
+    lockstep_timeout: float = 2.0
+    startup_timeout: float = 30.0
+    timeout: float | None = None
+    environment: str = "paper"
+    env_options: FullEnvironmentOptions | None = None
+    field_file: Path | None = None
+    bag: Path | None = None
+    bag_topics: tuple | None = None
+    bag_exclude: str | None = None
+    time_origin_ns: int = 0
+    foxglove: int | None = None
+    domain_id: int | None = None
+    log_dir: Path | None = None
+    results: Path | None = None
+    #: extra ROS parameters per node name (every satellite): simulator, attitude_sensors, controller
+    node_params: dict = _field(default_factory=dict)
+
+    @classmethod
+    def build(cls, satellites: dict, *, orbits: float = 5.0, steps: int | None = None, ts: float | None = None,
+              spacecraft=DEFAULT_SPACECRAFT, substeps: int = 2, bag=None, real_time_factor: float = 0.0,
+              lockstep: bool = True, lockstep_timeout: float = 2.0, startup_timeout: float = 30.0,
+              timeout: float | None = None, domain_id: int | None = None, log_dir=None, results=None,
+              simulator_params: dict | None = None, sensor_params: dict | None = None,
+              controller_params: dict | None = None, environment: str = "paper", env_options=None, field=None,
+              epoch_time: bool = False, foxglove: int | None = None, bag_topics=None,
+              bag_exclude: str | None = None) -> "SilScenario":
+        """Read and validate every input of a run (``satellites``: namespace -> gains file).
+
+        ``ts`` overrides each gains file's ``ts``; ``environment`` "paper" or "full" (with
+        ``env_options``, :class:`~magtune_core.sim.fullenv.FullEnvironmentOptions`); ``field``: a
+        field file for the paper environment; ``epoch_time``: stamps from the spacecraft epoch;
+        ``*_params``: extra ROS parameters of that node (every satellite).
+
+        Returns
+        -------
+        SilScenario
+            validated; raises ConfigError (bad input) or SilError (an unsupported combination).
+        """
+        if not satellites:
+            raise ConfigError("--gains", None, "no satellite given")
+        sats = {normalize_namespace(ns): Path(g) for ns, g in satellites.items()}
+        if len(sats) != len(satellites):
+            raise ConfigError("--gains", None, "two satellites with the same namespace")
+        # one read per file: the rcl-compatibility check returns the parameters the schema validates
+        gains_params = {ns: check_ros_params(g, CONTROLLER_NODE) for ns, g in sats.items()}
+        gains = {ns: Gains.from_mapping(gains_params[ns], g) for ns, g in sats.items()}
+        sc_doc = load_ros_params(spacecraft)
+        sc = SpacecraftParams.from_mapping(merge_ros_params(sc_doc), spacecraft, strict=True)
+        check_run_arguments(orbits=orbits, steps=steps, substeps=substeps, real_time_factor=real_time_factor,
+                            timeout=timeout)
+        sat_list = []
+        for ns, g in sats.items():
+            sat_ts = float(ts if ts is not None else gains[ns].ts)
+            check_sample_period(sat_ts, sc, "--ts" if ts is not None else f"{g}: field 'ts'")
+            sat_list.append(Satellite(ns, g, gains[ns], gains_params[ns], sat_ts))
+        for path, flag in ((log_dir, "--log-dir"), (results, "--results")):
+            if path:
+                check_writable(path, flag, directory=flag == "--log-dir")
+        if bag:
+            check_writable(bag, "--bag", directory=True, empty=True)
+        if environment not in ("paper", "full"):
+            raise SilError(f"unknown environment {environment!r} (expected 'paper' or 'full')")
+        if field is not None:
+            if environment == "full":
+                raise ConfigError("--field", None, "the full environment uses IGRF along the actual orbit; give "
+                                  "--field with --environment paper")
+            field_for_spacecraft(field, sc)  # validated here: one line before any process starts
+        if foxglove is not None and not 0 <= int(foxglove) <= 65535:
+            raise ConfigError("--foxglove", None, f"{foxglove}: expected a TCP port 0..65535 (0: any free port)")
+        if bag_exclude:
+            try:
+                re.compile(bag_exclude)
+            except re.error as exc:
+                raise ConfigError("--bag-exclude", None, f"{bag_exclude!r} is not a regular expression ({exc})") from None
+        if (bag_topics or bag_exclude) and not bag:
+            raise ConfigError("--bag-topics/--bag-exclude", None, "only with --bag")
+        multi = len(sats) > 1 or "" not in sats
+        time_origin_ns = epoch_ns(sc.epoch) if epoch_time else 0
+        if time_origin_ns and multi:
+            raise ConfigError("--epoch-time", None, "one satellite at a time (the recorder follows one clock)")
+        opts = None
+        if environment == "full":
+            opts = env_options or FullEnvironmentOptions()
+            if opts.epoch is not None or opts.raan_deg is not None or opts.arg_lat_deg is not None \
+                    or opts.zonal_degree != 2:
+                raise SilError("the simulator node flies the spacecraft file's orbit: set epoch, raan, arg_latitude "
+                               "there (zonal degree 2)")
+            sc = full_params(sc, opts)  # the nominal period of the actual orbit, derived here once
+        return cls(tuple(sat_list), Path(spacecraft), sc, sc_doc, orbits=orbits, steps=steps, substeps=substeps,
+                   real_time_factor=real_time_factor, lockstep=lockstep, lockstep_timeout=lockstep_timeout,
+                   startup_timeout=startup_timeout, timeout=timeout, environment=environment, env_options=opts,
+                   field_file=Path(field) if field is not None else None, bag=Path(bag) if bag else None,
+                   bag_topics=tuple(bag_topics) if bag_topics else None, bag_exclude=bag_exclude,
+                   time_origin_ns=int(time_origin_ns), foxglove=None if foxglove is None else int(foxglove),
+                   domain_id=domain_id, log_dir=Path(log_dir) if log_dir else None,
+                   results=Path(results) if results else None,
+                   node_params={"simulator": dict(simulator_params or {}), "attitude_sensors": dict(sensor_params or {}),
+                                "controller": dict(controller_params or {})})
+
+    # ------------------------------------------------------------------ derived
+    @property
+    def multi(self) -> bool:
+        """Several satellites, or one outside the root namespace (topics and files get a tag)."""
+        return len(self.satellites) > 1 or self.satellites[0].namespace != ""
+
+    @property
+    def n_steps(self) -> float:
+        """Controller steps of the run (the slowest satellite's count when their Ts differ)."""
+        return self.steps or self.orbits * self.spacecraft.orbit_period / min(s.ts for s in self.satellites)
+
+    def results_path(self, sat: Satellite, log_dir: Path) -> Path:
+        """Where the simulator of ``sat`` writes its trajectory (``results``, tagged per satellite)."""
+        ns = sat.namespace
+        if self.results:
+            r = self.results
+            return r.with_name(f"{r.stem}_{tag(ns)}{r.suffix}") if self.multi and ns else r
+        return log_dir / (f"results_{tag(ns)}.npz" if ns else "results.npz")
+
+    def _spacecraft_params(self, node: str) -> dict:
+        """The spacecraft file's parameters for ``node`` (fully qualified), with the derived period."""
+        params = {k: _plain(v) for k, v in merge_ros_params(self.spacecraft_doc, node).items()}
+        params["orbit_period"] = float(self.spacecraft.orbit_period)
+        return params
+
+    def node_parameters(self, sat: Satellite, results_path: Path) -> dict[str, dict]:
+        """The ROS parameters of each node of ``sat``: node name -> {name: value}."""
+        common = {"use_sim_time": True, "ts": float(sat.ts)}
+        sim = dict(common, time_origin_ns=int(self.time_origin_ns), substeps=int(self.substeps),
+                   lockstep=bool(self.lockstep), lockstep_timeout=float(self.lockstep_timeout),
+                   startup_timeout=float(self.startup_timeout), real_time_factor=float(self.real_time_factor),
+                   results_path=str(results_path.resolve()))
+        if self.bag:
+            sim["min_truth_subscribers"] = 2  # the recorder must be listening before step 0
+        if self.steps:
+            sim["steps"] = int(self.steps)
+        else:
+            sim["orbits"] = float(self.orbits)
+        if self.environment == "full":
+            o = self.env_options
+            sim.update(environment="full", env_gravity_gradient=bool(o.gravity_gradient), env_drag=bool(o.drag),
+                       env_srp=bool(o.srp), env_field=str(o.field), igrf_degree=int(o.igrf_degree))
+        elif self.field_file is not None:
+            sim["field_file"] = str(self.field_file.resolve())
+        own = {"simulator": sim, "attitude_sensors": dict(common), "controller": dict(common)}
+        out = {}
+        for node in NODES:
+            params = self._spacecraft_params(f"{sat.namespace}/{node}")
+            if node == "controller":
+                params.update({k: _plain(v) for k, v in sat.gains_params.items()})
+            out[node] = {**params, **own[node], **self.node_params.get(node, {})}
+        return out
+
+    def write_parameter_files(self, sat: Satellite, log_dir: Path, results_path: Path) -> dict[str, Path]:
+        """One parameter file per node of ``sat`` in ``log_dir``, keyed ``/**/<node>`` (applies under
+        any namespace, :func:`magtune_core.base.paramfile.node_matches`).
+
+        Returns
+        -------
+        dict
+            node name -> the file written.
+        """
+        out = {}
+        prefix = f"{tag(sat.namespace)}_" if sat.namespace else ""
+        for node, params in self.node_parameters(sat, results_path).items():
+            path = log_dir / f"{prefix}{node}.params.yaml"
+            path.write_text(yaml.safe_dump({f"/**/{node}": {"ros__parameters": params}}, sort_keys=False))
+            out[node] = path
+        return out
