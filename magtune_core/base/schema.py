@@ -20,7 +20,7 @@ from .errors import ConfigError
 #: Marks a field without default: it must be given.
 REQUIRED = object()
 #: Field kinds and the ROS 2 parameter type they map to (see magtune_ros.common.declare_schema).
-KINDS = ("float", "int", "bool", "str", "float[]")
+KINDS = ("float", "int", "bool", "str", "float[]", "str[]")
 _SEQUENCES = (list, tuple, np.ndarray, array.array)
 
 
@@ -71,6 +71,10 @@ def parse_value(f: Field, v, where):
         if f.bounds is not None and np.any((arr < f.bounds[0]) | (arr > f.bounds[1])):
             raise ConfigError(where, f.name, f"expected numbers in {_range(f)}, got {_show(v)}")
         return arr
+    if f.kind == "str[]":
+        if isinstance(v, str) or not isinstance(v, _SEQUENCES) or any(not isinstance(x, str) for x in v):
+            raise ConfigError(where, f.name, f"expected a list of strings, got {_show(v)}")
+        return tuple(v)
     if f.kind in ("float", "int"):
         if not _number(v) or (f.kind == "int" and float(v) != int(v)):
             what = "an integer" if f.kind == "int" else "a finite number"
@@ -121,7 +125,8 @@ def parse(mapping: dict, fields, where, allowed=None) -> dict:
         if f.name in mapping and mapping[f.name] is not None:
             out[f.name] = parse_value(f, mapping[f.name], where)
         elif f.required:
-            what = {"float[]": f"a list of {f.size} numbers" if f.size else "a list of numbers", "float": "a number",
+            what = {"float[]": f"a list of {f.size} numbers" if f.size else "a list of numbers",
+                    "str[]": "a list of strings", "float": "a number",
                     "int": "an integer", "bool": "true or false", "str": "a string"}[f.kind]
             raise ConfigError(where, f.name, f"missing (expected {what}{': ' + f.description if f.description else ''})")
         else:

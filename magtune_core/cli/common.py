@@ -14,6 +14,7 @@ import numpy as np
 from ..base.ament import ROOT, AmentNotFound
 from ..base.errors import ConfigError, SilError
 from ..design.field import FIELD_MODELS
+from ..design.pipeline import ANALYSIS_STEPS  # noqa: F401 (the figures' Magnus steps, re-used by the commands)
 from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions
 
 
@@ -35,8 +36,6 @@ def shown_path(path) -> str:
 
 #: The spacecraft/orbit parameter file every command reads by default.
 DEFAULT_CONFIG = repo_path("config/spacecraft.yaml")
-#: Magnus intervals per period for reported figures (~1e-5 relative, see bench/).
-ANALYSIS_STEPS = 128
 
 
 class CommandError(RuntimeError):

@@ -7,12 +7,9 @@ import signal
 import sys
 
 from ..base.errors import ConfigError
-from ..design.gains import Gains, load_gains, save_gains
-from ..design.problem import figures
-from ..design.resolution import resolved_steps, start_gain
-from ..design.sampled import feasible_start, hold_provenance
+from ..design.gains import load_gains, save_gains
+from ..design.pipeline import METHODS, CmaOptions, InfeasibleStart, PaperOptions, tune_gains, tune_robust_gains
 from .common import (
-    ANALYSIS_STEPS,
     GAIN_MARGIN_HELP,
     START_SCALE_HELP,
     START_SCALES,
@@ -24,8 +21,6 @@ from .common import (
     load_model,
     repo_path,
 )
-
-METHODS = ("cma", "paper")
 
 
 def register(sub) -> None:
@@ -94,78 +89,59 @@ def run(args) -> int:
     model = load_model(args)
     if args.robust:
         return _run_robust(args, model, out)
-    # start gain and Magnus steps resolved for this model (design/resolution.py): the paper's LQ
-    # start and 64 steps for the paper's satellite; more steps / a milder LQ start for stiff loops
-    try:
-        K0, sigma0, steps, _ = start_gain(model, args.sigma)
-    except ValueError as exc:
-        raise CommandError(f"{exc}; try a larger --sigma") from None
-    start = "LQ start" if sigma0 == args.sigma else f"LQ start of sigma {sigma0:g}"
-    if args.start:
-        K0, start = load_gains(args.start).K, f"start {args.start}"
-        steps, _ = resolved_steps(model, K0, args.sigma)
+    start_K = load_gains(args.start).K if args.start else None
     bar = tqdm(desc=f"tune sigma={args.sigma:g} ({args.method})", unit="gen" if args.method == "cma" else "it",
                disable=args.quiet, file=sys.stderr)
-    if args.method == "paper":
-        from ..design.tuner import TunerSettings, tune
+    stop = _StopRequest()
 
-        settings = TunerSettings(samples=args.samples, r_max=args.r_max, mu=args.mu, workers=args.workers,
-                                 max_iter=args.max_iter, patience=args.patience, steps=steps)
-
-        def progress(it, J, r, mu, nb):
-            bar.update(1)
+    def progress(*a):
+        bar.update(1)
+        if args.method == "paper":
+            it, J, r, mu, nb = a
             bar.set_postfix_str(f"J={J:.3f} r={r:.4f} mu={mu:.2e} better={nb}")
+            return
+        ev, J, gen, step, restart = a
+        bar.set_postfix_str(f"J={J:.4f} evals={ev} step={step:.2e} restart={restart}")
+        if stop.requested:  # raised here, between generations, never inside compiled code
+            raise KeyboardInterrupt
 
-        res = tune(model, args.sigma, seed=args.seed, settings=settings, K0=K0, progress=progress)
+    try:
+        with stop if args.method == "cma" else _NoStop():
+            res = tune_gains(model, args.sigma, method=args.method, seed=args.seed, start_K=start_K,
+                             start_name=args.start, workers=args.workers, ts=args.ts, gain_margin=args.gain_margin,
+                             cma=CmaOptions(args.popsize, args.max_evals, args.restarts, args.start_scale),
+                             paper=PaperOptions(args.samples, args.r_max, args.mu, args.max_iter, args.patience),
+                             progress=progress)
+    except InfeasibleStart as exc:  # one line, exit 2, before the search
+        raise ConfigError("--start" if args.start else "--gain-margin", None,
+                          f"{exc}; try a smaller --gain-margin or a longer --ts") from None
+    except ValueError as exc:
+        raise CommandError(f"{exc}") from None
+    finally:
+        bar.close()
+    for note in res.notes:
+        print(f"tune: {note}")
+    if args.method == "paper":
         header = f"magtune tune --method paper --sigma {args.sigma:g} --seed {args.seed} --samples {args.samples}"
     else:
-        from ..design.cmaes import CmaSettings, tune_cma
-        from ..design.objective import HinfObjective
-
-        settings = CmaSettings(popsize=args.popsize, max_evals=args.max_evals, certify=args.restarts,
-                               workers=args.workers, steps=steps, start_scale=args.start_scale)
-        hold = hold_constraint(args)
-        if hold is not None:
-            try:
-                K0, note = feasible_start(model, K0, hold)
-            except ValueError as exc:  # a start far beyond the margin: one line, exit 2, before the search
-                raise ConfigError("--start" if args.start else "--gain-margin", None,
-                                  f"{exc}; try a smaller --gain-margin or a longer --ts") from None
-            if note:
-                start += f", {note}"
-                print(f"tune: start gain {note} to meet --gain-margin {hold.gain_margin:g} at --ts {hold.ts:g}")
-
-        stop = _StopRequest()
-
-        def progress(ev, J, gen, step, restart):
-            bar.update(1)
-            bar.set_postfix_str(f"J={J:.4f} evals={ev} step={step:.2e} restart={restart}")
-            if stop.requested:  # raised here, between generations, never inside compiled code
-                raise KeyboardInterrupt
-
-        with HinfObjective(model, args.sigma, steps=settings.steps, rtol=settings.rtol, workers=args.workers,
-                           hold=hold) as obj, stop:
-            res = tune_cma(obj, K0, args.sigma, seed=args.seed, settings=settings, progress=progress)
-        if obj.steps != steps:
-            print(f"tune: the gains stiffened beyond {steps} Magnus steps; tuned on {obj.steps} (resolution watch)")
         header = (f"magtune tune --sigma {args.sigma:g} --seed {args.seed} --ts {args.ts:g} --gain-margin {args.gain_margin:g}"
                   + (f" --start {args.start}" if args.start else ""))
-    bar.close()
-    analysis_steps, _ = resolved_steps(model, res.K, args.sigma, ANALYSIS_STEPS)
-    fig = figures(model, res.K, args.sigma, steps=analysis_steps)
-    prov = {**fig.as_dict(), **res.provenance(), "start": start, "design_field": model.field.name,
-            "analysis_steps": analysis_steps, "tune_seconds": round(res.seconds, 1)}
-    prov.pop("stable", None)
-    prov.update(hold_provenance(model, res.K, args.ts, args.gain_margin if args.method == "cma" else 0.0))
-    save_gains(out, Gains(res.K, args.sigma, args.ts, prov), header=header)
-    state = {"certified": "converged", "interrupted": "NOT certified (interrupted: the best gain so far)",
-             "unresolved": "NOT certified (no improvement found, but max_steps Magnus steps do not resolve J to "
-                           "the certificate's tolerance)"}.get(
-        getattr(res, "stop", None), "NOT certified (budget reached)")
-    print(f"sigma={args.sigma:g} [{res.method}]  J: {res.J0:.3f} ({start}, {steps} Magnus steps) -> {fig.J:.3f} in "
-          f"{res.evaluations} evaluations, {res.seconds:.1f} s, {state}; c1={fig.c1:.3f} c2={fig.c2:.2f} "
-          f"rho={fig.rho:.5f} ({analysis_steps} steps); wrote {out}")
-    return 130 if getattr(res, "stop", None) == "interrupted" else 0
+    save_gains(out, res.gains, header=header)
+    g, r = res.gains.provenance, res.result
+    print(f"sigma={args.sigma:g} [{r.method}]  J: {r.J0:.3f} ({res.start}, {res.steps} Magnus steps) -> {g['J']:.3f} in "
+          f"{r.evaluations} evaluations, {r.seconds:.1f} s, {res.state}; c1={g['c1']:.3f} c2={g['c2']:.2f} "
+          f"rho={g['rho']:.5f} ({res.analysis_steps} steps); wrote {out}")
+    return 130 if res.interrupted else 0
+
+
+class _NoStop:
+    """The paper method has no stop request: Ctrl-C interrupts at once."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
 
 
 class _StopRequest:
@@ -197,40 +173,25 @@ class _StopRequest:
 
 
 def _run_robust(args, model, out) -> int:
-    """``tune --robust SPEC``: worst-case J over the spec's model set (design.robust.tune_robust)."""
-    from ..design.robust import load_robust_spec, model_set, robust_figures, tune_robust
+    """``tune --robust SPEC``: worst-case J over the spec's model set (design.pipeline.tune_robust_gains)."""
+    from ..design.robust import load_robust_spec, model_set
 
     skipped: list = []
     models = model_set(model, load_robust_spec(args.robust), args.robust, skipped=skipped)
+    hold_constraint(args)
     try:
-        from ..design.cmaes import CmaSettings
-
-        settings = CmaSettings(**{k: getattr(args, a) for k, a in (("popsize", "popsize"), ("max_evals", "max_evals"),
-                                                                   ("certify", "restarts"), ("workers", "workers"),
-                                                                   ("start_scale", "start_scale"))
-                                  if hasattr(args, a)})
-        K0 = load_gains(args.start).K if getattr(args, "start", None) else None
-        hold = hold_constraint(args)
-        res, sigma0, steps = tune_robust(models, args.sigma, seed=args.seed, settings=settings, K0=K0, hold=hold)
+        res = tune_robust_gains(model, models, args.sigma, seed=args.seed,
+                                start_K=load_gains(args.start).K if args.start else None, start_name=args.start,
+                                workers=args.workers, ts=args.ts, gain_margin=args.gain_margin,
+                                cma=CmaOptions(args.popsize, args.max_evals, args.restarts, args.start_scale),
+                                spec_name=args.robust)
     except ImportError:
         raise CommandError("--robust needs the CMA-ES tuner (magtune_core.design.cmaes), not installed here") from None
     except ValueError as exc:
         raise CommandError(f"{exc}; try a larger --sigma") from None
-    analysis_steps, _ = resolved_steps([m.model for m in models], res.K, args.sigma, ANALYSIS_STEPS)
-    rf = robust_figures(models, res.K, args.sigma, steps=analysis_steps)
-    nom, worst = rf.nominal(), rf.worst()
-    prov = {**(nom.as_dict() if nom else {}), **res.provenance(), "design_field": model.field.name,
-            "analysis_steps": analysis_steps, "tune_seconds": round(res.seconds, 1),
-            "robust_spec": str(args.robust), "robust_models": len(models), "robust_worst_model": rf.worst_name,
-            **{f"worst_{k}": v for k, v in worst.items()}}
-    prov.pop("stable", None)
-    prov.update(hold_provenance(model, res.K, args.ts, args.gain_margin))
-    if getattr(args, "start", None):
-        prov["start"] = str(args.start)
-    elif sigma0 != args.sigma:
-        prov["start"] = f"LQ of sigma {sigma0:g} (the LQ gain of sigma {args.sigma:g} does not stabilize every model)"
-    save_gains(out, Gains(res.K, args.sigma, args.ts, prov),
-               header=f"magtune tune --sigma {args.sigma:g} --seed {args.seed} --robust {args.robust}")
-    print(f"sigma={args.sigma:g} robust over {len(models)} models: worst J {res.J0:.3f} (start) -> {worst['J']:.3f} "
-          f"({rf.worst_name}); nominal J {nom.J if nom else float('nan'):.3f}; {res.seconds:.1f} s; wrote {out}")
+    save_gains(out, res.gains, header=f"magtune tune --sigma {args.sigma:g} --seed {args.seed} --robust {args.robust}")
+    g, rf = res.gains.provenance, res.robust
+    print(f"sigma={args.sigma:g} robust over {len(models)} models: worst J {res.result.J0:.3f} (start) -> "
+          f"{g['worst_J']:.3f} ({rf.worst_name}); nominal J {g.get('J', float('nan')):.3f}; {res.result.seconds:.1f} s; "
+          f"wrote {out}")
     return 0

@@ -140,8 +140,11 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
              progress=None, on_best=None) -> TuneResult:
     """Minimize ``objective`` (batched J, e.g. :class:`~magtune_core.design.objective.HinfObjective`) from K0.
 
-    ``progress(evaluations, J_best, generation, step, restart)`` is called after each generation and
-    ``on_best(K, J)`` whenever the best gain improves (e.g. to checkpoint a long run).
+    CMA-ES runs with local restarts around the incumbent; consecutive non-improving restarts,
+    then a coordinate poll of every entry, certify the optimum (``settings.certify``) on a
+    Magnus grid that resolves J to the certificate's tolerance. ``progress(evaluations, J_best,
+    generation, step, restart)`` is called after each generation and ``on_best(K, J)`` whenever
+    the best gain improves (e.g. to checkpoint a long run).
 
     Returns
     -------
@@ -152,143 +155,178 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
         "cma", ``evaluations``, ``tuned_steps`` and ``stop`` ("certified", "budget", "unresolved" or
         "interrupted": KeyboardInterrupt raised by ``progress`` ends the search with the best gain).
     """
-    import cma
-
-    s = settings
     t0 = time.perf_counter()
-    rng = np.random.default_rng(seed)
-    K0 = Kstart = np.asarray(K0, dtype=float).reshape(3, 6)
-    ev0 = objective.evaluations
-    J0 = float(objective(K0[None])[0])
-    if not np.isfinite(J0):
-        raise ValueError("tune_cma: the initial gain is not stabilizing (infinite H-inf norm)")
-    feasible = getattr(objective, "feasible", None)
-    if s.start_scale == "feasible" and feasible is not None and getattr(objective, "hold", None) is not None:
-        S, step0 = feasible_scale(feasible, K0), s.feasible_sigma0
-    else:
-        S, step0 = gain_scale(K0), s.sigma0
-    best_x, best_J, best_K = np.zeros(18), J0, K0  # best_K = K0 + S * best_x, kept whole for an interrupt
-    history, gen_total, restart, fails = [], 0, 0, 0
-    run_best_start_J = J0  # best J when the current restart began
-    converged = unresolved = False
+    search = _Search(objective, K0, settings, np.random.default_rng(seed), progress, on_best)
     interrupted = False
+    try:  # Ctrl-C / SIGTERM (the CLI maps it) ends the search and keeps the best gain so far
+        while not search.step():
+            pass
+    except KeyboardInterrupt:
+        interrupted = True
+    K, best_J = search.best_K, search.best_J
+    # re-evaluated at the objective's accuracy; after an interrupt the ranking value is kept (the
+    # worker pool may be gone; the caller recomputes the figures anyway)
+    J = best_J if interrupted else float(objective(K[None], guess=best_J, spread=1.01)[0])
+    stop = ("certified" if search.converged else "interrupted" if interrupted else "unresolved" if search.unresolved
+            else "budget")
+    return TuneResult(K, J, search.Kstart, search.J0, sigma, seed, search.gen_total, settings, search.history,
+                      time.perf_counter() - t0, search.converged, method="cma", evaluations=search.evals,
+                      tuned_steps=getattr(objective, "steps", None), stop=stop)
 
-    def poll():
+
+class _Search:
+    """The state of one :func:`tune_cma` search: incumbent, search coordinates (K = K0 + S x),
+    restart and certificate counters, history."""
+
+    def __init__(self, objective, K0, s: CmaSettings, rng, progress, on_best):
+        self.obj, self.s, self.rng, self.progress, self.on_best = objective, s, rng, progress, on_best
+        self.K0 = self.Kstart = np.asarray(K0, dtype=float).reshape(3, 6)
+        self.ev0 = objective.evaluations
+        self.J0 = float(objective(self.K0[None])[0])
+        if not np.isfinite(self.J0):
+            raise ValueError("tune_cma: the initial gain is not stabilizing (infinite H-inf norm)")
+        feasible = getattr(objective, "feasible", None)
+        if s.start_scale == "feasible" and feasible is not None and getattr(objective, "hold", None) is not None:
+            self.S, self.step0 = feasible_scale(feasible, self.K0), s.feasible_sigma0
+        else:
+            self.S, self.step0 = gain_scale(self.K0), s.sigma0
+        # best_K = K0 + S * best_x, kept whole for an interrupt
+        self.best_x, self.best_J, self.best_K = np.zeros(18), self.J0, self.K0
+        self.history, self.gen_total, self.restart, self.fails = [], 0, 0, 0
+        self.run_best_start_J = self.J0  # best J when the current restart began
+        self.converged = self.unresolved = False
+
+    @property
+    def evals(self) -> int:
+        """Evaluations of this search so far."""
+        return self.obj.evaluations - self.ev0
+
+    def _record(self, step: float) -> None:
+        self.history.append((self.evals, self.best_J, self.gen_total, step, self.restart))
+        if self.progress is not None:
+            self.progress(self.evals, self.best_J, self.gen_total, step, self.restart)
+
+    def _improve(self, K, J: float) -> None:
+        self.best_K, self.best_J = K, float(J)
+        if self.on_best is not None:
+            self.on_best(self.best_K, self.best_J)
+
+    def poll(self) -> None:
         """Coordinate poll (compass search): each of the 18 entries +- d of its scale, as one batch of
         36; move to the best point while it improves J, else halve d, from ``poll_step`` down to
         ``poll_min``. Isotropic CMA-ES restarts miss such single-entry moves in a narrow valley
         (measured at sigma = 120: two certified restarts found nothing, a poll then found -0.1 %)."""
-        nonlocal best_K, best_J, best_x, gen_total
+        s = self.s
         E = np.concatenate([np.eye(18), -np.eye(18)]).reshape(36, 3, 6)
         d = s.poll_step
-        while d >= s.poll_min and objective.evaluations - ev0 < s.max_evals:
-            Ks = best_K + d * gain_scale(best_K) * E
-            J = objective(Ks, guess=best_J, spread=1.05, rtol=s.rtol)
+        while d >= s.poll_min and self.evals < s.max_evals:
+            Ks = self.best_K + d * gain_scale(self.best_K) * E
+            J = self.obj(Ks, guess=self.best_J, spread=1.05, rtol=s.rtol)
             i = int(np.argmin(J))
-            if J[i] < best_J * (1 - s.rtol_stall):
-                best_K, best_J = Ks[i], float(J[i])
-                best_x = ((best_K - K0) / S).ravel()  # the CMA coordinates of the new incumbent
-                if on_best is not None:
-                    on_best(best_K, best_J)
+            if J[i] < self.best_J * (1 - s.rtol_stall):
+                self.best_K, self.best_J = Ks[i], float(J[i])
+                self.best_x = ((self.best_K - self.K0) / self.S).ravel()  # the CMA coordinates of the new incumbent
+                if self.on_best is not None:
+                    self.on_best(self.best_K, self.best_J)
             else:
                 d /= 2
-            gen_total += 1
-            evals = objective.evaluations - ev0
-            history.append((evals, best_J, gen_total, d, restart))
-            if progress is not None:
-                progress(evals, best_J, gen_total, d, restart)
+            self.gen_total += 1
+            self._record(d)
 
-    try:  # Ctrl-C / SIGTERM (the CLI maps it) ends the search and keeps the best gain so far
-        while True:
-            run_best = best_J
-            opts = {"popsize": s.popsize, "seed": np.nan, "verbose": -9, "randn": lambda lam, n: rng.standard_normal((lam, n)),
-                    "tolfun": 0.0, "tolfunhist": 0.0, "tolflatfitness": 10 ** 9, "tolx": 1e-9, "maxiter": 10 ** 9,
-                    "CMA_diagonal": False}
-            es = cma.CMAEvolutionStrategy(best_x.copy(), step0, opts)
-            guess, spread = best_J, 1.5 if restart == 0 else 1.1
-            rtol = s.rtol_max if restart == 0 else s.rtol
-            last_gain = 0  # generation of the last improvement > rtol_stall in this run
-            gen = 0
-            while not es.stop():
-                X = np.asarray(es.ask())
-                Ks = K0 + S * X.reshape(-1, 3, 6)
-                J = objective(Ks, guess=guess, spread=spread, rtol=rtol)
-                fin = np.isfinite(J)
-                worst = J[fin].max() if fin.any() else 10 * best_J
-                f = np.where(fin, J, 10 * worst * (1 + np.linalg.norm(X - best_x, axis=1)))  # ranked below every stable gain
-                es.tell(list(X), list(f))
-                gen += 1
-                gen_total += 1
-                i = int(np.argmin(J))
-                if J[i] < best_J:
-                    if J[i] < run_best * (1 - s.rtol_stall):
-                        last_gain = gen
-                        run_best = J[i]
-                    best_K = K0 + S * X[i].reshape(3, 6)
-                    best_x, best_J = X[i].copy(), float(J[i])
-                    if on_best is not None:
-                        on_best(best_K, best_J)
-                if fin.any():
-                    guess = float(np.median(J[fin]))
-                    spread = float(np.clip(J[fin].max() / J[fin].min(), 1.02, 1.5))
-                    # ranking resolution: a small fraction of the spread of the better half (CMA-ES
-                    # uses only ranks, and ranks closer than that are noise-level to it anyway)
-                    rel = (np.median(J[fin]) - J[fin].min()) / J[fin].min()
-                    rtol = float(np.clip(s.rtol_spread * rel, s.rtol, s.rtol_max))
-                J2 = _refine_steps(objective, best_K, best_J, s) if gen % s.resolution_every == 0 else None
-                if J2 is not None:  # the grid was refined: the incumbent's J on the finer grid
-                    best_J = J2
-                    run_best, last_gain, guess, spread = best_J, gen, best_J, 1.1
-                evals = objective.evaluations - ev0
-                history.append((evals, best_J, gen_total, float(es.sigma), restart))
-                if progress is not None:
-                    progress(evals, best_J, gen_total, float(es.sigma), restart)
-                if gen - last_gain >= s.stall or evals >= s.max_evals:
-                    break
-            J2 = _refine_steps(objective, best_K, best_J, s)
-            if J2 is not None:
-                best_J = J2
-                fails = -1  # the grid changed: the restarts so far certify nothing
-            evals = objective.evaluations - ev0
-            if restart > 0:
-                fails = fails + 1 if run_best_start_J - best_J <= s.rtol_certify * run_best_start_J else 0
-            if fails >= s.certify:
-                # the restarts found nothing: poll every entry on its own before certifying
-                start_J = best_J
-                poll()
-                # the certificate's tolerance holds only on a grid resolved to it: at the 1e-3 level
-                # the search otherwise exploits the discretization error (sigma = 240: -0.07 % at
-                # 256 steps was +0.04 % at 512)
-                J2 = _refine_steps(objective, best_K, best_J, s, rtol=min(s.resolution_rtol, s.rtol_certify))
-                if J2 is not None:
-                    best_J, fails = J2, 0
-                elif start_J - best_J <= s.rtol_certify * start_J:
-                    # at max_steps the grid cannot be refined: certify only if it resolves J anyway
-                    unresolved = not _resolved_at_max(objective, best_K, best_J, s)
-                    converged = not unresolved
-                    break
-                else:
-                    fails = 0  # the poll moved the incumbent by more than rtol_certify: search on
-                if objective.evaluations - ev0 >= s.max_evals:
-                    break
-            if evals >= s.max_evals:
+    def cma_run(self) -> None:
+        """One CMA-ES run from the incumbent, until it stalls (``stall`` generations without an
+        improvement > ``rtol_stall``) or the budget is spent; every ``resolution_every``
+        generations the Magnus grid is checked against the incumbent."""
+        import cma
+
+        s = self.s
+        run_best = self.best_J
+        opts = {"popsize": s.popsize, "seed": np.nan, "verbose": -9, "randn": lambda lam, n: self.rng.standard_normal((lam, n)),
+                "tolfun": 0.0, "tolfunhist": 0.0, "tolflatfitness": 10 ** 9, "tolx": 1e-9, "maxiter": 10 ** 9,
+                "CMA_diagonal": False}
+        es = cma.CMAEvolutionStrategy(self.best_x.copy(), self.step0, opts)
+        guess, spread = self.best_J, 1.5 if self.restart == 0 else 1.1
+        rtol = s.rtol_max if self.restart == 0 else s.rtol
+        last_gain = 0  # generation of the last improvement > rtol_stall in this run
+        gen = 0
+        while not es.stop():
+            X = np.asarray(es.ask())
+            Ks = self.K0 + self.S * X.reshape(-1, 3, 6)
+            J = self.obj(Ks, guess=guess, spread=spread, rtol=rtol)
+            fin = np.isfinite(J)
+            worst = J[fin].max() if fin.any() else 10 * self.best_J
+            f = np.where(fin, J, 10 * worst * (1 + np.linalg.norm(X - self.best_x, axis=1)))  # ranked below every stable gain
+            es.tell(list(X), list(f))
+            gen += 1
+            self.gen_total += 1
+            i = int(np.argmin(J))
+            if J[i] < self.best_J:
+                if J[i] < run_best * (1 - s.rtol_stall):
+                    last_gain = gen
+                    run_best = J[i]
+                self.best_x = X[i].copy()
+                self._improve(self.K0 + self.S * X[i].reshape(3, 6), J[i])
+            if fin.any():
+                guess = float(np.median(J[fin]))
+                spread = float(np.clip(J[fin].max() / J[fin].min(), 1.02, 1.5))
+                # ranking resolution: a small fraction of the spread of the better half (CMA-ES
+                # uses only ranks, and ranks closer than that are noise-level to it anyway)
+                rel = (np.median(J[fin]) - J[fin].min()) / J[fin].min()
+                rtol = float(np.clip(s.rtol_spread * rel, s.rtol, s.rtol_max))
+            J2 = _refine_steps(self.obj, self.best_K, self.best_J, s) if gen % s.resolution_every == 0 else None
+            if J2 is not None:  # the grid was refined: the incumbent's J on the finer grid
+                self.best_J = J2
+                run_best, last_gain, guess, spread = self.best_J, gen, self.best_J, 1.1
+            self._record(float(es.sigma))
+            if gen - last_gain >= s.stall or self.evals >= s.max_evals:
                 break
-            restart += 1
-            step0 = s.sigma0 if run_best_start_J - best_J > s.travel_rtol * run_best_start_J else s.restart_sigma
-            run_best_start_J = best_J
-            if s.rescale:  # coordinates relative to the incumbent's entries
-                K0 = best_K
-                S, best_x = gain_scale(K0), np.zeros(18)
-    except KeyboardInterrupt:
-        interrupted = True
-    K = best_K
-    # re-evaluated at the objective's accuracy; after an interrupt the ranking value is kept (the
-    # worker pool may be gone; the caller recomputes the figures anyway)
-    J = best_J if interrupted else float(objective(K[None], guess=best_J, spread=1.01)[0])
-    return TuneResult(K, J, Kstart, J0, sigma, seed, gen_total, s, history, time.perf_counter() - t0, converged,
-                      method="cma", evaluations=objective.evaluations - ev0, tuned_steps=getattr(objective, "steps", None),
-                      stop="certified" if converged else "interrupted" if interrupted else "unresolved" if unresolved
-                      else "budget")
+
+    def certify(self) -> bool | None:
+        """After ``certify`` non-improving restarts: poll every entry, refine the grid to the
+        certificate's tolerance; True: certified (or unresolved at max_steps), stop; False: the
+        budget is spent; None: search on."""
+        s = self.s
+        start_J = self.best_J
+        self.poll()
+        # the certificate's tolerance holds only on a grid resolved to it: at the 1e-3 level
+        # the search otherwise exploits the discretization error (sigma = 240: -0.07 % at
+        # 256 steps was +0.04 % at 512)
+        J2 = _refine_steps(self.obj, self.best_K, self.best_J, s, rtol=min(s.resolution_rtol, s.rtol_certify))
+        if J2 is not None:
+            self.best_J, self.fails = J2, 0
+        elif start_J - self.best_J <= s.rtol_certify * start_J:
+            # at max_steps the grid cannot be refined: certify only if it resolves J anyway
+            self.unresolved = not _resolved_at_max(self.obj, self.best_K, self.best_J, s)
+            self.converged = not self.unresolved
+            return True
+        else:
+            self.fails = 0  # the poll moved the incumbent by more than rtol_certify: search on
+        return False if self.evals >= s.max_evals else None
+
+    def step(self) -> bool:
+        """One CMA-ES run and its bookkeeping (grid check, certificate, next restart); True: stop."""
+        s = self.s
+        self.cma_run()
+        J2 = _refine_steps(self.obj, self.best_K, self.best_J, s)
+        if J2 is not None:
+            self.best_J = J2
+            self.fails = -1  # the grid changed: the restarts so far certify nothing
+        evals = self.evals
+        if self.restart > 0:
+            improved = self.run_best_start_J - self.best_J > s.rtol_certify * self.run_best_start_J
+            self.fails = 0 if improved else self.fails + 1
+        if self.fails >= s.certify and self.certify() is not None:
+            return True
+        if evals >= s.max_evals:
+            return True
+        self.restart += 1
+        travelled = self.run_best_start_J - self.best_J > s.travel_rtol * self.run_best_start_J
+        self.step0 = s.sigma0 if travelled else s.restart_sigma
+        self.run_best_start_J = self.best_J
+        if s.rescale:  # coordinates relative to the incumbent's entries
+            self.K0 = self.best_K
+            self.S, self.best_x = gain_scale(self.K0), np.zeros(18)
+        return False
 
 
 def _refine_steps(objective, K: np.ndarray, J: float, s: CmaSettings, rtol: float | None = None) -> float | None:

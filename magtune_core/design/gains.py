@@ -18,7 +18,7 @@ import yaml
 
 from ..base.paramfile import read_ros_params
 from ..base.schema import Field, parse
-from .law import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD
+from .node_params import CONTROLLER_FIELDS, NODE_COMMON, NODE_PARAMETERS, SAMPLE_PERIOD
 
 #: The controller's default node name: what a gains file is read for (``load_gains``).
 CONTROLLER_NODE = "controller"
@@ -45,8 +45,7 @@ class Gains:
         Field("gain", "float[]", "the 3x6 gain K, row-major (rows: torque axes; columns: [dq; dw])", size=18,
               bounds=(-1e3, 1e3)),
         Field("sigma", "float", "control-effort weight sigma of the design", positive=True, bounds=(1e-6, 1e9)),
-        Field("ts", "float", "controller sample period Ts [s] (sim time)", 1.0, positive=True, bounds=(1e-3, 3600.0),
-              unit="s"),
+        SAMPLE_PERIOD,
     )
     #: Read-only provenance a gains file may carry (``magtune tune`` writes these); any other
     #: key is rejected with a "did you mean" (a misspelled parameter is never silently kept).
@@ -71,22 +70,9 @@ class Gains:
         return cls(v["gain"].reshape(3, 6), v["sigma"], v["ts"], prov)
 
 
-#: Options of the controller node a gains file (section ``controller``) may set, with their
-#: physical bounds: dipole limits of real magnetorquers (1e-6 to 1e4 A m^2), the projection's
-#: weak-field threshold below the geomagnetic field (at most 1e-3 T).
-CONTROLLER_FIELDS = (
-    Field("dipole_limit", "float[]", "per-axis dipole saturation [A m^2]", (DEFAULT_DIPOLE_LIMIT,) * 3, size=3,
-          positive=True, bounds=(1e-6, 1e4), unit="A m^2"),
-    Field("min_field", "float", "below this |b| [T] the dipole is zero (projection ill-conditioned)",
-          DEFAULT_MIN_FIELD, positive=True, bounds=(1e-12, 1e-3), unit="T"),
-)
-#: Parameters every node has.
-NODE_COMMON = ("use_sim_time",)
-
-
 def _spacecraft_names() -> tuple:
     """A gains file's ``/**`` section may carry the spacecraft parameters and the node parameters."""
-    from .params import NODE_PARAMETERS, SpacecraftParams
+    from .params import SpacecraftParams
 
     return tuple(f.name for f in SpacecraftParams.FIELDS) + NODE_PARAMETERS
 

@@ -70,20 +70,6 @@ def check_orbit(altitude: float, inclination_deg: float, where="command line") -
     parse_value(fields["inclination"], float(inclination_deg), where)
 
 
-#: Parameters the SIL nodes (simulator, attitude_sensors, controller) declare besides the schema
-#: fields: a parameter file handed to every node (``config/spacecraft.yaml``, ``/**``) may set
-#: them; any other name is a typo and rejected with a suggestion. Kept equal to what the nodes
-#: declare by ``tests/base/test_bad_input.py::test_node_parameter_list_matches_the_nodes``.
-NODE_PARAMETERS = (
-    "attitude_noise_std", "dipole_limit", "disturbance_plugins", "env_drag", "env_field", "env_gravity_gradient",
-    "env_srp", "environment", "field_file", "field_plugin", "gyro_bias", "gyro_noise_std", "igrf_degree",
-    "initial_quaternion", "initial_rate_error", "lockstep", "lockstep_timeout", "mag_bias", "mag_noise_std",
-    "mag_quantum", "min_field", "min_truth_subscribers", "orbits", "publish_markers", "publish_tf",
-    "publish_torques", "real_time_factor", "residual_dipole", "results_path", "seed", "startup_timeout", "steps",
-    "substeps", "time_origin_ns", "ts", "wait_for_peers", "use_sim_time",
-)
-
-
 @dataclass(frozen=True)
 class SpacecraftParams:
     """Inertia, wheel and circular-orbit data of paper section 5 (SI units)."""
@@ -141,10 +127,13 @@ class SpacecraftParams:
     def from_mapping(cls, params: dict, where="spacecraft parameters", strict: bool = False) -> "SpacecraftParams":
         """Validate a parameter mapping (file or declared node parameters) against :attr:`FIELDS`.
 
-        ``strict``: a key that is neither a field nor a node parameter (:data:`NODE_PARAMETERS`)
+        ``strict``: a key that is neither a field nor a node parameter
+        (:data:`magtune_core.design.node_params.NODE_PARAMETERS`, derived from the nodes' schemas)
         is an error with a "did you mean" (the CLI reading ``config/spacecraft.yaml``).
         Raises ConfigError naming ``where``, the field and what was expected.
         """
+        from .node_params import NODE_PARAMETERS  # below law/model, which import this module
+
         v = parse(params, cls.FIELDS, where, allowed=NODE_PARAMETERS if strict else None)
         epoch = parse_epoch(v["epoch"], where)
         p = cls(inertia=v["inertia"], wheel_inertia=v["wheel_inertia"], wheel_speed=v["wheel_speed"],

@@ -29,6 +29,7 @@ from rclpy.task import Future
 from sensor_msgs.msg import Imu, MagneticField
 
 from magtune_core.base.rotations import quat_mul
+from magtune_core.design.node_params import SENSOR_FIELDS
 
 from . import common as c
 
@@ -39,16 +40,10 @@ class AttitudeSensors(Node):
     def __init__(self):
         super().__init__(self.NODE_NAME)
         self.done = Future()
-        ts = c.declare(self, "ts", 1.0, "sample period [s]; inputs older than 2 ts are stale", positive=True)
-        self.mag_std = c.declare(self, "mag_noise_std", 0.0, "magnetometer white noise std [T]", nonnegative=True)
-        self.mag_bias = c.declare(self, "mag_bias", [0.0, 0.0, 0.0], "magnetometer bias [T]", "float[]", size=3)
-        self.mag_q = c.declare(self, "mag_quantum", 0.0, "magnetometer quantization step [T] (0 = none)",
-                               nonnegative=True)
-        self.att_std = c.declare(self, "attitude_noise_std", 0.0, "attitude error std per axis [rad]",
-                                 nonnegative=True)
-        self.gyro_std = c.declare(self, "gyro_noise_std", 0.0, "rate noise std [rad/s]", nonnegative=True)
-        self.gyro_bias = c.declare(self, "gyro_bias", [0.0, 0.0, 0.0], "rate bias [rad/s]", "float[]", size=3)
-        seed = c.declare(self, "seed", 0, "random seed of the noise generators", nonnegative=True)
+        v = c.parse_fields(self, SENSOR_FIELDS)
+        ts, seed = v["ts"], v["seed"]
+        self.mag_std, self.mag_bias, self.mag_q = v["mag_noise_std"], v["mag_bias"], v["mag_quantum"]
+        self.att_std, self.gyro_std, self.gyro_bias = v["attitude_noise_std"], v["gyro_noise_std"], v["gyro_bias"]
         self.rng = np.random.default_rng(seed)
         self.diag = c.Diagnostics(self, ["samples", "rejected_nonfinite", "rejected_quaternion", "rejected_stamp",
                                          "stale_inputs"])
@@ -139,8 +134,8 @@ class AttitudeSensors(Node):
 
 
 def main(args=None):
-    raise SystemExit(c.run(AttitudeSensors, args))
+    return c.run(AttitudeSensors, args)
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

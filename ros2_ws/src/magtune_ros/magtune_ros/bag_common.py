@@ -1,9 +1,7 @@
-"""Helpers shared by the recorder and the player: message classes, QoS conversion, signals."""
+"""Helpers shared by the recorder and the player: message classes, QoS conversion."""
 from __future__ import annotations
 
 import importlib
-import signal
-import threading
 
 from rclpy.duration import Duration
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -63,15 +61,3 @@ def offer_from_recorded(profiles: list[dict], depth: int) -> QoSProfile:
         if all(str(p.get("durability")) == "transient_local" for p in profiles):
             dur = DurabilityPolicy.TRANSIENT_LOCAL
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=rel, durability=dur)
-
-
-def install_stop_handlers() -> threading.Event:
-    """SIGINT/SIGTERM set the returned event (the node then finishes its file cleanly)."""
-    stop = threading.Event()
-
-    def handler(signum, frame):  # noqa: ARG001
-        stop.set()
-
-    signal.signal(signal.SIGINT, handler)
-    signal.signal(signal.SIGTERM, handler)
-    return stop

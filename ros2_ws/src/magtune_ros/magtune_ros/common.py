@@ -1,23 +1,32 @@
-"""Shared plumbing of the magtune nodes: QoS, stamps, validated parameters, diagnostics, main().
+"""Shared plumbing of the magtune nodes: QoS, stamps, parameters from the schemas, diagnostics, run().
 
 Physics and control live in ``magtune_core``; this module only adapts them to ROS 2.
 """
 from __future__ import annotations
 
+import array
 import math
 import os
+import signal
 import sys
+import threading
 import time
 
-import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor, ParameterType
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
+
+from magtune_core.base.errors import ConfigError
+from magtune_core.base.paramfile import check_ros_params
+from magtune_core.base.schema import Field, parse
 
 #: Lockstep data topics (truth, field, sensors, dipole command, torques): reliable, and
 #: transient-local so a subscriber matched after the first publication (DDS discovery is
@@ -79,115 +88,85 @@ def finite(*values) -> bool:
 
 
 # ---------------------------------------------------------------- parameters
-_TYPES = {
-    bool: ParameterType.PARAMETER_BOOL,
-    int: ParameterType.PARAMETER_INTEGER,
-    float: ParameterType.PARAMETER_DOUBLE,
-    str: ParameterType.PARAMETER_STRING,
-    "float[]": ParameterType.PARAMETER_DOUBLE_ARRAY,
-    "str[]": ParameterType.PARAMETER_STRING_ARRAY,
+#: magtune_core.base.schema field kinds -> ROS 2 parameter types.
+_ROS_TYPES = {
+    "bool": Parameter.Type.BOOL,
+    "int": Parameter.Type.INTEGER,
+    "float": Parameter.Type.DOUBLE,
+    "str": Parameter.Type.STRING,
+    "float[]": Parameter.Type.DOUBLE_ARRAY,
+    "str[]": Parameter.Type.STRING_ARRAY,
 }
 _TYPE_NAMES = {
-    ParameterType.PARAMETER_BOOL: "a boolean",
-    ParameterType.PARAMETER_INTEGER: "an integer",
-    ParameterType.PARAMETER_DOUBLE: "a floating-point number (write 1.0, not 1)",
-    ParameterType.PARAMETER_STRING: "a string",
-    ParameterType.PARAMETER_DOUBLE_ARRAY: "a list of floating-point numbers (write 1.0, not 1)",
-    ParameterType.PARAMETER_STRING_ARRAY: "a list of strings",
+    "bool": "a boolean",
+    "int": "an integer",
+    "float": "a floating-point number (write 1.0, not 1)",
+    "str": "a string",
+    "float[]": "a list of floating-point numbers (write 1.0, not 1)",
+    "str[]": "a list of strings",
 }
 
 
-def declare(node: Node, name: str, default, description: str, ptype=None, *, size=None,
-            positive=False, nonnegative=False, choices=None, read_only=True, required=True):
-    """Declare a typed parameter with a description and validate its value (ParamError if bad)."""
-    ptype = ptype or type(default)
-    if default is None and ptype is None:
-        raise TypeError("declare: give ptype when default is None")
-    tcode = _TYPES[ptype]
-    desc = ParameterDescriptor(name=name, type=tcode, description=description, read_only=read_only)
+def declare_field(node: Node, f: Field):
+    """Declare the schema field ``f`` as a read-only ROS parameter (type, description and
+    default from the schema); return the value set, or None when unset and without default.
+    Only the ROS type is checked here (ParamError); the value is the schema's to validate."""
+    desc = ParameterDescriptor(name=f.name, type=_ROS_TYPES[f.kind].value, read_only=True,
+                               description=f.description + (f" [{f.unit}]" if f.unit and f.unit not in f.description
+                                                            else ""))
+    default = None if f.required else (list(f.default) if isinstance(f.default, tuple) else f.default)
     try:
-        if default is None or (isinstance(default, list) and not default):
-            # no default (an empty list would be typed BYTE_ARRAY): must come from a parameter file
-            from rclpy.parameter import Parameter
-            ptypes = {ParameterType.PARAMETER_DOUBLE_ARRAY: Parameter.Type.DOUBLE_ARRAY,
-                      ParameterType.PARAMETER_STRING_ARRAY: Parameter.Type.STRING_ARRAY,
-                      ParameterType.PARAMETER_DOUBLE: Parameter.Type.DOUBLE,
-                      ParameterType.PARAMETER_INTEGER: Parameter.Type.INTEGER,
-                      ParameterType.PARAMETER_BOOL: Parameter.Type.BOOL,
-                      ParameterType.PARAMETER_STRING: Parameter.Type.STRING}  # every schema kind
-            node.declare_parameter(name, ptypes[tcode], desc)
-            value = node.get_parameter_or(name, None).value
-            if value is None and not required:
-                return []
-            if value is None:
-                raise ParamError(name, "missing" + (f" (expected a list of {size} numbers)" if size else ""))
+        if default is None or default == []:
+            # no default (an empty list would be typed BYTE_ARRAY): typed, set by a parameter file or not at all
+            node.declare_parameter(f.name, _ROS_TYPES[f.kind], desc)
+            value = node.get_parameter_or(f.name, None).value
         else:
-            value = node.declare_parameter(name, default, desc).value
+            value = node.declare_parameter(f.name, default, desc).value
     except rclpy.exceptions.InvalidParameterTypeException:
-        raise ParamError(name, f"expected {_TYPE_NAMES[tcode]}") from None
+        raise ParamError(f.name, f"expected {_TYPE_NAMES[f.kind]}") from None
     except rclpy.exceptions.ParameterException as exc:
-        raise ParamError(name, str(exc)) from None
-    if tcode == ParameterType.PARAMETER_DOUBLE_ARRAY:
-        arr = np.asarray(list(value), dtype=float)
-        if size is not None and arr.size != size:
-            raise ParamError(name, f"expected {size} numbers, got {arr.size}")
-        if not np.all(np.isfinite(arr)):
-            raise ParamError(name, "expected finite numbers, got NaN/Inf")
-        if positive and np.any(arr <= 0):
-            raise ParamError(name, f"expected positive numbers, got {arr.tolist()}")
-        if nonnegative and np.any(arr < 0):
-            raise ParamError(name, f"expected non-negative numbers, got {arr.tolist()}")
-        return arr
-    if tcode in (ParameterType.PARAMETER_DOUBLE, ParameterType.PARAMETER_INTEGER):
-        if tcode == ParameterType.PARAMETER_DOUBLE and not math.isfinite(value):
-            raise ParamError(name, f"expected a finite number, got {value}")
-        if positive and value <= 0:
-            raise ParamError(name, f"expected a positive number, got {value}")
-        if nonnegative and value < 0:
-            raise ParamError(name, f"expected a non-negative number, got {value}")
-    if choices is not None and value not in choices:
-        raise ParamError(name, f"expected one of {', '.join(map(str, choices))}, got {value!r}")
-    return value
+        raise ParamError(f.name, str(exc)) from None
+    return list(value) if isinstance(value, (list, tuple, array.array)) or hasattr(value, "tolist") else value
 
 
-#: magtune_core.base.schema field kinds -> the ``ptype`` of :func:`declare`.
-_SCHEMA_PTYPES = {"float": float, "int": int, "bool": bool, "str": str, "float[]": "float[]"}
-
-
-def declare_schema(node: Node, fields, where: str | None = None) -> dict:
-    """Declare one parameter per schema field (type, description, default) and return the raw
-    values, for the schema's own ``from_mapping`` to validate (same checks as the CLI's).
-
-    Required fields have no default: a parameter file must set them.
-    """
+def declare_fields(node: Node, fields) -> dict:
+    """Declare every field of a schema; return the values set (unset fields left out)."""
     values = {}
     for f in fields:
-        default = None if f.required else (list(f.default) if isinstance(f.default, tuple) else f.default)
-        # only the ROS type is checked here; values are validated by the schema (same errors as the CLI)
-        v = declare(node, f.name, default, f.description, _SCHEMA_PTYPES[f.kind], required=False)
-        if f.default is None and (v is None or (isinstance(v, list) and not v)):
-            continue  # optional without default (e.g. orbit_period, derived by the schema when absent)
-        if not (f.required and (v is None or (isinstance(v, list) and not v))):
-            values[f.name] = list(v) if f.kind == "float[]" else v
+        v = declare_field(node, f)
+        if v is not None and not (v == [] and (f.required or not f.default)):
+            values[f.name] = v
     return values
 
 
-def from_schema(node: Node, cls, **kw):
-    """``cls.from_mapping`` of the node's declared ``cls.FIELDS``; a ConfigError becomes ParamError."""
-    from magtune_core.base.errors import ConfigError
+def _param_error(exc: ConfigError) -> ParamError:
+    return ParamError(exc.field or "?", exc.expected)
 
-    values = declare_schema(node, cls.FIELDS)
+
+def parse_fields(node: Node, fields) -> dict:
+    """Declare a schema's parameters and validate them once (:func:`magtune_core.base.schema.parse`:
+    the CLI's checks and messages); a ConfigError becomes ParamError (one line, exit status 2)."""
+    try:
+        return parse(declare_fields(node, fields), fields, f"node '{node.get_name()}'")
+    except ConfigError as exc:
+        raise _param_error(exc) from None
+
+
+def from_schema(node: Node, cls, **kw):
+    """``cls.from_mapping`` (which validates) of the node's declared ``cls.FIELDS``; a ConfigError becomes ParamError."""
+    values = declare_fields(node, cls.FIELDS)
     try:
         return cls.from_mapping(values, f"node '{node.get_name()}'", **kw)
     except ConfigError as exc:
-        raise ParamError(exc.field or "?", exc.expected) from None
+        raise _param_error(exc) from None
 
 
-def declare_spacecraft(node: Node):
-    """Spacecraft/orbit parameters (``config/spacecraft.yaml``): the schema SpacecraftParams.FIELDS."""
-    from magtune_core.design.params import SpacecraftParams
-
-    return from_schema(node, SpacecraftParams)
+def check(rule, values: dict, node: Node) -> None:
+    """Apply a schema's rule across fields (e.g. ``design.node_params.check_simulator``) as ParamError."""
+    try:
+        rule(values, f"node '{node.get_name()}'")
+    except ConfigError as exc:
+        raise _param_error(exc) from None
 
 
 def declare_overrides(node: Node, exclude=()):
@@ -242,60 +221,116 @@ def make_executor():
     return SingleThreadedExecutor()
 
 
-def run(node_cls, args=None) -> int:
-    """Create the node, spin until it reports completion (``node.done``) or shutdown, clean up.
+#: Signals that stop a node cleanly: Ctrl-C, ``kill``, closed terminal.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
-    A ParamError (or an rcl parameter-file error) prints one line and returns 2.
-    """
-    prog = node_cls.NODE_NAME
-    argv = list(sys.argv if args is None else args)
-    for i, a in enumerate(argv[:-1]):  # check parameter files first: one clear line instead of rcl's
+
+def install_stop_handlers() -> threading.Event:
+    """SIGINT/SIGTERM/SIGHUP set the returned event: the node's spin loop ends and it finishes
+    cleanly (a recorder closes its bag, a simulator keeps what it wrote)."""
+    stop = threading.Event()
+
+    def handler(signum, frame):  # noqa: ARG001
+        stop.set()
+
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, handler)
+    return stop
+
+
+def spin_until_done(node: Node, executor, stop: threading.Event) -> int:
+    """Spin until the node reports completion (``node.done``, its exit status) or a stop signal."""
+    while rclpy.ok() and not stop.is_set() and not node.done.done():
+        executor.spin_until_future_complete(node.done, timeout_sec=0.1)
+    return int(node.done.result() or 0) if node.done.done() else 0
+
+
+def _check_parameter_files(prog: str, argv: list[str]) -> bool:
+    """Check each ``--params-file`` first: one clear line instead of rcl's parser message."""
+    for i, a in enumerate(argv[:-1]):
         if a == "--params-file":
-            from magtune_core.base.errors import ConfigError
-            from magtune_core.base.paramfile import check_ros_params
             try:
                 check_ros_params(argv[i + 1])
             except ConfigError as exc:
                 print(f"{prog}: {exc}", file=sys.stderr)
-                return 2
+                return False
+    return True
+
+
+def run(node_cls, args=None) -> int:
+    """Start a magtune node and return its exit status: the one main of every node.
+
+    Parameter files are checked first; ``node_cls.parse_options(argv)`` (if the node has
+    command-line options, as ``ros2 bag`` does) parses the arguments that are not ROS
+    arguments; then rclpy starts, the node is built (``node_cls(options)`` or ``node_cls()``),
+    added to ``node_cls.EXECUTOR()`` (default :func:`make_executor`) and spun by
+    ``node.spin(executor, stop)`` if it has one, else until ``node.done``. SIGINT,
+    SIGTERM and SIGHUP end the spin; ``node.finish()`` then runs and rclpy shuts down. A bad
+    parameter or option (ParamError, ConfigError, or one of ``node_cls.START_ERRORS``) prints
+    one line naming it and returns 2.
+    """
+    prog = node_cls.NODE_NAME
+    argv = list(sys.argv if args is None else args)
+    if not _check_parameter_files(prog, argv):
+        return 2
+    start_errors = (ParamError, ConfigError, *getattr(node_cls, "START_ERRORS", ()))
+    parse_options = getattr(node_cls, "parse_options", None)
     try:
-        rclpy.init(args=args)
+        options = parse_options(remove_ros_args(argv)[1:]) if parse_options else None
+    except start_errors as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return 2
+    try:
+        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     except Exception as exc:  # malformed --params-file etc.
         print(f"{prog}: cannot start: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 2
-    node = None
+    stop = install_stop_handlers()
+    node = executor = None
     code = 0
     try:
-        node = node_cls()
-        executor = make_executor()
+        node = node_cls(options) if parse_options else node_cls()
+        executor = (getattr(node_cls, "EXECUTOR", None) or make_executor)()
         executor.add_node(node)
-        prof = os.environ.get("MAGTUNE_PROFILE")  # directory: dump a cProfile of the spin per node
-        if prof:
-            import cProfile
-            profiler = cProfile.Profile()
-            profiler.enable()
-        try:
-            while rclpy.ok() and not node.done.done():
-                executor.spin_until_future_complete(node.done, timeout_sec=1.0)
-        finally:
-            if prof:
-                profiler.disable()
-                profiler.dump_stats(os.path.join(prof, f"{prog}.prof"))
-        code = int(node.done.result() or 0) if node.done.done() else 0
-    except ParamError as exc:
+        code = _spin_profiled(prog, node, executor, stop)
+    except start_errors as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         code = 2
     except (KeyboardInterrupt, ExternalShutdownException):
         code = 0
     finally:
-        if node is not None:
-            try:
-                node.finish()
-            except Exception as exc:  # noqa: BLE001 - best effort at shutdown
-                print(f"{prog}: error while finishing: {exc}", file=sys.stderr)
-            node.destroy_node()
-        rclpy.try_shutdown()
+        _shutdown(prog, node, executor)
     return code
+
+
+def _spin_profiled(prog: str, node: Node, executor, stop: threading.Event) -> int:
+    """The node's spin; with MAGTUNE_PROFILE=DIR a cProfile of it is dumped to DIR/<prog>.prof."""
+    prof = os.environ.get("MAGTUNE_PROFILE")
+    profiler = None
+    if prof:
+        import cProfile
+        profiler = cProfile.Profile()
+        profiler.enable()
+    try:
+        spin = getattr(node, "spin", None)
+        return int(spin(executor, stop) or 0) if spin else spin_until_done(node, executor, stop)
+    finally:
+        if profiler is not None:
+            profiler.disable()
+            profiler.dump_stats(os.path.join(prof, f"{prog}.prof"))
+
+
+def _shutdown(prog: str, node, executor) -> None:
+    if node is not None:
+        try:
+            node.finish()
+        except Exception as exc:  # noqa: BLE001 - best effort at shutdown
+            print(f"{prog}: error while finishing: {exc}", file=sys.stderr)
+    if executor is not None:
+        executor.shutdown()
+    if node is not None:
+        node.destroy_node()
+    rclpy.try_shutdown()
 
 
 def now_wall() -> float:

@@ -30,10 +30,10 @@ from rclpy.node import Node
 from rclpy.task import Future
 from sensor_msgs.msg import Imu, MagneticField
 
-from magtune_core.base.errors import ConfigError
-from magtune_core.base.schema import parse
-from magtune_core.design.gains import CONTROLLER_FIELDS, Gains
-from magtune_core.design.law import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD, ProjectionController, linear_state
+from magtune_core.design.gains import Gains
+from magtune_core.design.law import ProjectionController, linear_state
+from magtune_core.design.node_params import CONTROLLER_FIELDS
+from magtune_core.design.params import SpacecraftParams
 
 from . import common as c
 
@@ -49,20 +49,15 @@ class Controller(Node):
     def __init__(self):
         super().__init__(self.NODE_NAME)
         self.done = Future()
-        gains = c.from_schema(self, Gains)  # gain, sigma, ts: the gains-file schema, as `magtune analyze`
+        # the gains-file schema (as `magtune analyze`), the node's options and the spacecraft file's:
+        # each parameter declared from its schema and validated once
+        gains = c.from_schema(self, Gains)
         K, self.sigma, self.ts = gains.K, gains.sigma, gains.ts
-        m_max = c.declare(self, "dipole_limit", [DEFAULT_DIPOLE_LIMIT] * 3, "per-axis dipole saturation [A m^2]",
-                          "float[]", size=3, positive=True)
-        b_min = c.declare(self, "min_field", DEFAULT_MIN_FIELD,
-                          "below this |b| [T] the dipole is zero (projection ill-conditioned)", positive=True)
-        try:  # the physical bounds of the gains-file schema (same error as the CLI)
-            parse({"dipole_limit": m_max, "min_field": b_min}, CONTROLLER_FIELDS, f"node '{self.NODE_NAME}'")
-        except ConfigError as exc:
-            raise c.ParamError(exc.field or "?", exc.expected) from None
-        p = c.declare_spacecraft(self)
+        v = c.parse_fields(self, CONTROLLER_FIELDS)
+        p = c.from_schema(self, SpacecraftParams)
         c.declare_overrides(self)
         self.w0 = p.orbit_rate
-        self.law = ProjectionController(K, m_max, b_min)
+        self.law = ProjectionController(K, v["dipole_limit"], v["min_field"])
         self.ts_ns = c.sec_to_ns(self.ts)
         self.gate = c.StampGate(self, 2 * self.ts_ns)
         self.sync = c.PairSync()
@@ -145,8 +140,8 @@ class Controller(Node):
 
 
 def main(args=None):
-    raise SystemExit(c.run(Controller, args))
+    return c.run(Controller, args)
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -17,19 +17,16 @@ run, a replayed bag, a real satellite's topics) and keeps WebSocket work off the
 from __future__ import annotations
 
 import argparse
-import sys
 
-import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
-from rclpy.utilities import remove_ros_args
 
 from magtune_core.bags.live import DEFAULT_PORT, LiveServer
 from magtune_core.base.topics import PROJECT_TOPICS
 
-from .bag_common import install_stop_handlers, message_class
+from . import common as c
+from .bag_common import message_class
 
 CLOCK = "/clock"
 
@@ -43,9 +40,19 @@ def parse_args(argv):
 
 
 class LiveBridge(Node):
+    """Raw subscriptions to the project's topics, each logged to the Foxglove server at sim time."""
+
+    NODE_NAME = "live_bridge"
+    EXECUTOR = SingleThreadedExecutor
+    parse_options = staticmethod(parse_args)
+
     def __init__(self, args):
-        super().__init__("live_bridge")
-        self.server = LiveServer(args.port, args.host, name="magtune sil")
+        super().__init__(self.NODE_NAME)
+        try:
+            self.server = LiveServer(args.port, args.host, name="magtune sil")
+        except (OSError, RuntimeError) as exc:   # port in use, ...
+            raise c.ParamError("port", f"cannot start the WebSocket server on port {args.port}: {exc}") from None
+        print(f"magtune-live ws://{args.host}:{self.server.port}", flush=True)
         specs = args.topics or [f"{n}:{t}" for n, (t, _) in PROJECT_TOPICS.items()]
         self.sim_ns = 0
         self.subs = []
@@ -54,12 +61,22 @@ class LiveBridge(Node):
             if not typ and name in PROJECT_TOPICS:
                 typ = PROJECT_TOPICS[name][0]
             if not typ:
-                raise SystemExit(f"live_bridge: topic {name!r} needs a type (/name:pkg/msg/Type)")
+                raise c.ParamError("topics", f"topic {name!r} needs a type (/name:pkg/msg/Type)")
             durable = PROJECT_TOPICS.get(name, ("", "volatile"))[1] == "transient_local"
             qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL if durable else DurabilityPolicy.VOLATILE)
             self.server.add_topic(name, typ)
             self.subs.append(self.create_subscription(message_class(typ), name, self._callback(name), qos, raw=True))
+
+    def spin(self, executor, stop) -> int:
+        """Stream until a stop signal."""
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.1)
+        return 0
+
+    def finish(self) -> None:
+        """Close the WebSocket server (called by ``common.run`` at shutdown)."""
+        self.server.close()
 
     def _callback(self, name):
         server = self.server
@@ -75,29 +92,8 @@ class LiveBridge(Node):
 
 
 def main(argv=None):
-    argv = sys.argv if argv is None else argv
-    args = parse_args(remove_ros_args(argv)[1:])
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    stop = install_stop_handlers()
-    try:
-        node = LiveBridge(args)
-    except (OSError, RuntimeError) as exc:   # port in use, ...
-        print(f"live_bridge: cannot start the WebSocket server on port {args.port}: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    print(f"magtune-live ws://{args.host}:{node.server.port}", flush=True)
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
-        while not stop.is_set():
-            executor.spin_once(timeout_sec=0.1)
-    finally:
-        node.server.close()
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return c.run(LiveBridge, argv)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

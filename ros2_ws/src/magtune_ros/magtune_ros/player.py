@@ -41,21 +41,18 @@ import sys
 import threading
 import time
 
-import rclpy
 from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
-from rclpy.utilities import remove_ros_args
 from rosbag2_interfaces import srv as bag_srv
 
 from magtune_core import bags as baglib
 from magtune_core.bags.playback import DEFAULT_WAIT_SUBSCRIBERS, SERVICES, ReplayOptions, validate
-from magtune_core.base.errors import ConfigError
 
-from .bag_common import install_stop_handlers, message_class, offer_from_recorded
+from . import common as c
+from .bag_common import message_class, offer_from_recorded
 
 CLOCK = "/clock"
 
@@ -115,10 +112,21 @@ class PlayState:
 class Player(Node):
     """Publishers for the selected topics of one bag, plus ``/clock`` and the control services."""
 
-    def __init__(self, args, sel, stop: threading.Event):
+    NODE_NAME = "player"
+    EXECUTOR = SingleThreadedExecutor
+
+    @staticmethod
+    def parse_options(argv):
+        """The command line and the playback window it selects (ConfigError: exit status 2)."""
+        args = parse_args(argv)
+        return args, validate(args.bag, options_of(args))
+
+    def __init__(self, options):
+        args, sel = options
         super().__init__("magtune_player",
                          parameter_overrides=[Parameter("use_sim_time", value=False)])
-        self.args, self.sel, self.stop = args, sel, stop
+        self.args, self.sel, self.stop = args, sel, threading.Event()
+        self.show_progress = args.progress == "on" or (args.progress == "auto" and sys.stderr.isatty())
         self.state = PlayState(args.start_paused, args.rate)
         topics = baglib.topics_of(args.bag)
         self.topics = {n: topics[n] for n in sel.topics}
@@ -217,6 +225,52 @@ class Player(Node):
         if self.live is not None:
             from rclpy.serialization import serialize_message
             self.live.log(CLOCK, serialize_message(m), t_ns)
+
+    def spin(self, executor, stop: threading.Event) -> int:
+        """Serve the control services on a thread while the main thread plays the window
+        (``--loop``: again until stopped); print the JSON report of what was published."""
+        self.stop = stop
+        spinner = threading.Thread(target=lambda: _spin(executor, stop), name="services", daemon=True)
+        spinner.start()
+        args, counts, report, loops = self.args, {}, {}, 0
+        t_start = time.monotonic()
+        try:
+            if args.start_paused:
+                print("magtune-player paused", flush=True)
+            if args.wait_subscribers > 0 and not self.wait_subscribers(args.wait_subscribers):
+                self.get_logger().warning(f"not every topic has a subscriber after {args.wait_subscribers:g} s; "
+                                          "playing anyway")
+            print("magtune-player playing", flush=True)
+            while not stop.is_set():
+                self.play_once(counts, report)
+                loops += 1
+                if not args.loop:
+                    break
+            self.progress(final=True)
+            self.wait_acked()
+        finally:
+            stop.set()
+            with self.state.cond:
+                self.state.cond.notify_all()
+            self._report(counts, report, loops, time.monotonic() - t_start)
+            spinner.join(2.0)
+        return 0
+
+    def _report(self, counts: dict, report: dict, loops: int, elapsed: float) -> None:
+        out = {"bag": str(self.args.bag), "published": dict(sorted(counts.items())), "loops": loops,
+               "wall_s": round(elapsed, 3), "complete": bool(report.get("complete", True))}
+        if not out["complete"]:
+            out["unreadable"] = {k: report.get(k) for k in (
+                "chunks_bad", "unreadable_tail_bytes", "problem", "messages_recovered",
+                "messages_expected", "messages_in_damaged_chunks")}
+            self.get_logger().warning(f"bag is damaged; replayed what was readable: {out['unreadable']}")
+        print(json.dumps(out), flush=True)
+
+    def finish(self) -> None:
+        """Close the Foxglove server, if any (called by ``common.run`` at shutdown)."""
+        if self.live is not None:
+            self.live.close()
+            self.live = None
 
     def wait_acked(self, timeout_s: float = 10.0):
         for p in self.pubs.values():
@@ -326,63 +380,7 @@ class Player(Node):
 
 
 def main(argv=None):
-    argv = sys.argv if argv is None else argv
-    args = parse_args(remove_ros_args(argv)[1:])
-    try:
-        sel = validate(args.bag, options_of(args))
-    except ConfigError as exc:
-        print(f"player: {exc}", file=sys.stderr, flush=True)
-        return 2
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    stop = install_stop_handlers()
-    node = Player(args, sel, stop)
-    node.show_progress = args.progress == "on" or (args.progress == "auto" and sys.stderr.isatty())
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    spinner = threading.Thread(target=lambda: _spin(executor, stop), name="services", daemon=True)
-    spinner.start()
-
-    def wake(*_):
-        with node.state.cond:
-            node.state.cond.notify_all()
-
-    counts: dict = {}
-    report: dict = {}
-    loops = 0
-    t_start = time.monotonic()
-    try:
-        if args.start_paused:
-            print("magtune-player paused", flush=True)
-        if args.wait_subscribers > 0 and not node.wait_subscribers(args.wait_subscribers):
-            node.get_logger().warning(f"not every topic has a subscriber after {args.wait_subscribers:g} s; "
-                                      "playing anyway")
-        print("magtune-player playing", flush=True)
-        while not stop.is_set():
-            node.play_once(counts, report)
-            loops += 1
-            if not args.loop:
-                break
-        node.progress(final=True)
-        node.wait_acked()
-    finally:
-        stop.set()
-        wake()
-        elapsed = time.monotonic() - t_start
-        out = {"bag": str(args.bag), "published": dict(sorted(counts.items())), "loops": loops,
-               "wall_s": round(elapsed, 3), "complete": bool(report.get("complete", True))}
-        if not out["complete"]:
-            out["unreadable"] = {k: report.get(k) for k in (
-                "chunks_bad", "unreadable_tail_bytes", "problem", "messages_recovered",
-                "messages_expected", "messages_in_damaged_chunks")}
-            node.get_logger().warning(f"bag is damaged; replayed what was readable: {out['unreadable']}")
-        print(json.dumps(out), flush=True)
-        spinner.join(2.0)
-        if node.live is not None:
-            node.live.close()
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return c.run(Player, argv)
 
 
 def _spin(executor, stop: threading.Event):
@@ -396,4 +394,4 @@ def _spin(executor, stop: threading.Event):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

@@ -50,29 +50,26 @@ import argparse
 import bisect
 import collections
 import json
-import re
 import struct
 import sys
 import threading
 import time
 
-import rclpy
-from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
-from rclpy.utilities import remove_ros_args
 
 from magtune_core.bags import msgdefs
 from magtune_core.bags.msgdefs import normalize_type
+from magtune_core.bags.record_options import RECORDER_FIELDS, recording_options
 from magtune_core.bags.timing import has_header, stamp_from_cdr
-from magtune_core.bags.writer import DEFAULT_CHUNK_SIZE, BagWriter
-from magtune_core.base.topics import project_topic, topic_specs
+from magtune_core.bags.writer import BagWriter
+from magtune_core.base.errors import ConfigError
+from magtune_core.base.topics import project_topic
 
-from .bag_common import HIDDEN_TOPICS, adapt_request, install_stop_handlers, message_class, qos_profile_dict
+from . import common as c
+from .bag_common import HIDDEN_TOPICS, adapt_request, message_class, qos_profile_dict
 
 CLOCK = "/clock"
 
@@ -88,7 +85,7 @@ def parse_args(argv):
                    help="with --all, also /rosout and /parameter_events")
     p.add_argument("--custom-data", nargs="*", default=None, metavar="KEY=VALUE",
                    help="stored in metadata.yaml custom_data (e.g. sigma=60)")
-    p.add_argument("--chunk-size", type=int, default=None, help=f"default {DEFAULTS['chunk_size']}")
+    p.add_argument("--chunk-size", type=int, default=None, help="MCAP chunk size in bytes")
     p.add_argument("--flush-period", type=float, default=None,
                    help="close the open chunk every S wall seconds (crash safety; default 1)")
     p.add_argument("--depth", type=int, default=None, help="subscription queue depth (10000)")
@@ -107,37 +104,17 @@ def parse_args(argv):
     return p.parse_args(argv)
 
 
-#: option -> default; each is also a ROS parameter (``output`` is the parameter ``path``)
-DEFAULTS = {"output": "", "topics": [], "all": False, "include_hidden": False, "custom_data": [],
-            "chunk_size": DEFAULT_CHUNK_SIZE, "flush_period": 1.0, "depth": 10000,
-            "wall_time": False, "max_messages": 0, "duration": 0.0, "overwrite": False,
-            "regex": "", "exclude": "", "max_bag_size": 0, "max_bag_duration": 0.0}
-
-
 def resolve_options(node: Node, args) -> argparse.Namespace:
-    """Command-line options, else ROS parameters, else defaults."""
-    out = {}
-    for key, default in DEFAULTS.items():
-        pname = "path" if key == "output" else key
-        if isinstance(default, list):
-            desc = ParameterDescriptor(type=ParameterType.PARAMETER_STRING_ARRAY)
-            value = node.declare_parameter(pname, Parameter.Type.STRING_ARRAY, desc).value or []
-        else:
-            value = node.declare_parameter(pname, default).value
-        cli = getattr(args, key, None)
-        out[key] = cli if cli is not None else value
-    if not out["output"]:
-        raise SystemExit("recorder: no output bag given (-o bags/NAME or -p path:=bags/NAME)")
-    for key in ("regex", "exclude"):
-        try:
-            out[key] = re.compile(out[key]) if out[key] else None
-        except re.error as exc:
-            raise ValueError(f"--{key} {out[key]!r} is not a regular expression ({exc})") from None
-    if out["max_bag_size"] < 0 or out["max_bag_duration"] < 0:
-        raise ValueError("--max-bag-size and --max-bag-duration must be >= 0 (0: no split)")
-    if not out["topics"] and not out["all"] and out["regex"] is None:
-        out["topics"] = topic_specs()
-    return argparse.Namespace(**out)
+    """Command-line options, else ROS parameters (:data:`RECORDER_FIELDS`), else defaults;
+    validated once (:func:`magtune_core.bags.record_options.recording_options`)."""
+    values = c.declare_fields(node, RECORDER_FIELDS)
+    values.update({("path" if k == "output" else k): v for k, v in vars(args).items() if v is not None})
+    try:
+        v = recording_options(values, f"node '{node.get_name()}'")
+    except ConfigError as exc:
+        raise c.ParamError(exc.field or "?", exc.expected) from None
+    v["output"] = v.pop("path")
+    return argparse.Namespace(**v)
 
 
 class SimClockMap:
@@ -265,8 +242,14 @@ class BagWriterThread(threading.Thread):
 class Recorder(Node):
     """Subscribes raw to the selected topics and hands the bytes to the writer thread."""
 
+    NODE_NAME = "recorder"
+    EXECUTOR = SingleThreadedExecutor
+    START_ERRORS = (FileExistsError, OSError, ValueError)
+    parse_options = staticmethod(parse_args)
+
     def __init__(self, cli_args):
-        super().__init__("recorder")
+        super().__init__(self.NODE_NAME)
+        self.closed = False
         self.args = args = resolve_options(self, cli_args)
         custom = dict(kv.split("=", 1) for kv in args.custom_data)
         self.bag = BagWriter(args.output, chunk_size=args.chunk_size, custom_data=custom,
@@ -303,6 +286,46 @@ class Recorder(Node):
         self.create_timer(0.2, self._discover, clock=self._steady)
         self.create_timer(0.02, self._report_matches, clock=self._steady)
         self._discover()
+
+    def spin(self, executor, stop) -> int:
+        """Record until a stop signal, ``max_messages`` or ``duration``; drain; close the bag."""
+        args = self.args
+        print("magtune-recorder ready", flush=True)
+        t0 = time.monotonic()
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.1)
+            if args.max_messages and self.received >= args.max_messages:
+                break
+            if args.duration and time.monotonic() - t0 >= args.duration:
+                break
+            if self.thread.error:
+                break
+        # drain what DDS has already delivered: spin until 3 idle rounds of 50 ms
+        idle = 0
+        while idle < 3 and not self.thread.error and not (args.max_messages and self.received >= args.max_messages):
+            before = self.received
+            executor.spin_once(timeout_sec=0.05)
+            idle = idle + 1 if self.received == before else 0
+        return self.finish()
+
+    def finish(self) -> int:
+        """Close the bag (once), print the JSON summary; 1 if writing failed."""
+        if self.closed:
+            return 0
+        self.closed = True
+        self.thread.finish()
+        summary = {"bag": str(self.bag.dir), "messages": self.thread.written,
+                   "per_topic": dict(sorted(self.counts.items())),
+                   "max_intake_lag_s": round(self.max_lag_ns * 1e-9, 4)}
+        print(json.dumps(summary), flush=True)
+        err = self.thread.error
+        if err is None:
+            return 0
+        why = getattr(err, "strerror", None) or str(err)
+        print(f"recorder: writing {self.bag.dir} failed ({why}) after {self.thread.written} messages; "
+              f"the chunks written before are readable: magtune bag recover {self.bag.dir}",
+              file=sys.stderr, flush=True)
+        return 1
 
     def _selected(self, name: str) -> bool:
         a = self.args
@@ -397,54 +420,8 @@ class Recorder(Node):
 
 
 def main(argv=None):
-    argv = sys.argv if argv is None else argv
-    args = parse_args(remove_ros_args(argv)[1:])
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    stop = install_stop_handlers()
-    try:
-        node = Recorder(args)
-    except (FileExistsError, OSError, ValueError) as exc:
-        rclpy.try_shutdown()
-        print(f"recorder: {exc}", file=sys.stderr, flush=True)
-        return 2
-    args = node.args  # command line merged with ROS parameters
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    print("magtune-recorder ready", flush=True)
-    t0 = time.monotonic()
-    try:
-        while not stop.is_set():
-            executor.spin_once(timeout_sec=0.1)
-            if args.max_messages and node.received >= args.max_messages:
-                break
-            if args.duration and time.monotonic() - t0 >= args.duration:
-                break
-            if node.thread.error:
-                break
-        # drain what DDS has already delivered: spin until 3 idle rounds of 50 ms
-        idle = 0
-        while idle < 3 and not node.thread.error and not (args.max_messages and node.received >= args.max_messages):
-            before = node.received
-            executor.spin_once(timeout_sec=0.05)
-            idle = idle + 1 if node.received == before else 0
-    finally:
-        node.thread.finish()
-        summary = {"bag": str(node.bag.dir), "messages": node.thread.written,
-                   "per_topic": dict(sorted(node.counts.items())),
-                   "max_intake_lag_s": round(node.max_lag_ns * 1e-9, 4)}
-        print(json.dumps(summary), flush=True)
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    err = node.thread.error
-    if err is not None:
-        why = getattr(err, "strerror", None) or str(err)
-        print(f"recorder: writing {node.bag.dir} failed ({why}) after {node.thread.written} messages; "
-              f"the chunks written before are readable: magtune bag recover {node.bag.dir}",
-              file=sys.stderr, flush=True)
-        return 1
-    return 0
+    return c.run(Recorder, argv)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

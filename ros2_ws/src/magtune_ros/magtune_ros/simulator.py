@@ -5,7 +5,8 @@ residual dipole, eq. 26 field; other field models and disturbance torques plug i
 ``field_plugin`` / ``field_file`` (a ``magtune fit-field`` output) / ``disturbance_plugins`` parameters) with ``environment: paper`` (default), or
 ``magtune_core.sim.fullenv.FullDynamics`` with ``environment: full`` (J2 orbit, IGRF degree
 ``igrf_degree``, gravity gradient with the actual radius, drag, SRP; switches ``env_*``; the
-nominal orbit period becomes the actual orbit's, which the controller must be given too), integrated with the same RK4 step as the offline
+nominal orbit period is the ``orbit_period`` given, which ``magtune sil`` derives once for every
+node from the actual orbit), integrated with the same RK4 step as the offline
 ``magtune_core.sim.simulate.simulate``; the commanded dipole is held over each step (ZOH).
 
 Publishes (all stamped with simulated time t_k = k * ts):
@@ -55,9 +56,14 @@ from sensor_msgs.msg import MagneticField
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
+from magtune_core.base.errors import ConfigError
 from magtune_core.base.rotations import cross, matrix_to_quat
-from magtune_core.design.law import DEFAULT_DIPOLE_LIMIT, linear_state, saturate
-from magtune_core.sim.simulate import DIVERGED_EXIT, DW0, SimResult, divergence, initial_state
+from magtune_core.design.fitfield import field_for_spacecraft
+from magtune_core.design.law import linear_state, saturate
+from magtune_core.design.node_params import SIMULATOR_FIELDS, check_simulator
+from magtune_core.design.params import SpacecraftParams
+from magtune_core.sim.fullenv import FullEnvironmentOptions, make_dynamics
+from magtune_core.sim.simulate import DIVERGED_EXIT, SimResult, divergence, initial_state
 
 from . import common as c
 
@@ -83,96 +89,41 @@ class Simulator(Node):
     def __init__(self):
         super().__init__(self.NODE_NAME)
         self.done = Future()
-        p = c.declare_spacecraft(self)
-        self.p = p
-        self.ts = c.declare(self, "ts", 1.0, "step = controller sample period Ts [s] (sim time)", positive=True)
-        self.substeps = c.declare(self, "substeps", 2, "RK4 sub-steps per step", positive=True)
-        orbits = c.declare(self, "orbits", 1.0, "run length [orbits] (used when steps = 0)", positive=True)
-        steps = c.declare(self, "steps", 0, "run length [steps]; 0 = use orbits", nonnegative=True)
-        self.n = int(steps) if steps > 0 else int(round(orbits * p.orbit_period / self.ts))
-        dw0 = c.declare(self, "initial_rate_error", list(DW0), "dw(0) [rad/s], body axes", "float[]", size=3)
-        q0 = c.declare(self, "initial_quaternion", [1.0, 0.0, 0.0, 0.0],
-                       "q(0) scalar-first, body w.r.t. orbital axes", "float[]", size=4)
-        if np.linalg.norm(q0) < 1e-9:
-            raise c.ParamError("initial_quaternion", "expected a nonzero quaternion")
-        self.m_max = c.declare(self, "dipole_limit", [DEFAULT_DIPOLE_LIMIT] * 3,
-                               "per-axis dipole saturation [A m^2]", "float[]", size=3, positive=True)
-        m_res = c.declare(self, "residual_dipole", [1.0, 1.0, 1.0],
-                          "residual magnetic dipole [A m^2] (disturbance, paper eq. 32)", "float[]", size=3)
-        self.lockstep = c.declare(self, "lockstep", True, "advance only when the command for the step arrived")
-        self.timeout = c.declare(self, "lockstep_timeout", 1.0,
-                                 "wall seconds to wait for a command before holding the last one", positive=True)
-        self.startup_timeout = c.declare(self, "startup_timeout", 30.0,
-                                         "wall seconds to wait for subscribers/controller at start", positive=True)
-        self.rtf = c.declare(self, "real_time_factor", 0.0,
-                             "pace sim time at this multiple of wall time; 0 = as fast as possible", nonnegative=True)
-        if not self.lockstep and self.rtf <= 0:
-            raise c.ParamError("real_time_factor", "expected a positive number when lockstep is false")
-        self.results_path = c.declare(self, "results_path", "", "write the run (.npz) here at the end; '' = none")
-        self.pub_torques = c.declare(self, "publish_torques", True, "publish sim/*_torque topics")
-        self.wait_peers = c.declare(self, "wait_for_peers", True,
-                                    "start when the sensors and controller are matched")
-        self.pub_tf_on = c.declare(self, "publish_tf", True, "publish /tf (orbital -> body; eci -> orbital)")
-        self.pub_markers_on = c.declare(self, "publish_markers", True,
-                                        "publish sim/markers (body box, field and dipole arrows)")
-        self.time_origin_ns = c.declare(self, "time_origin_ns", 0,
-                                        "stamp of step 0 [ns since 1970]; 0 = sim time from 0", nonnegative=True)
-        self.min_subs = c.declare(self, "min_truth_subscribers", 1,
-                                  "subscribers of sim/truth required before starting (2 with a recorder)",
-                                  positive=True)
+        v = self.load_parameters()
+        self.build_plant(v)
+        self.make_interfaces()
 
-        environment = c.declare(self, "environment", "paper",
-                                "'paper': eq. 26 field, circular orbit, GG + residual dipole; 'full': J2 orbit, "
-                                "IGRF, GG with actual r, drag, SRP (magtune_core/sim/fullenv.py)",
-                                choices=("paper", "full"))
-        from magtune_core.design.field import FIELD_MODELS
-        from magtune_core.sim.fullenv import FullEnvironmentOptions, full_params, make_dynamics
+    def load_parameters(self) -> dict:
+        """The spacecraft file's schema and SIMULATOR_FIELDS, declared from the schemas and
+        validated once; the orbit period is the one given (``magtune sil`` derives it)."""
+        self.p = c.from_schema(self, SpacecraftParams)
+        v = c.parse_fields(self, SIMULATOR_FIELDS)
+        c.check(check_simulator, v, self)
+        self.ts, self.substeps, self.m_max = v["ts"], v["substeps"], v["dipole_limit"]
+        self.lockstep, self.timeout, self.startup_timeout = v["lockstep"], v["lockstep_timeout"], v["startup_timeout"]
+        self.rtf, self.results_path, self.pub_torques = v["real_time_factor"], v["results_path"], v["publish_torques"]
+        self.wait_peers, self.pub_tf_on, self.pub_markers_on = v["wait_for_peers"], v["publish_tf"], v["publish_markers"]
+        self.time_origin_ns, self.min_subs = v["time_origin_ns"], v["min_truth_subscribers"]
+        self.environment = v["environment"]
+        self.n = v["steps"] if v["steps"] > 0 else int(round(v["orbits"] * self.p.orbit_period / self.ts))
+        return v
 
-        opts = FullEnvironmentOptions(
-            gravity_gradient=c.declare(self, "env_gravity_gradient", True, "full environment: gravity gradient"),
-            drag=c.declare(self, "env_drag", True, "full environment: Harris-Priester drag torque"),
-            srp=c.declare(self, "env_srp", True, "full environment: solar radiation pressure torque with eclipse"),
-            field=c.declare(self, "env_field", "igrf", "full environment: 'igrf' or a periodic model of field.py",
-                            choices=("igrf",) + tuple(FIELD_MODELS)),
-            igrf_degree=c.declare(self, "igrf_degree", 10, "full environment: IGRF truncation degree", positive=True))
-        field_plugin = c.declare(self, "field_plugin", "",
-                                 "'module:function' returning b_orb(t) [T, orbital axes] from SpacecraftParams; "
-                                 "'' = field_model of the spacecraft parameters")
-        field_file = c.declare(self, "field_file", "",
-                               "paper environment: periodic field file (magtune fit-field output) as b_orb(t); "
-                               "'' = field_model of the spacecraft parameters")
-        plugins = c.declare(self, "disturbance_plugins", [], "'module:function' factories (SpacecraftParams -> "
-                            "torque(t, q, w, b) [N m]) added to gravity gradient and residual dipole",
-                            "str[]", required=False)
-        if environment == "full":
-            if field_plugin:
-                raise c.ParamError("field_plugin", "not available with environment 'full' (use env_field)")
-            # nominal W0 / T of the actual orbit (the controller gets the same orbit_period from `magtune sil`)
-            p = self.p = full_params(p, opts)
-            self.n = int(steps) if steps > 0 else int(round(orbits * p.orbit_period / self.ts))
-        if field_file and (field_plugin or environment == "full"):
-            raise c.ParamError("field_file", "only with environment 'paper' and without field_plugin")
-        try:
-            field = load_plugin(field_plugin)(p) if field_plugin else None
-        except Exception as exc:  # noqa: BLE001 - any failure is a parameter error
-            raise c.ParamError("field_plugin", f"cannot load {field_plugin!r}: {exc}") from None
-        if field_file:
-            from magtune_core.base.errors import ConfigError
-            from magtune_core.design.fitfield import field_for_spacecraft
-            try:
-                field = field_for_spacecraft(field_file, p)
-            except ConfigError as exc:
-                raise c.ParamError("field_file", str(exc)) from None
+    def build_plant(self, v: dict) -> None:
+        """The dynamics of ``environment`` (with the field and disturbance plug-ins), the initial
+        state and the buffers of the recorded run (the layout of SimResult)."""
+        p = self.p
+        opts = FullEnvironmentOptions(gravity_gradient=v["env_gravity_gradient"], drag=v["env_drag"], srp=v["env_srp"],
+                                      field=v["env_field"], igrf_degree=v["igrf_degree"])
+        field = self._field(v["field_plugin"], v["field_file"])
         dist = []
-        for spec in plugins:
+        for spec in v["disturbance_plugins"]:
             try:
                 dist.append(load_plugin(spec)(p))
-            except Exception as exc:  # noqa: BLE001
+            except Exception as exc:  # noqa: BLE001 - any failure is a parameter error
                 raise c.ParamError("disturbance_plugins", f"cannot load {spec!r}: {exc}") from None
-        self.environment = environment
-        self.dyn = make_dynamics(environment, p, ts=self.ts, substeps=self.substeps, residual_dipole=m_res,
-                                 field=field, disturbances=dist, options=opts)
-        self.y = initial_state(p, dw0, q0)
+        self.dyn = make_dynamics(self.environment, p, ts=self.ts, substeps=self.substeps,
+                                 residual_dipole=v["residual_dipole"], field=field, disturbances=dist, options=opts)
+        self.y = initial_state(p, v["initial_rate_error"], v["initial_quaternion"])
         self.k = 0
         self.t_ns = [self.time_origin_ns + c.sec_to_ns(k * self.ts) for k in range(self.n + 1)]
         self.m_cmd = np.zeros(3)
@@ -183,12 +134,28 @@ class Simulator(Node):
         self.started = False
         self.clock_held = 0   # timer ticks /clock was held at time_origin_ns with the peers listening
         self.finished = False
-        # recorded run (same layout as SimResult)
         self.Y = np.zeros((self.n + 1, 7))
         self.X = np.zeros((self.n + 1, 6))
         self.M = np.zeros((self.n + 1, 3))
         self.B = np.zeros((self.n + 1, 3))
+        self.field_name = (v["field_file"] or p.field_model) if self.environment == "paper" else opts.field
 
+    def _field(self, field_plugin: str, field_file: str):
+        """b_orb(t) of a field plug-in or a field file; None: the spacecraft's field_model."""
+        if field_plugin:
+            try:
+                return load_plugin(field_plugin)(self.p)
+            except Exception as exc:  # noqa: BLE001 - any failure is a parameter error
+                raise c.ParamError("field_plugin", f"cannot load {field_plugin!r}: {exc}") from None
+        if field_file:
+            try:
+                return field_for_spacecraft(field_file, self.p)
+            except ConfigError as exc:
+                raise c.ParamError("field_file", str(exc)) from None
+        return None
+
+    def make_interfaces(self) -> None:
+        """Diagnostics, publishers, the command subscription, preallocated messages and the timer."""
         self.diag = c.Diagnostics(self, ["steps", "missed_steps", "rejected_commands", "late_commands",
                                          "saturated_commands"])
         self.pub_clock = self.create_publisher(ClockMsg, "/clock", c.CLOCK_QOS)
@@ -208,15 +175,10 @@ class Simulator(Node):
         self.msg_truth = Odometry()
         self.msg_truth.header.frame_id = c.FRAME_ORBITAL
         self.msg_truth.child_frame_id = c.FRAME_BODY
-        self.msg_rate = Vector3Stamped()
-        self.msg_rate.header.frame_id = c.FRAME_BODY
-        self.msg_field = MagneticField()
-        self.msg_field.header.frame_id = c.FRAME_BODY
-        self.msg_tmag = WrenchStamped()
-        self.msg_tmag.header.frame_id = c.FRAME_BODY
-        self.msg_tdist = WrenchStamped()
-        self.msg_tdist.header.frame_id = c.FRAME_BODY
-
+        self.msg_rate, self.msg_field = Vector3Stamped(), MagneticField()
+        self.msg_tmag, self.msg_tdist = WrenchStamped(), WrenchStamped()
+        for msg in (self.msg_rate, self.msg_field, self.msg_tmag, self.msg_tdist):
+            msg.header.frame_id = c.FRAME_BODY
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.wall0 = time.perf_counter()
         self.pace0 = self.wall0  # reference of the real-time-factor pacing (re-anchored after a stall)
@@ -224,9 +186,9 @@ class Simulator(Node):
         self.watchdog = self.create_timer(0.05 if self.lockstep else self.ts / max(self.rtf, 1e-9),
                                           self.on_timer, clock=steady)
         self.get_logger().info(
-            f"{self.n} steps of {self.ts} s ({self.n * self.ts / p.orbit_period:.3f} orbits), "
+            f"{self.n} steps of {self.ts} s ({self.n * self.ts / self.p.orbit_period:.3f} orbits), "
             f"lockstep={self.lockstep}, real_time_factor={self.rtf or 'max'}, environment={self.environment}, "
-            f"field={(field_file or p.field_model) if self.environment == 'paper' else opts.field}, T={p.orbit_period:.3f} s")
+            f"field={self.field_name}, T={self.p.orbit_period:.3f} s")
 
     # ---------------------------------------------------------------- stepping
     def peers_ready(self) -> bool:
@@ -476,8 +438,8 @@ class Simulator(Node):
 
 
 def main(args=None):
-    raise SystemExit(c.run(Simulator, args))
+    return c.run(Simulator, args)
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -1,0 +1,107 @@
+"""Schemas of the SIL nodes' own parameters (besides the spacecraft and gains files).
+
+One tuple of :class:`~magtune_core.base.schema.Field` per node: the node declares one ROS
+parameter per field (type and description from here, ``magtune_ros.common.parse_fields``) and
+validates the declared values once with :func:`~magtune_core.base.schema.parse`, with the same
+messages as the CLI. A parameter file handed to every node (``config/spacecraft.yaml``, ``/**``)
+may set any of these: :data:`NODE_PARAMETERS`, derived from the schemas, is what the CLI allows
+besides the spacecraft fields.
+"""
+from __future__ import annotations
+
+from ..base.errors import ConfigError
+from ..base.schema import Field
+from .field import FIELD_MODELS
+from .law import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD
+
+#: The paper's initial rate error dw(0) [rad/s] (section 5), the simulator's default.
+INITIAL_RATE_ERROR = (1e-3, 2e-3, 0.0)
+
+#: The controller sample period: every SIL node takes it (the gains file carries the design's).
+SAMPLE_PERIOD = Field("ts", "float", "controller sample period Ts [s] (sim time)", 1.0, positive=True,
+                      bounds=(1e-3, 3600.0), unit="s")
+#: Per-axis dipole saturation of the torquers: real magnetorquers span 1e-6 to 1e4 A m^2.
+DIPOLE_LIMIT = Field("dipole_limit", "float[]", "per-axis dipole saturation [A m^2]", (DEFAULT_DIPOLE_LIMIT,) * 3,
+                     size=3, positive=True, bounds=(1e-6, 1e4), unit="A m^2")
+
+#: The controller node's own options (a gains file may set them too): the projection's
+#: weak-field threshold lies below the geomagnetic field (at most 1e-3 T).
+CONTROLLER_FIELDS = (
+    DIPOLE_LIMIT,
+    Field("min_field", "float", "below this |b| [T] the dipole is zero (projection ill-conditioned)",
+          DEFAULT_MIN_FIELD, positive=True, bounds=(1e-12, 1e-3), unit="T"),
+)
+
+#: attitude_sensors: truth plus noise, bias and quantization (SI units).
+SENSOR_FIELDS = (
+    SAMPLE_PERIOD,
+    Field("mag_noise_std", "float", "magnetometer white noise std [T]", 0.0, nonnegative=True, unit="T"),
+    Field("mag_bias", "float[]", "magnetometer bias [T]", (0.0, 0.0, 0.0), size=3, unit="T"),
+    Field("mag_quantum", "float", "magnetometer quantization step [T] (0 = none)", 0.0, nonnegative=True, unit="T"),
+    Field("attitude_noise_std", "float", "attitude error std per axis [rad]", 0.0, nonnegative=True, unit="rad"),
+    Field("gyro_noise_std", "float", "rate noise std [rad/s]", 0.0, nonnegative=True, unit="rad/s"),
+    Field("gyro_bias", "float[]", "rate bias [rad/s]", (0.0, 0.0, 0.0), size=3, unit="rad/s"),
+    Field("seed", "int", "random seed of the noise generators", 0, nonnegative=True),
+)
+
+#: simulator: run length, lockstep, initial state, plant options, environment, outputs.
+SIMULATOR_FIELDS = (
+    SAMPLE_PERIOD,
+    Field("substeps", "int", "RK4 sub-steps per step", 2, positive=True, bounds=(1, 1000)),
+    Field("orbits", "float", "run length [orbits] (used when steps = 0)", 1.0, positive=True),
+    Field("steps", "int", "run length [steps]; 0 = use orbits", 0, nonnegative=True),
+    Field("initial_rate_error", "float[]", "dw(0) [rad/s], body axes", INITIAL_RATE_ERROR, size=3, unit="rad/s"),
+    Field("initial_quaternion", "float[]", "q(0) scalar-first, body w.r.t. orbital axes", (1.0, 0.0, 0.0, 0.0),
+          size=4),
+    DIPOLE_LIMIT,
+    Field("residual_dipole", "float[]", "residual magnetic dipole [A m^2] (disturbance, paper eq. 32)",
+          (1.0, 1.0, 1.0), size=3, unit="A m^2"),
+    Field("lockstep", "bool", "advance only when the command for the step arrived", True),
+    Field("lockstep_timeout", "float", "wall seconds to wait for a command before holding the last one", 1.0,
+          positive=True, unit="s"),
+    Field("startup_timeout", "float", "wall seconds to wait for subscribers/controller at start", 30.0,
+          positive=True, unit="s"),
+    Field("real_time_factor", "float", "pace sim time at this multiple of wall time; 0 = as fast as possible", 0.0,
+          nonnegative=True),
+    Field("results_path", "str", "write the run (.npz) here at the end; '' = none", ""),
+    Field("publish_torques", "bool", "publish sim/*_torque topics", True),
+    Field("wait_for_peers", "bool", "start when the sensors and controller are matched", True),
+    Field("publish_tf", "bool", "publish /tf (orbital -> body; eci -> orbital)", True),
+    Field("publish_markers", "bool", "publish sim/markers (body box, field and dipole arrows)", True),
+    Field("time_origin_ns", "int", "stamp of step 0 [ns since 1970]; 0 = sim time from 0", 0, nonnegative=True),
+    Field("min_truth_subscribers", "int", "subscribers of sim/truth required before starting (2 with a recorder)",
+          1, positive=True),
+    Field("environment", "str", "'paper': eq. 26 field, circular orbit, GG + residual dipole; 'full': J2 orbit, "
+          "IGRF, GG with actual r, drag, SRP (magtune_core/sim/fullenv.py)", "paper", choices=("paper", "full")),
+    Field("env_gravity_gradient", "bool", "full environment: gravity gradient", True),
+    Field("env_drag", "bool", "full environment: Harris-Priester drag torque", True),
+    Field("env_srp", "bool", "full environment: solar radiation pressure torque with eclipse", True),
+    Field("env_field", "str", "full environment: 'igrf' or a periodic model of field.py", "igrf",
+          choices=("igrf",) + tuple(FIELD_MODELS)),
+    Field("igrf_degree", "int", "full environment: IGRF truncation degree", 10, positive=True),
+    Field("field_plugin", "str", "'module:function' returning b_orb(t) [T, orbital axes] from SpacecraftParams; "
+          "'' = field_model of the spacecraft parameters", ""),
+    Field("field_file", "str", "paper environment: periodic field file (magtune fit-field output) as b_orb(t); "
+          "'' = field_model of the spacecraft parameters", ""),
+    Field("disturbance_plugins", "str[]", "'module:function' factories (SpacecraftParams -> torque(t, q, w, b) "
+          "[N m]) added to gravity gradient and residual dipole", ()),
+)
+
+#: The SIL nodes' schemas by node name.
+SIL_NODE_FIELDS = {"simulator": SIMULATOR_FIELDS, "attitude_sensors": SENSOR_FIELDS, "controller": CONTROLLER_FIELDS}
+#: Parameters every node has (rclpy's own).
+NODE_COMMON = ("use_sim_time",)
+#: Every node parameter a file handed to all SIL nodes may set besides the spacecraft fields.
+NODE_PARAMETERS = tuple(sorted({f.name for fields in SIL_NODE_FIELDS.values() for f in fields} | set(NODE_COMMON)))
+
+
+def check_simulator(v: dict, where: str) -> None:
+    """The simulator's rules across fields (``v``: its parsed values); ConfigError naming the field."""
+    if sum(x * x for x in v["initial_quaternion"]) < 1e-18:
+        raise ConfigError(where, "initial_quaternion", "expected a nonzero quaternion")
+    if not v["lockstep"] and v["real_time_factor"] <= 0:
+        raise ConfigError(where, "real_time_factor", "expected a positive number when lockstep is false")
+    if v["environment"] == "full" and v["field_plugin"]:
+        raise ConfigError(where, "field_plugin", "not available with environment 'full' (use env_field)")
+    if v["field_file"] and (v["field_plugin"] or v["environment"] == "full"):
+        raise ConfigError(where, "field_file", "only with environment 'paper' and without field_plugin")

@@ -1,0 +1,204 @@
+"""Tuning as a library call: start gain, Magnus resolution, optimizer, figures, provenance -> ``Gains``.
+
+``tune_gains(model, sigma)`` is what ``magtune tune`` runs: the start gain and Magnus steps
+resolved for the model (:mod:`.resolution`; the paper's LQ start, section 4.2), the CMA-ES tuner
+under the sample-and-hold gain-margin constraint (:mod:`.cmaes`, :mod:`.sampled`) or the
+paper's randomized algorithm (:mod:`.tuner`, eqs. 23-25), the figures of merit J, c1, c2, rho
+(eqs. 20-22, 28-30) at a resolution that resolves them, and the provenance a gains file
+carries. ``tune_robust_gains`` does the same for the worst J over a model set
+(:mod:`.robust`). Both return a :class:`TuneOutcome`; writing the file is the caller's
+(``save_gains``).
+
+Example (the paper's satellite at sigma = 60, a short paper-method run)::
+
+    from magtune_core.design.model import AttitudeLTP
+    from magtune_core.design.params import SpacecraftParams
+    from magtune_core.design.pipeline import PaperOptions, tune_gains
+    out = tune_gains(AttitudeLTP.from_params(SpacecraftParams()), 60.0, method="paper",
+                     paper=PaperOptions(samples=20, max_iter=2))
+    out.gains.K, out.gains.provenance["J"]
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .gains import Gains
+from .problem import figures
+from .resolution import resolved_steps, start_gain
+from .sampled import HoldConstraint, feasible_start, hold_provenance
+
+#: Magnus steps of the final figures (at least; doubled while J moves, :func:`.resolution.resolved_steps`):
+#: ~1e-5 relative for the paper's satellite (bench/README.md).
+ANALYSIS_STEPS = 128
+METHODS = ("cma", "paper")
+
+
+class InfeasibleStart(ValueError):
+    """The start gain cannot be brought within the hold constraint (a smaller margin or a longer Ts may)."""
+
+
+@dataclass(frozen=True)
+class CmaOptions:
+    """What a user sets of the CMA-ES tuner (:class:`magtune_core.design.cmaes.CmaSettings`)."""
+
+    popsize: int = 8
+    max_evals: int = 30000
+    restarts: int = 2          # consecutive non-improving local restarts that certify convergence
+    start_scale: str = "feasible"
+
+
+@dataclass(frozen=True)
+class PaperOptions:
+    """The randomized algorithm's settings (paper 4.2; :class:`magtune_core.design.tuner.TunerSettings`)."""
+
+    samples: int = 540
+    r_max: float = 0.995
+    mu: float = 1e-3
+    max_iter: int = 300
+    patience: int = 1
+
+
+@dataclass
+class TuneOutcome:
+    """A tuned gain with its provenance, and how the run went."""
+
+    gains: Gains           # K, sigma, Ts and the provenance a gains file carries
+    result: object         # the optimizer's result (J0, evaluations, seconds, stop, method)
+    start: str             # where the search started ("LQ start", "start FILE", ...)
+    steps: int             # Magnus steps the search started with
+    analysis_steps: int    # Magnus steps of the final figures
+    notes: list = field(default_factory=list)  # what the pipeline adjusted on the way (one line each)
+
+    @property
+    def state(self) -> str:
+        """How the search ended, in words (certified, interrupted, budget, unresolved)."""
+        return {"certified": "converged", "interrupted": "NOT certified (interrupted: the best gain so far)",
+                "unresolved": "NOT certified (no improvement found, but max_steps Magnus steps do not resolve J to "
+                              "the certificate's tolerance)"}.get(
+            getattr(self.result, "stop", None), "NOT certified (budget reached)")
+
+    @property
+    def interrupted(self) -> bool:
+        """True when a stop request ended the search early (the best gain so far)."""
+        return getattr(self.result, "stop", None) == "interrupted"
+
+
+def _start(model, sigma: float, start_K, start_name: str | None):
+    """Start gain, its label and the Magnus steps that resolve it (:mod:`.resolution`)."""
+    try:
+        K0, sigma0, steps, _ = start_gain(model, sigma)
+    except ValueError as exc:
+        raise ValueError(f"{exc}; try a larger --sigma") from None
+    label = "LQ start" if sigma0 == sigma else f"LQ start of sigma {sigma0:g}"
+    if start_K is not None:
+        K0, label = np.asarray(start_K, dtype=float).reshape(3, 6), f"start {start_name or 'gain'}"
+        steps, _ = resolved_steps(model, K0, sigma)
+    return K0, label, steps
+
+
+def _run_paper(model, sigma, K0, steps, *, seed, workers, paper: PaperOptions, progress):
+    from .tuner import TunerSettings, tune
+
+    settings = TunerSettings(samples=paper.samples, r_max=paper.r_max, mu=paper.mu, workers=workers,
+                             max_iter=paper.max_iter, patience=paper.patience, steps=steps)
+    return tune(model, sigma, seed=seed, settings=settings, K0=K0, progress=progress)
+
+
+def _run_cma(model, sigma, K0, steps, *, seed, workers, cma: CmaOptions, hold, progress, notes):
+    from .cmaes import CmaSettings, tune_cma
+    from .objective import HinfObjective
+
+    settings = CmaSettings(popsize=cma.popsize, max_evals=cma.max_evals, certify=cma.restarts, workers=workers,
+                           steps=steps, start_scale=cma.start_scale)
+    with HinfObjective(model, sigma, steps=settings.steps, rtol=settings.rtol, workers=workers, hold=hold) as obj:
+        res = tune_cma(obj, K0, sigma, seed=seed, settings=settings, progress=progress)
+    if obj.steps != steps:
+        notes.append(f"the gains stiffened beyond {steps} Magnus steps; tuned on {obj.steps} (resolution watch)")
+    return res
+
+
+def tune_gains(model, sigma: float, *, method: str = "cma", seed: int = 0, start_K=None, start_name: str | None = None,
+               workers: int = 1, ts: float = 1.0, gain_margin: float = 2.0, cma: CmaOptions = CmaOptions(),
+               paper: PaperOptions = PaperOptions(), progress=None) -> TuneOutcome:
+    """H-infinity tuning of K for one sigma on ``model`` (an ``AttitudeLTP``).
+
+    ``method`` "cma" (CMA-ES to a certified optimum, under the hold constraint of ``ts`` /
+    ``gain_margin`` when ``gain_margin`` >= 1; 0: none) or "paper" (the randomized algorithm of
+    paper 4.2, no constraint); ``start_K``: start from this gain instead of the LQ gain of the
+    averaged model; ``progress``: the optimizer's callback (raise KeyboardInterrupt in it to stop
+    with the best gain so far).
+
+    Returns
+    -------
+    TuneOutcome
+        ``gains`` (K, sigma, ``ts``, provenance: J, c1, c2, rho of eqs. 20-22 at
+        ``analysis_steps`` Magnus steps, the optimizer's record, the start, the hold margin).
+        Raises ValueError when no start gain stabilizes the model, :class:`InfeasibleStart`
+        when the start cannot meet the constraint.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    K0, label, steps = _start(model, sigma, start_K, start_name)
+    notes: list = []
+    if method == "paper":
+        res = _run_paper(model, sigma, K0, steps, seed=seed, workers=workers, paper=paper, progress=progress)
+    else:
+        hold = HoldConstraint(ts, gain_margin) if gain_margin else None
+        if hold is not None:
+            try:
+                K0, note = feasible_start(model, K0, hold)
+            except ValueError as exc:  # a start far beyond the margin
+                raise InfeasibleStart(str(exc)) from None
+            if note:
+                label += f", {note}"
+                notes.append(f"start gain {note} to meet --gain-margin {hold.gain_margin:g} at --ts {hold.ts:g}")
+        res = _run_cma(model, sigma, K0, steps, seed=seed, workers=workers, cma=cma, hold=hold, progress=progress,
+                       notes=notes)
+    analysis_steps, _ = resolved_steps(model, res.K, sigma, ANALYSIS_STEPS)
+    fig = figures(model, res.K, sigma, steps=analysis_steps)
+    prov = {**fig.as_dict(), **res.provenance(), "start": label, "design_field": model.field.name,
+            "analysis_steps": analysis_steps, "tune_seconds": round(res.seconds, 1)}
+    prov.pop("stable", None)
+    prov.update(hold_provenance(model, res.K, ts, gain_margin if method == "cma" else 0.0))
+    return TuneOutcome(Gains(res.K, sigma, ts, prov), res, label, steps, analysis_steps, notes)
+
+
+def tune_robust_gains(model, models, sigma: float, *, seed: int = 0, start_K=None, start_name: str | None = None,
+                      workers: int = 1, ts: float = 1.0, gain_margin: float = 2.0, cma: CmaOptions = CmaOptions(),
+                      spec_name: str = "") -> TuneOutcome:
+    """Robust tuning: minimize the worst J over ``models`` (``design.robust.model_set`` of a
+    robust spec; ``model``: the nominal one) with the CMA-ES tuner (:func:`magtune_core.design.robust.tune_robust`).
+
+    Returns
+    -------
+    TuneOutcome
+        ``gains`` with the nominal figures, the worst model's (``worst_*``) and the spec's name
+        in the provenance; ``result.J0`` is the start's worst J.
+    """
+    from .cmaes import CmaSettings
+    from .robust import robust_figures, tune_robust
+
+    settings = CmaSettings(popsize=cma.popsize, max_evals=cma.max_evals, certify=cma.restarts, workers=workers,
+                           start_scale=cma.start_scale)
+    K0 = None if start_K is None else np.asarray(start_K, dtype=float).reshape(3, 6)
+    hold = HoldConstraint(ts, gain_margin) if gain_margin else None
+    res, sigma0, steps = tune_robust(models, sigma, seed=seed, settings=settings, K0=K0, hold=hold)
+    analysis_steps, _ = resolved_steps([m.model for m in models], res.K, sigma, ANALYSIS_STEPS)
+    rf = robust_figures(models, res.K, sigma, steps=analysis_steps)
+    nom, worst = rf.nominal(), rf.worst()
+    prov = {**(nom.as_dict() if nom else {}), **res.provenance(), "design_field": model.field.name,
+            "analysis_steps": analysis_steps, "tune_seconds": round(res.seconds, 1),
+            "robust_spec": str(spec_name), "robust_models": len(models), "robust_worst_model": rf.worst_name,
+            **{f"worst_{k}": v for k, v in worst.items()}}
+    prov.pop("stable", None)
+    prov.update(hold_provenance(model, res.K, ts, gain_margin))
+    label = "LQ start"
+    if start_K is not None:
+        label = prov["start"] = str(start_name or "gain")
+    elif sigma0 != sigma:
+        label = prov["start"] = f"LQ of sigma {sigma0:g} (the LQ gain of sigma {sigma:g} does not stabilize every model)"
+    out = TuneOutcome(Gains(res.K, sigma, ts, prov), res, label, steps, analysis_steps)
+    out.robust = rf
+    return out
