@@ -1,5 +1,8 @@
-"""Docs and code agree: the QoS depths the package README states are the code's, and every file
-names the orbital Z axis the same way (X nadir, Y along-track, Z = X x Y = -orbit normal)."""
+"""Docs and code agree: the QoS depths the package README states are the code's, every file names
+the orbital Z axis the same way (X nadir, Y along-track, Z = X x Y = -orbit normal), the README is
+a short guide whose tour runs real subcommands and options, no page reads as a diary of numbered
+passes, every relative link and quoted path resolves, and the figures quoted in the docs equal the
+files they come from (gains provenance, docs/sampling.json). Reading files only: no numerics."""
 from __future__ import annotations
 
 import re
@@ -33,4 +36,218 @@ def test_orbital_z_is_minus_orbit_normal_everywhere():
         for m in re.finditer(r"\bZ\b[^.;\n]{0,12}?orbit[ -]normal", text):
             if not re.search(r"(-|minus|opposite|anti)\s*(the\s+)?orbit[ -]normal", m.group(0)):
                 bad.append(f"{f.relative_to(ROOT)}: ...{m.group(0)}...")
+    assert not bad, bad
+
+
+# --- the user guide and the reference pages -------------------------------------------------------
+
+README = ROOT / "README.md"
+
+
+def _guide_pages():
+    """README.md, every docs page and bench/README.md: the pages a user reads."""
+    return [README, *sorted((ROOT / "docs").glob("*.md")), ROOT / "bench" / "README.md"]
+
+
+def _strip_code(text):
+    """Text without fenced code blocks (whose brackets are not links)."""
+    return re.sub(r"^```.*?^```", "", text, flags=re.M | re.S)
+
+
+def _code_blocks(text):
+    return re.findall(r"^```[^\n]*\n(.*?)^```", text, flags=re.M | re.S)
+
+
+def _section(text, heading):
+    """The body of the markdown section whose heading line is ``heading``, up to the next heading of
+    the same or a higher level (lines inside fenced code blocks are not headings)."""
+    level = len(heading) - len(heading.lstrip("#"))
+    body, inside, fenced = [], False, False
+    for line in text.splitlines():
+        if line.startswith("```"):
+            fenced = not fenced
+        elif not fenced and re.match(r"#{1,%d} " % level, line):
+            if inside:
+                break
+            inside = line.strip() == heading
+            continue
+        if inside:
+            body.append(line)
+    assert body, f"no section {heading!r}"
+    return "\n".join(body) + "\n"
+
+
+def _table_rows(text):
+    """Cells of every markdown table row that is not a header separator."""
+    rows = []
+    for line in text.splitlines():
+        if line.startswith("|") and not re.match(r"^\|[-| :]+\|$", line):
+            rows.append([c.strip() for c in line.strip().strip("|").split("|")])
+    return rows
+
+
+def test_readme_is_a_short_guide_with_the_two_commands_first():
+    text = README.read_text()
+    assert len(text.splitlines()) <= 300, len(text.splitlines())
+    first = _code_blocks(text)[0]
+    assert "bash scripts/demo.sh" in first and "bash scripts/test.sh" in first, first
+
+
+NUMBERED_PASS = re.compile(
+    r"\b(first|second|third|fourth|fifth|sixth|seventh|eighth|ninth|tenth|eleventh|twelfth|thirteenth"
+    r"|fourteenth|fifteenth|\d+(st|nd|rd|th))[- ]pass(es)?\b|\bpass(es)? (\d+|#\d+)\b|\bissue #?\d+,? pass\b",
+    re.I)
+
+
+def test_no_page_refers_to_numbered_passes():
+    """The guide and the reference pages are reference, not a diary (history: docs/decisions.md)."""
+    pages = [*_guide_pages(), *sorted((ROOT / "docs").glob("*.txt"))]  # sampling_conclusion.txt feeds sampling.md
+    bad = [f"{p.relative_to(ROOT)}:{i}: {m.group(0)}"
+           for p in pages for i, line in enumerate(p.read_text().splitlines(), 1)
+           for m in NUMBERED_PASS.finditer(line)]
+    assert not bad, bad
+
+
+def test_numbered_pass_pattern_catches_what_it_should():
+    for s in ("ninth pass", "the twelfth-pass gains", "Pass 12", "3rd pass", "issue 9, pass"):
+        assert NUMBERED_PASS.search(s), s
+    for s in ("a passing level", "the gamma-test passes", "bypass 2 steps", "passed 12 tests"):
+        assert not NUMBERED_PASS.search(s), s
+
+
+def _slug(heading):
+    """GitHub's anchor of a markdown heading."""
+    s = re.sub(r"[^\w\- ]", "", heading.strip().lower())
+    return s.replace(" ", "-")
+
+
+def _anchors(path):
+    seen, out = {}, set()
+    for h in re.findall(r"^#{1,6} (.+)$", _strip_code(path.read_text()), flags=re.M):
+        s = _slug(h)
+        n = seen.get(s, 0)
+        out.add(s if n == 0 else f"{s}-{n}")
+        seen[s] = n + 1
+    return out
+
+
+def test_every_relative_link_resolves():
+    """Every relative link of the guide pages names an existing file, and an anchor into a markdown
+    page names one of its headings."""
+    bad = []
+    for page in _guide_pages():
+        for target in re.findall(r"\]\(([^)\s]+)\)", _strip_code(page.read_text())):
+            if re.match(r"^[a-z]+:", target):  # http:, https:, mailto:
+                continue
+            path, _, anchor = target.partition("#")
+            dest = (page.parent / path).resolve() if path else page
+            if not dest.exists():
+                bad.append(f"{page.relative_to(ROOT)}: {target} (no such file)")
+            elif anchor and dest.suffix == ".md" and anchor not in _anchors(dest):
+                bad.append(f"{page.relative_to(ROOT)}: {target} (no such heading)")
+    assert not bad, bad
+
+
+def _gains_figures(path):
+    from magtune_core.base.paramfile import read_ros_params
+
+    return read_ros_params(ROOT / path, "controller")
+
+
+def test_shipped_gains_table_is_the_files():
+    """docs/tuning.md "Shipped gains" (the canonical table of the shipped J, c1, c2, rho) quotes the
+    provenance of each gains file; the generated docs/table1.md quotes the same J."""
+    rows = _table_rows(_section((ROOT / "docs" / "tuning.md").read_text(), "## Shipped gains"))
+    quoted = {}
+    for cells in rows[1:]:
+        path = re.search(r"\]\(\.\./([^)]+)\)", cells[0]).group(1)
+        quoted[path] = cells
+    expected = {f"config/gains/{d}sigma_{s}.yaml" for d in ("", "paper_method/") for s in (60, 120, 240)}
+    assert set(quoted) == expected, sorted(quoted)
+    for path, (_, sigma, J, c1, c2, rho, _margin) in quoted.items():
+        p = _gains_figures(path)
+        assert float(sigma) == p["sigma"], path
+        assert J == f"{p['J']:.2f}" and c1 == f"{p['c1']:.2f}", (path, J, c1, p["J"], p["c1"])
+        assert int(c2) == round(p["c2"]) and rho == f"{p['rho']:.2e}", (path, c2, rho, p["c2"], p["rho"])
+    table1 = {(r[0], r[1]): r[2] for r in _table_rows((ROOT / "docs" / "table1.md").read_text())
+              if len(r) > 3 and r[1] in ("cma", "paper")}
+    for s in (60, 120, 240):
+        for method, d in (("cma", ""), ("paper", "paper_method/")):
+            assert table1[(str(s), method)] == f"{_gains_figures(f'config/gains/{d}sigma_{s}.yaml')['J']:.2f}"
+    # the status table of table1.md's notes names the shipped J too
+    notes = _table_rows(_section((ROOT / "docs" / "table1.md").read_text(), "## What the shipped gains are"))
+    for cells in notes[1:]:
+        assert cells[1] == f"{_gains_figures(f'config/gains/sigma_{cells[0]}.yaml')['J']:.2f}", cells
+
+
+def test_example_12u_design_figures_are_the_gains_file_s():
+    p = _gains_figures("config/examples/cubesat12u/gains_sigma120.yaml")
+    rho = re.sub(r"e([-+])0*(\d)", r"e\1\2", f"{p['rho']:.1e}").replace("e+", "e")  # 2.1e-3, as written
+    design = f"J = {p['J']:.0f}, c1 = {p['c1']:.0f}, c2 = {p['c2']:.0f}, rho = {rho}"
+    assert f"| design (LTP, 128 Magnus steps, resolved) | {design} |" in (ROOT / "docs" / "own_satellite.md").read_text()
+    nominal = f"{p['J']:.0f} / {p['c1']:.0f} / {p['c2']:.0f} / {rho}"
+    robust = (ROOT / "docs" / "robust.md").read_text()
+    assert robust.count(f"| {nominal} |") == 2, nominal  # the analysis table and the start row
+
+
+def test_sampling_table_is_sampling_json():
+    """docs/sampling.md's table shows the rows of docs/sampling.json, and its verdict ends with the
+    hand-kept conclusion docs/sampling_conclusion.txt verbatim (as `magtune sampling --conclusion
+    @FILE` writes it)."""
+    import json
+
+    text = (ROOT / "docs" / "sampling.md").read_text()
+    rows = json.loads((ROOT / "docs" / "sampling.json").read_text())["rows"]
+    table = [r for r in _table_rows(text) if r[0] != "sigma"]
+    assert len(table) == len(rows) > 0
+    for cells, r in zip(table, rows):
+        assert cells[:4] == [f"{r['sigma']:g}", f"{r['ts']:g}", f"{r['rms_dq']:.4e}", f"{r['peak_m']:.3f}"], cells
+        assert cells[6:] == [f"{r['peak_dq']:.4e}", str(r["saturated_steps"])], cells
+    conclusion = (ROOT / "docs" / "sampling_conclusion.txt").read_text().strip()
+    assert text.rstrip().endswith(conclusion)
+
+
+def _help(*argv):
+    """``magtune ARGV --help`` in this process (the console script's entry point)."""
+    import contextlib
+    import io
+
+    from magtune_core.cli import main
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.suppress(SystemExit):
+        main([*argv, "--help"])
+    return out.getvalue()
+
+
+def test_readme_tour_uses_real_subcommands_and_options():
+    tour = "\n".join(_code_blocks(_section(README.read_text(), "## A 5-minute tour")))
+    tour = re.sub(r"#.*", "", tour)  # comments
+    commands = re.findall(r"^magtune ([\w-]+)( (?:info|recover)\b)?(.*)$", tour, flags=re.M)
+    listed = set(re.findall(r"^    ([a-z][\w-]*)", _help().split("options:")[0], flags=re.M))
+    assert {"tune", "analyze", "sil", "replay", "report", "campaign", "campaign-report"} <= listed, listed
+    used = {c for c, _, _ in commands}
+    assert {"tune", "analyze", "sil", "replay", "report", "campaign"} <= used, used
+    helps = {}
+    for cmd, sub, rest in commands:
+        assert cmd in listed, f"magtune {cmd}: not a subcommand"
+        argv = (cmd, *sub.split())
+        text = helps.setdefault(argv, _help(*argv))
+        assert text.startswith("usage:"), argv
+        for flag in re.findall(r"(?<![\w-])--[\w-]+", rest):
+            assert re.search(rf"(?<![\w-]){flag}\b", text), f"magtune {' '.join(argv)}: no option {flag}"
+
+
+def test_quoted_repository_paths_exist():
+    """A path the guide pages quote in backticks (`config/...`, `tests/...`, `bench/...`, `scripts/...`,
+    `bags/...`, `docs/...`) exists; placeholders (NAME, *, {..}, <..>) are skipped. Paths inside
+    magtune_core/ are left to docs/architecture.md and tests/test_architecture.py."""
+    bad = []
+    for page in _guide_pages():
+        for quoted in re.findall(r"`((?:config|scripts|bench|bags|tests|docs)/[^`\s:]*)", page.read_text()):
+            path = quoted.rstrip("/.,")
+            if re.search(r"[*{<]|NAME|NNNNN", path):
+                continue
+            if not (ROOT / path).exists():
+                bad.append(f"{page.relative_to(ROOT)}: {quoted}")
     assert not bad, bad
