@@ -163,3 +163,15 @@ def test_no_argparse_below_cli():
                  if _layer(_module_name(p)) not in (None, "cli") and ("import argparse" in p.read_text()
                                                                       or "def main(" in p.read_text())]
     assert offenders == []
+
+
+def test_nodes_never_import_the_layer_that_launches_them():
+    """No file of ros2_ws/src imports magtune_core.ros (the runners start the nodes; the nodes
+    use the layers below: bags for the Foxglove server and playback options, design, sim)."""
+    bad = []
+    for f in sorted((ROOT / "ros2_ws" / "src").rglob("*.py")):
+        for node in ast.walk(ast.parse(f.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            bad += [f"{f.relative_to(ROOT)}: {n}" for n in names if n == "magtune_core.ros" or n.startswith("magtune_core.ros.")]
+    assert not bad, bad

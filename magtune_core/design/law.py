@@ -10,11 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .model import skew_field
-
-#: Default per-axis dipole limit [A m^2] (the paper gives none; typical 10-50 A m^2 small-sat rods).
-DEFAULT_DIPOLE_LIMIT = 50.0
-#: Below this field magnitude [T] the projection law is ill-conditioned: command zero dipole.
-DEFAULT_MIN_FIELD = 1e-7
+from .node_params import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD  # noqa: F401 (the law's defaults)
 
 
 def saturate(m, m_max) -> np.ndarray:

@@ -12,7 +12,11 @@ from __future__ import annotations
 from ..base.errors import ConfigError
 from ..base.schema import Field
 from .field import FIELD_MODELS
-from .law import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD
+
+#: Default per-axis dipole limit [A m^2] (the paper gives none; typical 10-50 A m^2 small-sat rods).
+DEFAULT_DIPOLE_LIMIT = 50.0
+#: Below this field magnitude [T] the projection law is ill-conditioned: command zero dipole.
+DEFAULT_MIN_FIELD = 1e-7
 
 #: The paper's initial rate error dw(0) [rad/s] (section 5), the simulator's default.
 INITIAL_RATE_ERROR = (1e-3, 2e-3, 0.0)
