@@ -438,7 +438,22 @@ def exponents_at(W0, W1, W2, idx, ig):
     (:func:`.hinf.exponent_polynomial`, flat batch (N, steps, 2n, 2n)) at 1/gamma = ``ig``: the
     gamma-test's input gathered and formed in one pass (numpy took ~0.13 ms per single-gain level at
     64 steps in copies and temporaries, 1/5 of the test). Same operations in the same order as the
-    numpy expression, no FMA: bit-identical to it."""
+    numpy expression, no FMA: bit-identical to it.
+
+    Parameters
+    ----------
+    W0, W1, W2 : ndarray (N, steps, 2n, 2n)
+        The coefficients of the 4th-order Magnus exponents (Magnus 1954) in 1/gamma.
+    idx : ndarray of int64 (k,)
+        Which systems.
+    ig : ndarray (k,)
+        1/gamma for each.
+
+    Returns
+    -------
+    ndarray (k, steps, 2n, 2n)
+        The exponents, the input of :func:`gamma_test_omegas`.
+    """
     out = np.empty((idx.shape[0],) + W0.shape[1:])
     for k in range(idx.shape[0]):
         i, g = idx[k], ig[k]
@@ -451,6 +466,9 @@ def exponents_at(W0, W1, W2, idx, ig):
 
 def gamma_test_omegas(omega, margins, growth=_GROWTH):
     """The gamma-test of every system of omega (N, steps, 2n, 2n) (Magnus exponents of the Hamiltonian).
+
+    The periodic bounded real lemma's test (Bittanti & Colaneri 2009, ch. 9; see :mod:`.hinf`) of
+    ||G||_inf < gamma, the norm of paper eq. (21), compiled.
 
     ``growth``: the largest ||exp(Omega / 2^j)||_1 squared as a matrix before the squarings go on in
     scattering form (:func:`.hinf.interval_scattering`); ``np.inf`` is the plain exponential (the

@@ -84,6 +84,7 @@ class SensorNoise:
 
     @property
     def any(self) -> bool:
+        """True if any run has noise, a bias or quantization (else the compiled loop skips the sensors)."""
         return bool(np.any(self.mag_std) or np.any(self.mag_bias) or np.any(self.gyro_std) or np.any(self.gyro_bias)
                     or np.any(self.attitude_std) or self.mag_quantum)
 
@@ -114,6 +115,7 @@ class BatchRuns:
 
     @property
     def size(self) -> int:
+        """Number of runs B (the rows of ``q0``)."""
         return int(np.asarray(self.q0).shape[0])
 
 
@@ -317,7 +319,13 @@ def _nominal_period(env, orbits: int = 5) -> float:
 
 def run_orbit_periods(runs: BatchRuns) -> np.ndarray:
     """Nominal orbit period of each run [s]: ``p.orbit_period`` ("paper") or the actual orbit's mean
-    orbital-frame rate (:func:`magtune_core.sim.fullenv.nominal_orbit_period`, as ``simulate`` uses)."""
+    orbital-frame rate (:func:`magtune_core.sim.fullenv.nominal_orbit_period`, as ``simulate`` uses).
+
+    Returns
+    -------
+    ndarray (B,)
+        T per run [s] (the controller's W0 = 2 pi / T, paper eq. 14).
+    """
     if runs.environment == "full":
         periods = {o: nominal_orbit_period(runs.p, o) for o in dict.fromkeys(runs.env_options)}
         return np.array([periods[o] for o in runs.env_options])
@@ -344,6 +352,7 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
     saturated and weak-field counts, divergence). ``orbit_periods`` (B,) overrides the nominal
     periods (default :func:`run_orbit_periods`). ``full_series``: also keep the true pointing
     error and |m| at every instant (what the figures of merit of a campaign need).
+    Control law of paper eq. (17) with per-axis saturation; set-up of paper section 5.
 
     Returns
     -------
