@@ -45,7 +45,7 @@ fi
 # Compile the numba code of the H-infinity norm (kernel, level model) once per change of its source (~70 s on a new
 # machine; cached in magtune_core/ltp/__pycache__): the first J(K) of a run does not pay it.
 kstamp="$venv/.magtune-kernel"
-kwant=$(cat "$root"/magtune_core/ltp/{hinf_kernel,hinf_levels,expm}.py | sha1sum | cut -d' ' -f1)
+kwant=$(cat "$root"/magtune_core/ltp/{hinf_kernel,hinf_levels,expm,small_linalg}.py | sha1sum | cut -d' ' -f1)
 if [ "$(cat "$kstamp" 2>/dev/null)" != "$kwant" ] || ! ls "$root"/magtune_core/ltp/__pycache__/hinf_kernel.*.nbi >/dev/null 2>&1; then
   echo "bootstrap: compiling the H-infinity kernel and level model (numba, about a minute on a new machine)" >&2
   (cd "$root" && "$venv/bin/python" -c "from magtune_core.ltp import hinf_kernel, hinf_levels; hinf_kernel.compile_all(); hinf_levels.compile_all()")

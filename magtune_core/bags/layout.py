@@ -53,6 +53,7 @@ class TopicInfo:
     message_count: int = 0
 
     def to_metadata(self) -> dict:
+        """This topic's entry of ``metadata.yaml``'s ``topics_with_message_count`` (rosbag2 version 9)."""
         return {
             "topic_metadata": {
                 "name": self.name, "type": self.type,

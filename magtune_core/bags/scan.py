@@ -53,6 +53,7 @@ class BadChunk:
     end_ns: int | None = None
 
     def to_dict(self) -> dict:
+        """Plain-dict form (JSON-able) for :meth:`ScanResult.summary`."""
         return {"offset": self.offset, "reason": self.reason, "messages": self.messages,
                 "start_ns": self.start_ns, "end_ns": self.end_ns}
 
@@ -81,10 +82,12 @@ class ScanResult:
 
     @property
     def message_count(self) -> int:
+        """Messages read intact, all topics."""
         return sum(self.counts.values())
 
     @property
     def complete(self) -> bool:
+        """True if the file was closed cleanly and nothing was lost (no bad chunk, problem or orphan)."""
         return self.footer and not self.chunks_bad and not self.problem and not self.orphans
 
     @property
@@ -94,6 +97,7 @@ class ScanResult:
 
     @property
     def topics(self) -> dict[str, TopicInfo]:
+        """Topics seen in the file (name -> :class:`TopicInfo` with the intact message counts)."""
         out: dict[str, TopicInfo] = {}
         for ch in self.channels.values():
             sc = self.schemas.get(ch.schema_id)

@@ -45,6 +45,7 @@ class TimingCheck:
         self.dev: dict[str, list[int]] = {}
 
     def add(self, topic: str, log_time: int, data: bytes) -> None:
+        """Record one message: a /clock stamp, or the log time minus the header stamp of another topic."""
         if topic == CLOCK:
             s = stamp_from_cdr(data)
             if s is not None:

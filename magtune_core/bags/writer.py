@@ -159,6 +159,7 @@ class BagWriter:
         self._w.flush()
 
     def metadata(self) -> dict:
+        """The ``metadata.yaml`` document of what has been written so far (:func:`.layout.build_metadata`)."""
         files = [dict(f) for f in self.files] if len(self.files) > 1 else None
         return build_metadata(self.dir, list(self.topics.values()), self.start_ns or 0,
                               self.end_ns, self.custom_data, files)

@@ -46,6 +46,9 @@ def pade13_scaled(a: np.ndarray):
 def expm(a: np.ndarray) -> np.ndarray:
     """exp(a) for a stack of square matrices (..., n, n); non-finite inputs give NaN outputs.
 
+    Scaling and squaring with the Pade-13 approximant (Higham 2005), batched (scipy's expm takes one
+    matrix per call): the interval transitions of the Magnus integrator.
+
     Returns
     -------
     ndarray (..., n, n)

@@ -32,6 +32,9 @@ def _van_loan(sys: LTPSystem, t):
 def periodic_gramian(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
     """P(t_k) at the grid t_k = k T / steps, shape (*batch, steps, n, n).
 
+    The T-periodic solution of the periodic Lyapunov equation P' = A P + P A^T + B B^T
+    (Bittanti & Colaneri 2009), the Gramian behind :func:`h2norm`.
+
     Returns
     -------
     ndarray (*batch, steps, n, n)

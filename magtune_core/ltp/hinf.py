@@ -40,7 +40,25 @@ GROWTH = 1e6
 
 
 def hamiltonian(sys: LTPSystem, gamma, t) -> np.ndarray:
-    """The (balanced) H-infinity Hamiltonian at times t, shape (*batch, len(t), 2n, 2n); gamma broadcast."""
+    """The (balanced) H-infinity Hamiltonian at times t: the flow whose scattering form the gamma-test checks.
+
+    The Hamiltonian of the periodic H-infinity Riccati equation of the bounded real lemma (module
+    docstring; Bittanti & Colaneri 2009, ch. 9), [[A_g, B R^-1 B^T], [-C^T (I + D R^-1 D^T) C, -A_g^T]],
+    with its off-diagonal blocks balanced by p = alpha p' (conjugate points and the test invariant).
+
+    Parameters
+    ----------
+    sys : LTPSystem
+    gamma : float or ndarray
+        Level(s) > sup ||D||, broadcast against the batch axes of ``sys``.
+    t : ndarray (k,)
+        Times in [0, T).
+
+    Returns
+    -------
+    ndarray (*batch, k, 2n, 2n)
+        H(t) at every time.
+    """
     A, B, C = sys.sample("A", t), sys.sample("B", t), sys.sample("C", t)
     g2 = (np.asarray(gamma, dtype=float) ** 2)[..., None, None, None]
     if sys.has_feedthrough:
@@ -72,7 +90,17 @@ def hamiltonian(sys: LTPSystem, gamma, t) -> np.ndarray:
 
 
 def scattering(phi: np.ndarray):
-    """Scattering blocks (E, G, Hs, F) of a Hamiltonian transition [[P11, P12], [P21, P22]]."""
+    """Scattering blocks (E, G, Hs, F) of a Hamiltonian transition [[P11, P12], [P21, P22]].
+
+    The "standard symplectic" form x1 = E x0 + G p1, p0 = Hs x0 + F p1 of the flow (module docstring),
+    in which intervals join by the Redheffer star product (:func:`star`) without forming the growing
+    part of the transition.
+
+    Returns
+    -------
+    E, G, Hs, F : ndarrays (..., n, n)
+        F = P22^-1, G = P12 F, Hs = -F P21, E = P11 + P12 Hs (NaN where P22 is singular).
+    """
     n = phi.shape[-1] // 2
     P11, P12, P21, P22 = phi[..., :n, :n], phi[..., :n, n:], phi[..., n:, :n], phi[..., n:, n:]
     F = _safe_solve(P22, np.broadcast_to(np.eye(n), P22.shape))
@@ -85,9 +113,19 @@ def scattering(phi: np.ndarray):
 def star(a, b):
     """Redheffer star product of an earlier segment a and a later segment b; also the junction check.
 
-    Returns ((E, G, Hs, F), ok, kappa) where ok is False where the junction has a conjugate
-    point (an eigenvalue of G_a Hs_b at or beyond 1) or the numbers are no longer finite, and
-    kappa is that largest eigenvalue (how close the junction is to a conjugate point).
+    Joining two scattering segments is one step of the structured doubling algorithm; the junction
+    exists iff I - G_a Hs_b is invertible, i.e. no conjugate point of the Riccati equation there
+    (bounded real lemma, module docstring).
+
+    Returns
+    -------
+    blocks : tuple (E, G, Hs, F) of ndarrays (..., n, n)
+        The scattering blocks of the joined segment.
+    ok : ndarray of bool (...)
+        False where the junction has a conjugate point (an eigenvalue of G_a Hs_b at or beyond 1)
+        or the numbers are no longer finite.
+    kappa : ndarray (...)
+        That largest eigenvalue (how close the junction is to a conjugate point).
     """
     Ea, Ga, Ha, Fa = a
     Eb, Gb, Hb, Fb = b
@@ -214,7 +252,20 @@ def interval_scattering(omega: np.ndarray, growth: float = GROWTH):
 
 def period_scattering(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS):
     """Scattering blocks of one period of the Hamiltonian flow, where they exist, and the
-    largest junction eigenvalue kappa met on the way (``star``)."""
+    largest junction eigenvalue kappa met on the way (``star``).
+
+    The numpy reference of the compiled kernel's period tree (:mod:`.hinf_kernel`): ``steps``
+    4th-order Magnus intervals (Magnus 1954; two Gauss nodes) joined pairwise, earlier first.
+
+    Returns
+    -------
+    blocks : tuple (E, G, Hs, F) of ndarrays (*batch, n, n)
+        The period's scattering blocks.
+    ok : ndarray of bool (*batch)
+        False where an interval or a junction failed (a conjugate point, or non-finite numbers).
+    kappa : ndarray (*batch)
+        Largest junction eigenvalue met.
+    """
     M1, M2, h = generator_at_nodes(lambda t: hamiltonian(sys, gamma, t), sys.period, steps)
     with np.errstate(all="ignore"):
         blocks, ok, kappa = interval_scattering(magnus_exponent(M1, M2, h))  # (..., steps, n, n) each
@@ -237,6 +288,10 @@ def period_scattering(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS):
 def gamma_test(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS, return_decay: bool = False):
     """True where ||G||_inf < gamma (batch axes of sys broadcast against gamma's shape).
 
+    The test of the periodic bounded real lemma (module docstring; Bittanti & Colaneri 2009, ch. 9)
+    on the norm of paper eq. (21), in numpy (the paper tuner's path; ``hinfnorm`` uses the compiled
+    :func:`gamma_margins`).
+
     With ``return_decay``, also the spectral radius of the Hamiltonian closed loop over one
     period, (I - G_T X(0))^-1 E_T with X the stabilizing solution (NaN where the test fails).
     It tends to 1 as gamma falls to the norm (like exp(-c sqrt(gamma - norm)) at a generic
@@ -257,6 +312,9 @@ def gamma_test(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS, return_decay: 
 
 def gamma_margins(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS, growth: float = GROWTH):
     """The gamma-test with the two margins that say how far gamma is above the norm (compiled kernel).
+
+    Same test as :func:`gamma_test` (periodic bounded real lemma, Bittanti & Colaneri 2009, ch. 9;
+    norm of paper eq. 21), run by :func:`.hinf_kernel.gamma_test_omegas`.
 
     The test fails at the norm by one of two events (module docstring): a pair of Hamiltonian
     multipliers reaching the unit circle (then the decay rho -> 1, with (ln rho)^2 ~ linear in
@@ -313,7 +371,16 @@ def _gamma_test(sys: LTPSystem, gamma, steps: int, margins: bool):
 
 
 def feedthrough_bound(sys: LTPSystem, samples: int = 256) -> np.ndarray:
-    """sup_t ||D(t)||: a lower bound of the norm; the gamma-test needs gamma above it."""
+    """sup_t ||D(t)||: a lower bound of the norm; the gamma-test needs gamma above it.
+
+    (R = gamma^2 I - D^T D of the bounded real lemma must be positive definite.)
+
+    Returns
+    -------
+    ndarray (*batch)
+        max over ``samples`` times of one period of the largest singular value of D(t); 0 (shape ())
+        without feedthrough.
+    """
     if not sys.has_feedthrough:
         return np.zeros(())
     t = np.arange(samples) * sys.period / samples
@@ -323,6 +390,9 @@ def feedthrough_bound(sys: LTPSystem, samples: int = 256) -> np.ndarray:
 def hinfnorm(sys: LTPSystem, rtol: float = 1e-6, steps: int = DEFAULT_STEPS, guess=None,
              grid: int | None = None, spread: float | None = None) -> np.ndarray:
     """H-infinity (L2-induced) norm of a stable LTP system, paper eq. (21); inf if unstable.
+
+    Levels gamma placed between gamma-tests (:func:`gamma_margins`: the periodic bounded real lemma,
+    Bittanti & Colaneri 2009, ch. 9) until the bracket is within ``rtol``.
 
     Vectorized over a batch of systems (leading axes of the matrices): every round tests only
     the systems whose bracket is still open, as one flat batch of gamma-tests. First a bracket
@@ -494,6 +564,8 @@ def _flat(v, batch: tuple, inner: tuple, dtype):
 
 def exponent_polynomial(sys: LTPSystem, steps: int = DEFAULT_STEPS):
     """The Magnus exponents of the balanced Hamiltonian as a polynomial in 1/gamma, W0 + W1/g + W2/g^2.
+
+    (4th-order Magnus expansion, Magnus 1954, with two Gauss nodes per interval: Iserles & Norsett 1999.)
 
     Without feedthrough the balanced Hamiltonian of :func:`hamiltonian` is H(t) = H0(t) + N(t) / gamma,
     with H0 = diag(A, -A^T) and N = [[0, c B B^T], [-C^T C / c, 0]], c = sqrt(max|C^T C| / max|B B^T|)

@@ -32,7 +32,13 @@ def quadratic_zero_one(g1, g2, g3, m1, m2, m3, lo):
 
     Newton form m(x) = m1 + f12 (x - g1) + f123 (x - g1)(x - g2); the root of smaller magnitude in
     x - g1 (stable form 2c / (-b - sign(b) sqrt(b^2 - 4ac))); kept where it lies below g1 and above
-    lo and the margin increases with gamma there (m2 > m1 > 0)."""
+    lo and the margin increases with gamma there (m2 > m1 > 0).
+
+    Returns
+    -------
+    float
+        The zero (a prediction of the norm of paper eq. 21 from one margin of the gamma-test), or -inf.
+    """
     f12 = (m2 - m1) / (g2 - g1)
     f123 = ((m3 - m2) / (g3 - g2) - f12) / (g3 - g1)
     a, b, c = f123, f12 - f123 * (g2 - g1), m1
@@ -51,7 +57,13 @@ def margin_zero_one(g1, g2, g3, m1, m2, m3, lo, line, frac):
 
     The power law's zero is the root, nearest g1, of
     ln(m1/m2) ln((g2 - x)/(g3 - x)) = ln(m2/m3) ln((g1 - x)/(g2 - x)), found on the scan
-    x = g1 - (g1 - lo) frac and interpolated linearly in the first interval that changes sign."""
+    x = g1 - (g1 - lo) frac and interpolated linearly in the first interval that changes sign.
+
+    Returns
+    -------
+    float
+        The zero gamma0 (a prediction of the norm of paper eq. 21), or -inf.
+    """
     lin = g1 - m1 * (g2 - g1) / (m2 - m1)
     if not (line and m2 > m1 and m1 > 0 and np.isfinite(lin)):
         lin = -np.inf
@@ -76,7 +88,12 @@ def predict_one(hist, lo, hi, frac):
     """The norm predicted from hist (3, 1 + q) = rows (gamma, margins...) of the last three passing
     levels, nearest first: per margin the quadratic's zero, else (where there is something to fit:
     three levels, or two within 1 % of the norm) the power law's / line's; the highest of them.
-    -inf where no margin gives a prediction."""
+
+    Returns
+    -------
+    float
+        The predicted norm (paper eq. 21); -inf where no margin gives a prediction.
+    """
     g1, g2, g3 = hist[0, 0], hist[1, 0], hist[2, 0]
     q = hist.shape[1] - 1
     line = np.log(hi / lo) < 0.01
@@ -153,7 +170,13 @@ def update_round(hist, lo, hi, cfac, bad, gam, need, passed, marg, model, closin
 
 @njit(cache=True, error_model="numpy")
 def predict_many(hist, lo, hi, frac):
-    """:func:`predict_one` of every system: hist (N, 3, 1 + q), lo, hi (N) -> (N)."""
+    """:func:`predict_one` of every system: hist (N, 3, 1 + q), lo, hi (N) -> (N).
+
+    Returns
+    -------
+    ndarray (N,)
+        The predicted norms; -inf where none.
+    """
     out = np.empty(lo.shape[0])
     for i in range(lo.shape[0]):
         out[i] = predict_one(hist[i], lo[i], hi[i], frac)
@@ -163,7 +186,13 @@ def predict_many(hist, lo, hi, frac):
 @njit(cache=True, error_model="numpy")
 def zeros_many(g, m, lo, line, frac, power):
     """Per system and margin, :func:`margin_zero_one` (``power``) or :func:`quadratic_zero_one`:
-    g (N, 3), m (N, 3, q), lo, line (N) -> (N, q)."""
+    g (N, 3), m (N, 3, q), lo, line (N) -> (N, q).
+
+    Returns
+    -------
+    ndarray (N, q)
+        The predicted zero of every margin; -inf where none.
+    """
     out = np.empty((g.shape[0], m.shape[2]))
     for i in range(g.shape[0]):
         for j in range(m.shape[2]):

@@ -17,7 +17,23 @@ from .system import LTPSystem
 
 
 def fourier_coefficients(sys: LTPSystem, name: str, max_harmonic: int, samples: int | None = None) -> np.ndarray:
-    """X_m = (1/T) int X(t) e^{-j m W t} dt for m = -max_harmonic..max_harmonic (FFT): (2M+1, r, c)."""
+    """X_m = (1/T) int X(t) e^{-j m W t} dt for m = -max_harmonic..max_harmonic (FFT): (2M+1, r, c).
+
+    The Fourier coefficients of paper eq. (8) (Wereley & Hall 1990), the blocks of the Toeplitz
+    operators of eq. (9).
+
+    Parameters
+    ----------
+    name : str
+        Which matrix of ``sys``: "A", "B", "C" or "D".
+    samples : int, optional
+        FFT length (default: at least 4 per harmonic kept, and 64).
+
+    Returns
+    -------
+    ndarray (2 max_harmonic + 1, r, c), complex
+        X_m, m ascending from -max_harmonic.
+    """
     samples = samples or max(64, 4 * (2 * max_harmonic + 1))
     t = np.arange(samples) * sys.period / samples
     X = sys.sample(name, t)
@@ -116,6 +132,9 @@ def lti_hinfnorm(A, B, C, D, rtol: float = 1e-9, max_iter: int = 50) -> tuple[fl
 
 def htf_hinfnorm(sys: LTPSystem, harmonics: int = 8, margin: int | None = None, rtol: float = 1e-9) -> float:
     """||G||_inf from the HTF compressed to |n| <= harmonics (converges from below as it grows).
+
+    Paper eqs. (9)-(10) truncated (Zhou & Hagiwara 2002b), the norm of the truncation by
+    :func:`lti_hinfnorm`: the independent cross-check of the exact :func:`.hinf.hinfnorm` (eq. 21).
 
     Returns
     -------

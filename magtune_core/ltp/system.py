@@ -64,11 +64,15 @@ class LTPSystem:
 
     @property
     def has_feedthrough(self) -> bool:
+        """True if D(t) is given and not identically zero (the gamma-test then needs gamma > sup ||D||)."""
         return self.D is not None and (callable(self.D) or np.any(np.asarray(self.D)))
 
 
 def interval_grid(period: float, steps: int):
-    """Interval start times t_k = k h, the step h, and the 2 Gauss nodes of every interval (steps, 2)."""
+    """Interval start times t_k = k h, the step h, and the 2 Gauss nodes of every interval (steps, 2).
+
+    The grid of the 4th-order Magnus integrator (Gauss-Legendre nodes t_k + (1/2 -+ sqrt(3)/6) h).
+    """
     h = period / steps
     t0 = np.arange(steps) * h
     return t0, h, t0[:, None] + h * GAUSS_NODES
@@ -77,18 +81,45 @@ def interval_grid(period: float, steps: int):
 def magnus_exponent(M1: np.ndarray, M2: np.ndarray, h: float) -> np.ndarray:
     """The 4th-order Magnus exponent (h/2)(M1 + M2) - (sqrt(3) h^2 / 12) [M1, M2] of each interval.
 
-    M1, M2: the generator at the two Gauss nodes of each interval, shape (..., k, k).
+    Magnus expansion (Magnus 1954) truncated at 4th order with two Gauss nodes (Iserles & Norsett
+    1999; Blanes, Casas, Oteo & Ros 2009): exp(Omega_k) approximates the transition
+    matrix phi(t_k + h, t_k) of paper eq. (3) with local error O(h^5).
+
+    Parameters
+    ----------
+    M1, M2 : ndarray (..., k, k)
+        The generator at the two Gauss nodes of each interval.
+    h : float
+        Interval length.
+
+    Returns
+    -------
+    ndarray (..., k, k)
+        Omega_k per interval.
     """
     return 0.5 * h * (M1 + M2) - (np.sqrt(3.0) / 12.0) * h * h * (M1 @ M2 - M2 @ M1)
 
 
 def magnus_exponentials(M1: np.ndarray, M2: np.ndarray, h: float) -> np.ndarray:
-    """exp of the 4th-order Magnus exponent (:func:`magnus_exponent`) of each interval."""
+    """exp of the 4th-order Magnus exponent (:func:`magnus_exponent`) of each interval.
+
+    Returns
+    -------
+    ndarray (..., k, k)
+        The interval transitions phi(t_k + h, t_k) of paper eq. (3) (Magnus 1954, 4th order).
+    """
     return expm(magnus_exponent(M1, M2, h))
 
 
 def generator_at_nodes(fun: Callable[[np.ndarray], np.ndarray], period: float, steps: int):
-    """Sample ``fun`` at the Gauss nodes: returns (M1, M2), each (..., steps, k, k), and h."""
+    """Sample ``fun`` at the Gauss nodes of :func:`interval_grid`: the input of :func:`magnus_exponent`.
+
+    Returns
+    -------
+    (M1, M2) : tuple of ndarrays (..., steps, k, k)
+        ``fun`` at the first and second Gauss node of every interval.
+    h : float
+        Interval length."""
     _, h, nodes = interval_grid(period, steps)
     vals = fun(nodes.ravel())  # (..., 2*steps, k, k), ordered (interval, node)
     if vals.shape[-3] == 1:  # time-invariant: broadcast over the nodes
@@ -100,6 +131,8 @@ def generator_at_nodes(fun: Callable[[np.ndarray], np.ndarray], period: float, s
 def interval_transitions(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
     """phi_A(t_{k+1}, t_k) for the ``steps`` intervals of one period: shape (*batch, steps, n, n).
 
+    The transition matrix of paper eqs. (2)-(3), by the 4th-order Magnus expansion (Magnus 1954).
+
     Returns
     -------
     ndarray (*batch, steps, n, n)
@@ -110,7 +143,14 @@ def interval_transitions(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarr
 
 
 def chain_product(phis: np.ndarray) -> np.ndarray:
-    """Ordered product phi_{N-1} ... phi_1 phi_0 over axis -3, by pairwise (tree) reduction."""
+    """Ordered product phi_{N-1} ... phi_1 phi_0 over axis -3, by pairwise (tree) reduction.
+
+    (phi(t_N, t_0) from interval transitions, paper eq. 2; the tree keeps the round-off ~log N.)
+
+    Returns
+    -------
+    ndarray (..., n, n)
+        The product, later factors on the left."""
     while phis.shape[-3] > 1:
         if phis.shape[-3] % 2:  # odd: multiply the last one into its predecessor
             last = phis[..., -1:, :, :] @ phis[..., -2:-1, :, :]

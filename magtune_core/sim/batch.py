@@ -49,7 +49,7 @@ from ..design.params import SpacecraftParams
 from ..env.environment import Environment
 from ..env.igrf import IGRF
 from ..env.orbit import initial_state, orbital_rate
-from .batch_kernels import closed_loop, env_rows, igrf_arrays, orbit_rhs
+from .batch_kernels import Chunk, Controller, Outputs, Plant, Sensors, closed_loop, env_rows, igrf_arrays, orbit_rhs
 from .fullenv import FullEnvironmentOptions, _environment, environment_table, nominal_orbit_period
 from .metrics import pointing_error_deg
 
@@ -84,6 +84,7 @@ class SensorNoise:
 
     @property
     def any(self) -> bool:
+        """True if any run has noise, a bias or quantization (else the compiled loop skips the sensors)."""
         return bool(np.any(self.mag_std) or np.any(self.mag_bias) or np.any(self.gyro_std) or np.any(self.gyro_bias)
                     or np.any(self.attitude_std) or self.mag_quantum)
 
@@ -114,6 +115,7 @@ class BatchRuns:
 
     @property
     def size(self) -> int:
+        """Number of runs B (the rows of ``q0``)."""
         return int(np.asarray(self.q0).shape[0])
 
 
@@ -317,7 +319,13 @@ def _nominal_period(env, orbits: int = 5) -> float:
 
 def run_orbit_periods(runs: BatchRuns) -> np.ndarray:
     """Nominal orbit period of each run [s]: ``p.orbit_period`` ("paper") or the actual orbit's mean
-    orbital-frame rate (:func:`magtune_core.sim.fullenv.nominal_orbit_period`, as ``simulate`` uses)."""
+    orbital-frame rate (:func:`magtune_core.sim.fullenv.nominal_orbit_period`, as ``simulate`` uses).
+
+    Returns
+    -------
+    ndarray (B,)
+        T per run [s] (the controller's W0 = 2 pi / T, paper eq. 14).
+    """
     if runs.environment == "full":
         periods = {o: nominal_orbit_period(runs.p, o) for o in dict.fromkeys(runs.env_options)}
         return np.array([periods[o] for o in runs.env_options])
@@ -344,6 +352,7 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
     saturated and weak-field counts, divergence). ``orbit_periods`` (B,) overrides the nominal
     periods (default :func:`run_orbit_periods`). ``full_series``: also keep the true pointing
     error and |m| at every instant (what the figures of merit of a campaign need).
+    Control law of paper eq. (17) with per-axis saturation; set-up of paper section 5.
 
     Returns
     -------
@@ -401,18 +410,18 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
     ang_all = np.empty((B, n + 1) if full_series else (B, 1))
     mn_all = np.empty_like(ang_all)
     index = np.ascontiguousarray(tables.index, dtype=np.int64)
-    noise_k0 = 0
+    plant = Plant(I, J, hw, mres, gg, drag, srp, A, cp, cd, es, ed)
+    ctrl = Controller(K, lim, W0, min_b2)
+    sens = Sensors(noisy, noise, 0, mag_bias, mag_std, float(sensors.mag_quantum or 0.0), att_std, gyro_bias, gyro_std)
+    out = Outputs(sat, weak, diverged, DIVERGED_RATE, bool(full_series), ang_all, mn_all, rec_slot, Q, W, X, M, Bb)
     # controller steps in chunks of ENV_CHUNK (a divisor of NOISE_CHUNK): one environment table and one
     # compiled call per chunk (batch_kernels.closed_loop: sensors, controller, S RK4 steps per period)
     for kc in range(0, n + 1, ENV_CHUNK):
         k1 = min(kc + ENV_CHUNK, n + 1)
         table = tables.chunk(kc, k1)
         if noisy and kc % NOISE_CHUNK == 0:
-            noise, noise_k0 = block(), kc
-        closed_loop(y, table, index, kc, kc, k1, n, per, S, h, K, lim, W0, I, J, hw, mres, gg, drag, srp, A, cp,
-                    cd, es, ed, noisy, noise, noise_k0, mag_bias, mag_std, float(sensors.mag_quantum or 0.0), att_std,
-                    gyro_bias, gyro_std, min_b2, DIVERGED_RATE, sat, weak, diverged, bool(full_series), ang_all,
-                    mn_all, rec_slot, Q, W, X, M, Bb)
+            sens = sens._replace(noise=block(), noise_k0=kc)
+        closed_loop(y, Chunk(table, index, kc, kc, k1, n, per, S, h), plant, ctrl, sens, out)
     return BatchResult(np.asarray(rec, dtype=float) * ts, Q, W, X, M, Bb, T, sat, weak, diverged, n,
                        dict(ts=ts, substeps=S, environment=runs.environment, record_every=int(record_every)),
                        pointing_error_deg(ang_all) if full_series else None, mn_all if full_series else None,

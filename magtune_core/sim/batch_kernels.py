@@ -27,6 +27,7 @@ a division by zero gives inf/nan as in array code (a diverging run is flagged, n
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -417,17 +418,100 @@ def _rhs(E, y, m0, m1, m2, Ib, Jb, hw, mr, gg, drag, srp, A, cp, cd, es, ed, out
     out[6] = Jb[2, 0] * e0 + Jb[2, 1] * e1 + Jb[2, 2] * e2
 
 
-@njit(cache=True, error_model="numpy")
-def closed_loop(y, table, idx, kc, ka, kb, n, per, S, h, K, lim, W0, I, J, hw, mres, gg, drag, srp, A, cp, cd, es,
-                ed, noisy, noise, noise_k0, mag_bias, mag_std, quantum, att_std, gyro_bias, gyro_std, min_b2,
-                diverged_rate, sat, weak, diverged, full, ang_all, mn_all, rec_slot, Q, Wr, X, M, Bb):
-    """Controller steps ka .. kb-1 (<= n) of every run (the loop of ``batch.simulate_batch``).
+class Chunk(NamedTuple):
+    """The controller steps one :func:`closed_loop` call advances and the environment rows they read."""
 
-    ``y`` (7, B) state, updated in place; ``table`` (U, npts, 15) environment rows on the RK4 stage grid
-    from step ``kc`` on (``per`` rows per step), run b reading ``table[idx[b]]``; ``noise`` (B, CHUNK, 9)
-    the runs' normals, step k reading row k - noise_k0. Accumulates sat/weak/diverged, writes the
-    per-step series (``full``) and the recorded instants (``rec_slot[k] >= 0``).
+    table: np.ndarray  #: (U, npts, 15) environment rows on the RK4 stage grid from step ``kc`` on
+    idx: np.ndarray  #: (B,) int64: run b reads ``table[idx[b]]``
+    kc: int  #: controller step of the table's first row
+    ka: int  #: first controller step advanced
+    kb: int  #: one past the last controller step advanced
+    n: int  #: the run's last controller step (recorded, not integrated over)
+    per: int  #: table rows per controller step (2 substeps)
+    S: int  #: RK4 steps per controller period
+    h: float  #: RK4 step [s]
+
+
+class Plant(NamedTuple):
+    """Per-run rigid body, residual dipole and disturbance torques of :func:`_rhs`."""
+
+    I: np.ndarray  #: (B, 3, 3) inertia [kg m^2]
+    J: np.ndarray  #: (B, 3, 3) its inverse
+    hw: np.ndarray  #: (3,) wheel momentum [N m s]
+    mres: np.ndarray  #: (3, B) residual dipole [A m^2]
+    gg: bool  #: gravity-gradient torque on
+    drag: bool  #: aerodynamic torque on
+    srp: bool  #: solar radiation pressure torque on
+    A: np.ndarray  #: (3,) face areas of the box [m^2]
+    cp: np.ndarray  #: (3,) centre-of-pressure offset [m]
+    cd: float  #: drag coefficient
+    es: float  #: specular reflectivity
+    ed: float  #: diffuse reflectivity
+
+
+class Controller(NamedTuple):
+    """Per-run projection controller (paper eq. 17) with saturation and the weak-field guard."""
+
+    K: np.ndarray  #: (B, 3, 6) gains
+    lim: np.ndarray  #: (3, B) dipole limits [A m^2]
+    W0: np.ndarray  #: (B,) orbit rate of the controller's linear state [rad/s]
+    min_b2: float  #: weak-field guard: no command below this |b|^2 [T^2]
+
+
+class Sensors(NamedTuple):
+    """Per-run sensor model (``batch.SensorNoise``) and the chunk of normals it reads."""
+
+    noisy: bool  #: any noise or bias at all (else the true state is measured)
+    noise: np.ndarray  #: (B, CHUNK, 9) normals; step k reads row k - noise_k0
+    noise_k0: int  #: controller step of noise row 0
+    mag_bias: np.ndarray  #: (3, B) magnetometer bias [T]
+    mag_std: np.ndarray  #: (B,) magnetometer white-noise std [T]
+    quantum: float  #: magnetometer quantization step [T] (0: none)
+    att_std: np.ndarray  #: (B,) attitude-determination error std [rad]
+    gyro_bias: np.ndarray  #: (3, B) gyro bias [rad/s]
+    gyro_std: np.ndarray  #: (B,) gyro white-noise std [rad/s]
+
+
+class Outputs(NamedTuple):
+    """What :func:`closed_loop` accumulates and records (arrays written in place)."""
+
+    sat: np.ndarray  #: (B,) int64 saturated steps
+    weak: np.ndarray  #: (B,) int64 weak-field steps
+    diverged: np.ndarray  #: (B,) bool
+    diverged_rate: float  #: a body rate above this [rad/s] (or a non-finite state) marks the run diverged
+    full: bool  #: write the per-step series ang_all, mn_all
+    ang_all: np.ndarray  #: (B, n + 1) |q_vec| per step (with ``full``)
+    mn_all: np.ndarray  #: (B, n + 1) |m| per step (with ``full``)
+    rec_slot: np.ndarray  #: (n + 1,) int64 history slot of step k (-1: not recorded)
+    Q: np.ndarray  #: (B, R, 4) recorded attitude
+    Wr: np.ndarray  #: (B, R, 3) recorded body rate
+    X: np.ndarray  #: (B, R, 6) recorded controller state
+    M: np.ndarray  #: (B, R, 3) recorded dipole
+    Bb: np.ndarray  #: (B, R, 3) recorded true body field
+
+
+@njit(cache=True, error_model="numpy")
+def closed_loop(y, chunk, plant, ctrl, sens, out):
+    """Controller steps ``chunk.ka .. chunk.kb-1`` (<= n) of every run (the loop of ``batch.simulate_batch``).
+
+    Parameters
+    ----------
+    y : ndarray (7, B)
+        State (quaternion, body rate) of every run, updated in place.
+    chunk : Chunk
+        The steps and the environment rows on the RK4 stage grid (``per`` rows per step from ``kc`` on).
+    plant : Plant
+    ctrl : Controller
+    sens : Sensors
+    out : Outputs
+        Accumulates sat/weak/diverged, writes the per-step series (``full``) and the recorded
+        instants (``rec_slot[k] >= 0``).
     """
+    table, idx, kc, ka, kb, n, per, S, h = chunk
+    I, J, hw, mres, gg, drag, srp, A, cp, cd, es, ed = plant
+    K, lim, W0, min_b2 = ctrl
+    noisy, noise, noise_k0, mag_bias, mag_std, quantum, att_std, gyro_bias, gyro_std = sens
+    sat, weak, diverged, diverged_rate, full, ang_all, mn_all, rec_slot, Q, Wr, X, M, Bb = out
     B = y.shape[1]
     hh, h6 = 0.5 * h, h / 6.0
     ys = np.empty(7)

@@ -55,7 +55,13 @@ NY = 7
 
 
 def magnetic_torque(m, b, m_max=np.inf) -> np.ndarray:
-    """T_mag = sat(m) x b = S(b) sat(m) (paper eq. 12) with per-axis dipole saturation [N m]."""
+    """T_mag = sat(m) x b = S(b) sat(m) (paper eq. 12) with per-axis dipole saturation [N m].
+
+    Returns
+    -------
+    ndarray (3,)
+        The magnetic torque in body axes [N m] (``m`` clipped to +-``m_max`` per axis first).
+    """
     return cross(saturate(m, m_max), b)
 
 
@@ -146,7 +152,10 @@ class AttitudeDynamics:
         return T
 
     def rhs(self, t: float, y, m=None, torque=None) -> np.ndarray:
-        """dy/dt for y = [q (4); w (3)] under dipole ``m`` [A m^2] and/or extra body ``torque`` [N m]."""
+        """dy/dt for y = [q (4); w (3)] under dipole ``m`` [A m^2] and/or extra body ``torque`` [N m].
+
+    Kinematics q' = 0.5 q (x) [0; w - R(q)^T w_oi] and Euler's I w' = T - w x (I w + h) (paper
+    section 3), T = magnetic (eq. 12) + disturbance torques. Returns dy/dt, an ndarray (7,)."""
         return np.array(self._rhs(t, [float(v) for v in y], m, torque))
 
     def _rhs(self, t: float, y, m=None, torque=None) -> tuple:
@@ -208,6 +217,8 @@ class AttitudeDynamics:
     def step(self, t: float, y, dt: float, m=None, substeps: int = 1) -> np.ndarray:
         """Advance y over [t, t + dt] with ``substeps`` classical RK4 steps, dipole m held (ZOH).
 
+    Returns y(t + dt), an ndarray (7,): the response of one sample period of the controller.
+
         Deterministic (fixed steps, fixed operation order); the quaternion is renormalized at
         the end of the interval.
         """
@@ -247,7 +258,15 @@ class AttitudeDynamics:
 
 
 def numerical_jacobian(f, x0, h: float = 1e-6):
-    """Central-difference Jacobian of f at x0 (truncation O(h^2), round-off O(eps |f| / h))."""
+    """Central-difference Jacobian of f at x0 (truncation O(h^2), round-off O(eps |f| / h)).
+
+    What checks the linear model A, B_T of paper eqs. (15)-(16) against the nonlinear one (SPEC.md).
+
+    Returns
+    -------
+    ndarray (len(f(x0)), len(x0))
+        df/dx at x0.
+    """
     x0 = np.asarray(x0, dtype=float)
     f0 = np.asarray(f(x0))
     J = np.zeros((f0.size, x0.size))

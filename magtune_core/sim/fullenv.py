@@ -82,6 +82,8 @@ class FullEnvironmentOptions:
     zonal_degree: int = 2
 
     def environment_config(self, p: SpacecraftParams) -> EnvironmentConfig:
+        """The :class:`EnvironmentConfig` of these switches for spacecraft ``p`` (orbit, box geometry,
+        inertia); the residual dipole stays off here, as the dynamics add it themselves."""
         orbit = p.orbit_config(raan_deg=self.raan_deg, arg_lat_deg=self.arg_lat_deg, epoch=self.epoch,
                                zonal_degree=self.zonal_degree)
         # residual dipole is the dynamics' built-in term; the others are computed here
@@ -99,6 +101,11 @@ def _environment(cfg: EnvironmentConfig) -> Environment:
 
 def nominal_orbit_period(p: SpacecraftParams, opts: FullEnvironmentOptions | None = None, orbits: int = 5) -> float:
     """2 pi / (mean of -w_oi,z over ``orbits`` Keplerian periods, 10 s samples) [s].
+
+    Returns
+    -------
+    float
+        The nominal orbit period T [s] whose rate W0 = 2 pi / T enters the linear state (paper eq. 14).
 
     The nominal rate W0 of the controller's linear state in the full environment (module doc);
     :func:`magtune_core.env.orbit.mean_frame_period` of the spacecraft's orbit.
@@ -289,6 +296,7 @@ class FullDynamics(AttitudeDynamics):
         return np.array(self._env_torque(self.grid.row(float(t)), *R))
 
     def gravity_gradient_torque(self, q, t: float = 0.0) -> np.ndarray:
+        """T_gg = 3 GM/|r|^3 c x (I c) on the actual orbit at time t [N m] (zero if switched off)."""
         row = self.grid.row(float(t))
         c = np.array(_rows(q)[:3])
         return row[6] * np.cross(c, self.inertia @ c) if self._gg else np.zeros(3)

@@ -64,7 +64,15 @@ def figures_of_merit(t, x, m, orbit_period: float, tm=None) -> dict:
 
 
 def settling_time(t, dq, threshold: float) -> float:
-    """First t_k after which dq stays below ``threshold`` to the end (nan if it ends above)."""
+    """First t_k after which dq stays below ``threshold`` to the end (nan if it ends above).
+
+    A figure of the transients of paper section 5 (Figs. 2-5), used by campaigns' pass criteria.
+
+    Returns
+    -------
+    float
+        The settling time [s, the unit of ``t``]; ``t[0]`` if dq never exceeds the threshold.
+    """
     t, dq = np.asarray(t), np.asarray(dq)
     above = np.nonzero(~(dq < threshold))[0]
     if above.size == 0:

@@ -48,11 +48,13 @@ class SimResult:
         return figures_of_merit(self.t, self.x, self.m, self.orbit_period)
 
     def to_npz(self, path, **extra):
+        """Save the histories (and ``extra`` arrays) to an ``.npz`` file that :meth:`from_npz` reads back."""
         np.savez(path, t=self.t, q=self.q, w=self.w, x=self.x, m=self.m, b=self.b,
                  orbit_period=self.orbit_period, **extra)
 
     @classmethod
     def from_npz(cls, path) -> "SimResult":
+        """A result saved by :meth:`to_npz`; the extra arrays land in ``info``."""
         with np.load(path) as z:
             info = {k: z[k] for k in z.files if k not in ("t", "q", "w", "x", "m", "b", "orbit_period")}
             return cls(z["t"], z["q"], z["w"], z["x"], z["m"], z["b"], float(z["orbit_period"]), info)
@@ -96,6 +98,13 @@ def simulate(K, p: SpacecraftParams | None = None, *, ts: float = 1.0, orbits: f
     or "full" (J2 orbit, IGRF, drag, SRP; ``env_options`` a
     :class:`magtune_core.sim.fullenv.FullEnvironmentOptions`): see :mod:`magtune_core.sim.fullenv`. In
     "full", T and W0 are the actual orbit's nominal values (``fullenv.full_params``).
+    The control law is paper eq. (17), m = S(b)^T K x / |b|^2, saturated per axis; the set-up is
+    the simulation study of paper section 5.
+
+    Returns
+    -------
+    SimResult
+        Histories at t_k = k Ts, k = 0..steps, and ``info`` (saturated / weak-field steps, divergence).
     """
     p = p or SpacecraftParams()
     if dynamics is None:
