@@ -48,6 +48,9 @@ kstamp="$venv/.magtune-kernel"
 kwant=$(cat "$root"/magtune_core/ltp/{hinf_kernel,hinf_levels,expm,small_linalg}.py | sha1sum | cut -d' ' -f1)
 if [ "$(cat "$kstamp" 2>/dev/null)" != "$kwant" ] || ! ls "$root"/magtune_core/ltp/__pycache__/hinf_kernel.*.nbi >/dev/null 2>&1; then
   echo "bootstrap: compiling the H-infinity kernel and level model (numba, about a minute on a new machine)" >&2
+  # numba invalidates a cached function only when its own file changes; the kernel inlines
+  # small_linalg and expm, so a change there must drop the whole cache
+  rm -f "$root"/magtune_core/ltp/__pycache__/*.nbi "$root"/magtune_core/ltp/__pycache__/*.nbc
   (cd "$root" && "$venv/bin/python" -c "from magtune_core.ltp import hinf_kernel, hinf_levels; hinf_kernel.compile_all(); hinf_levels.compile_all()")
   echo "$kwant" > "$kstamp"
 fi

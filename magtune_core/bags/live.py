@@ -37,6 +37,7 @@ class LiveServer:
 
     @property
     def port(self) -> int:
+        """The TCP port the server listens on (the one bound when 0 was asked)."""
         return int(self.server.port)
 
     def add_topic(self, topic: str, msg_type: str, definition: str | None = None) -> None:
@@ -62,6 +63,7 @@ class LiveServer:
         ch.log(bytes(data), log_time=t)
 
     def close(self) -> None:
+        """Close every channel and stop the server."""
         for ch in self.channels.values():
             ch.close()
         self.channels.clear()

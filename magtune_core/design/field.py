@@ -56,10 +56,12 @@ class FourierField:
 
     @property
     def period(self) -> float:
+        """Period 2 pi / omega [s] of the field (the orbit period)."""
         return 2.0 * np.pi / self.omega
 
     @property
     def is_constant(self) -> bool:
+        """True when every harmonic is zero (a constant field in orbital axes)."""
         return not (np.any(self.cos) or np.any(self.sin))
 
     def __call__(self, t) -> np.ndarray:

@@ -60,9 +60,11 @@ class FitReport:
 
     @property
     def rms_total(self) -> float:
+        """RMS of the fit residual over the three axes [T]."""
         return float(np.sqrt(np.sum(self.rms**2)))
 
     def markdown(self) -> str:
+        """The fit report as a markdown table (per-axis IGRF RMS, residual RMS and maximum, uT)."""
         ax = "XYZ"
         rows = ["| axis | IGRF RMS [uT] | fit residual RMS [uT] | max residual [uT] |", "|---|---|---|---|"]
         for i in range(3):

@@ -72,18 +72,22 @@ class AttitudeLTP:
 
     @classmethod
     def from_params(cls, p: SpacecraftParams, field_model: str | None = None) -> "AttitudeLTP":
+        """The model of ``p`` with its field model (or ``field_model``, a name of ``design.field.FIELD_MODELS``)."""
         return cls(p, p.field(field_model))
 
     @property
     def period(self) -> float:
+        """Period T [s] of the LTP model: the field's (the orbit's)."""
         return self.field.period
 
     @property
     def A(self) -> np.ndarray:
+        """Constant state matrix A of the linearized attitude dynamics (paper section 3, eqs. 11-19), 6 x 6."""
         return state_matrix(self.params)
 
     @property
     def BT(self) -> np.ndarray:
+        """Torque input matrix (u -> x), 6 x 3 (paper section 3)."""
         return torque_input(self.params)
 
     def B(self, t) -> np.ndarray:

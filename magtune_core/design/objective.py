@@ -158,6 +158,7 @@ class HinfObjective:
         self.close()
 
     def close(self) -> None:
+        """Shut the worker pool down (pending evaluations cancelled)."""
         if self._pool is not None:
             self._pool.shutdown(cancel_futures=True)
             self._pool = None

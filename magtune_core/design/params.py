@@ -177,6 +177,7 @@ class SpacecraftParams:
         return float(2.0 * np.pi * np.sqrt(self.inertia[0] * self.inertia[1]) / h) if h > 0 else float("inf")
 
     def field(self, model: str | None = None) -> FourierField:
+        """The orbital-axes field model b_orb(t) (paper eq. 26 by default; ``model`` overrides ``field_model``)."""
         return paper_field(self.orbit_rate, model or self.field_model, self.constant_field)
 
 

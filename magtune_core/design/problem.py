@@ -62,6 +62,7 @@ def dipole_system(model: AttitudeLTP, K) -> LTPSystem:
 
 
 def closed_loop_system(model: AttitudeLTP, K) -> LTPSystem:
+    """The closed loop of paper eq. 18-19 with the projection law u = K x, as an :class:`LTPSystem`."""
     return attitude_system(model, K)
 
 
@@ -76,6 +77,7 @@ class Figures:
     stable: bool
 
     def as_dict(self) -> dict:
+        """The figures as plain floats (and booleans), as a gains file's provenance stores them."""
         return {k: (float(v) if not isinstance(v, bool) else v) for k, v in asdict(self).items()}
 
 

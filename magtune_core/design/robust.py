@@ -78,6 +78,7 @@ class RobustSpec:
 
     @classmethod
     def from_mapping(cls, params: dict, where="robust spec") -> "RobustSpec":
+        """Validate a robust spec mapping against ``ROBUST_FIELDS`` (ConfigError naming the field)."""
         v = parse(params, ROBUST_FIELDS, where)
         spec = cls(**{k: (tuple(float(x) for x in val) if isinstance(val, np.ndarray) else val)
                       for k, val in v.items()})
@@ -192,6 +193,7 @@ class RobustFigures:
 
     @property
     def worst_name(self) -> str:
+        """Name of the model with the largest J."""
         return self.names[self.worst_index]
 
     def worst(self) -> dict:
@@ -199,6 +201,7 @@ class RobustFigures:
         return {k: float(max(getattr(f, k) for f in self.figures)) for k in ("J", "c1", "c2", "rho")}
 
     def nominal(self) -> Figures | None:
+        """Figures of the nominal model, None if the set has none."""
         return self.figures[self.names.index("nominal")] if "nominal" in self.names else None
 
 

@@ -112,6 +112,7 @@ class SampledLoop:
 
     @property
     def intervals(self) -> int:
+        """Number of hold intervals in one orbit period."""
         return len(self.Gamma)
 
     def spectral_radius(self, Ks) -> np.ndarray:

@@ -52,6 +52,8 @@ class TunerSettings:
 
 @dataclass
 class TuneResult:
+    """Outcome of a tuning run (paper 4.2 or CMA-ES): the best gain and its J, the start, the record."""
+
     K: np.ndarray
     J: float
     K0: np.ndarray
@@ -69,6 +71,7 @@ class TuneResult:
     stop: str | None = None  # cma: why the search ended: "certified", "budget", "unresolved" or "interrupted"
 
     def provenance(self) -> dict:
+        """The run's record for a gains file: method, seed, iterations, settings, convergence, evaluations."""
         s = asdict(self.settings)
         s.pop("workers")
         out = {"method": self.method, "seed": int(self.seed), "iterations": int(self.iterations),
@@ -89,6 +92,7 @@ class CandidateEvaluator:
         self._pool = ProcessPoolExecutor(workers, initializer=one_thread_per_worker) if workers > 1 else None
 
     def close(self):
+        """Shut the worker pool down (pending evaluations cancelled)."""
         if self._pool is not None:
             self._pool.shutdown(cancel_futures=True)
 

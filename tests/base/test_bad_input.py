@@ -164,3 +164,22 @@ def test_example_files_pass_the_strict_checks():
         elif "inertia:" in text:
             from magtune_core.design.params import load_spacecraft
             load_spacecraft(f)
+
+
+def test_packaged_sil_defaults_are_the_schemas():
+    """ros2_ws/src/magtune_ros/config/sil.yaml (installed beside the nodes as a template) holds
+    each node's schema defaults, validated by that schema; only the run length differs (5 orbits,
+    as `magtune sil`)."""
+    import numpy as np
+
+    from magtune_core.base.paramfile import read_ros_params
+    from magtune_core.base.schema import parse
+    from magtune_core.design.node_params import SIL_NODE_FIELDS
+
+    path = ROOT / "ros2_ws" / "src" / "magtune_ros" / "config" / "sil.yaml"
+    for node, fields in SIL_NODE_FIELDS.items():
+        given = {k: v for k, v in read_ros_params(path, node).items() if k != "use_sim_time"}
+        assert given, node
+        parsed, defaults = parse(given, fields, path, allowed=()), parse({}, fields, path)
+        differ = sorted(k for k in given if not np.array_equal(parsed[k], defaults[k]))
+        assert differ == (["orbits"] if node == "simulator" else []), (node, differ)

@@ -13,11 +13,10 @@ import sys
 import numpy as np
 import pytest
 
-from magtune_core.base.errors import SilError
 from magtune_core.base.paramfile import read_ros_params
 from magtune_core.design.gains import load_gains
 from magtune_core.design.params import load_spacecraft
-from magtune_core.ros import process, sil
+from magtune_core.ros import sil
 from magtune_core.sim.metrics import settling_time
 from magtune_core.sim.simulate import simulate
 
@@ -36,12 +35,6 @@ def magtune(*args, timeout=600):
     return r.stdout
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _built():
-    try:
-        process.resolve_executable("simulator")
-    except SilError:
-        pytest.skip("magtune_ros not built (run scripts/bootstrap.sh)")
 
 
 def _settles(run, bound=BOUND):

@@ -34,9 +34,7 @@ from magtune_core.bags import recover as bag_recover
 from magtune_core.bags import scan as bag_scan
 from magtune_core.bags.decode import Decoder
 from magtune_core.base.errors import SilError
-from magtune_core.design.gains import load_gains, save_gains
-from magtune_core.design.lq import lq_gains
-from magtune_core.design.model import AttitudeLTP
+from magtune_core.design.gains import load_gains
 from magtune_core.design.params import SpacecraftParams
 from magtune_core.ros import process, sil
 from magtune_core.sim.simulate import SimResult, simulate
@@ -50,24 +48,6 @@ N = 120
 TIMEOUT = 0.25  # lockstep timeout [wall s]: a missed step costs this much
 
 
-def _ros_available():
-    try:
-        process.resolve_executable("controller")
-        import rclpy  # noqa: F401
-    except Exception:
-        return False
-    return True
-
-
-if not _ros_available():  # pragma: no cover
-    pytest.skip("magtune_ros not built (run scripts/bootstrap.sh)", allow_module_level=True)
-
-
-@pytest.fixture(scope="module")
-def gains60(tmp_path_factory):
-    path = tmp_path_factory.mktemp("gains") / "sigma_60.yaml"
-    save_gains(path, lq_gains(AttitudeLTP.from_params(SpacecraftParams()), 60.0, 1.0))
-    return path
 
 
 @pytest.fixture(scope="module")

@@ -13,24 +13,18 @@ import pytest
 
 from magtune_core import bags as baglib
 from magtune_core.bags.decode import Decoder, stamp_ns
-from magtune_core.base.errors import SilError
 from magtune_core.base.rotations import rotation_matrix
 from magtune_core.design.gains import load_gains, save_gains
 from magtune_core.design.lq import lq_gains
 from magtune_core.design.model import AttitudeLTP
 from magtune_core.design.params import SpacecraftParams
-from magtune_core.ros import process, sil
+from magtune_core.ros import sil
 from magtune_core.ros.scenario import SilScenario
 from magtune_core.sim.simulate import simulate
 from magtune_core.studies import report
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(240)]
 
-try:
-    process.resolve_executable("controller")
-    process.resolve_executable("recorder")
-except SilError:  # pragma: no cover
-    pytest.skip("magtune_ros not built (run scripts/bootstrap.sh)", allow_module_level=True)
 
 STEPS = 150
 

@@ -24,18 +24,6 @@ pytestmark = [pytest.mark.ros, pytest.mark.fault]
 GAINS = ROOT / "config" / "gains" / "sigma_60.yaml"
 
 
-def _ros_available():
-    try:
-        process.resolve_executable("recorder")
-        import rclpy  # noqa: F401
-    except Exception:
-        return False
-    return True
-
-
-if not _ros_available():  # pragma: no cover
-    pytest.skip("magtune_ros not built (run scripts/bootstrap.sh)", allow_module_level=True)
-
 
 def _node_pids(domain_id):
     """PIDs of magtune_ros executables running on ROS_DOMAIN_ID = domain_id (from /proc)."""

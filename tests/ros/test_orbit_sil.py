@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from magtune_core.base.errors import ConfigError, SilError
+from magtune_core.base.errors import ConfigError
 from magtune_core.base.paramfile import read_ros_params
 from magtune_core.design.fitfield import field_for_spacecraft
 from magtune_core.design.gains import load_gains
@@ -23,12 +23,6 @@ pytestmark = pytest.mark.ros
 EXAMPLE = "config/examples/cubesat12u"
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _built():
-    try:
-        process.resolve_executable("simulator")
-    except SilError:
-        pytest.skip("magtune_ros not built (run scripts/bootstrap.sh)")
 
 
 def test_sil_flies_the_spacecraft_orbit(tmp_path):

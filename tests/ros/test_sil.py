@@ -17,8 +17,6 @@ import pytest
 from magtune_core.base.errors import ConfigError, SilError
 from magtune_core.design.gains import Gains, load_gains, save_gains
 from magtune_core.design.law import ProjectionController, linear_state
-from magtune_core.design.lq import lq_gains
-from magtune_core.design.model import AttitudeLTP
 from magtune_core.design.params import SpacecraftParams
 from magtune_core.ros import process, scenario, sil
 from magtune_core.sim.simulate import simulate
@@ -26,24 +24,6 @@ from magtune_core.sim.simulate import simulate
 pytestmark = pytest.mark.ros
 
 
-def _ros_available():
-    try:
-        process.resolve_executable("controller")
-        import rclpy  # noqa: F401
-    except Exception:
-        return False
-    return True
-
-
-if not _ros_available():  # pragma: no cover
-    pytest.skip("magtune_ros not built (run scripts/bootstrap.sh)", allow_module_level=True)
-
-
-@pytest.fixture(scope="module")
-def gains60(tmp_path_factory):
-    path = tmp_path_factory.mktemp("gains") / "sigma_60.yaml"
-    save_gains(path, lq_gains(AttitudeLTP.from_params(SpacecraftParams()), 60.0, 1.0))
-    return path
 
 
 # ------------------------------------------------------------------ SIL

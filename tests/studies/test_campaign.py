@@ -16,6 +16,7 @@ import yaml
 
 from magtune_core.base.errors import ConfigError
 from magtune_core.cli import main
+from magtune_core.ros.process import die_with_parent  # the cluster dies with pytest
 from magtune_core.studies import campaign, campaign_report
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -119,11 +120,13 @@ def test_external_dask_cluster_equals_in_process(reference, tmp_path):
     procs = []
     try:
         procs.append(subprocess.Popen([dask_cli, "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                                       "--no-dashboard"], stdout=logs[0], stderr=subprocess.STDOUT, env=env, cwd=tmp_path))
+                                       "--no-dashboard"], stdout=logs[0], stderr=subprocess.STDOUT, env=env, cwd=tmp_path,
+                                      preexec_fn=die_with_parent()))
         for i in (1, 2):
             procs.append(subprocess.Popen([dask_cli, "worker", addr, "--nthreads", "1", "--nworkers", "1",
                                            "--host", "127.0.0.1", "--no-dashboard", "--name", f"w{i}"],
-                                          stdout=logs[i], stderr=subprocess.STDOUT, env=env, cwd=tmp_path))
+                                          stdout=logs[i], stderr=subprocess.STDOUT, env=env, cwd=tmp_path,
+                                          preexec_fn=die_with_parent()))
         from distributed import Client
 
         deadline = time.monotonic() + 90
