@@ -1,4 +1,4 @@
-"""Cost of the exact gradient of J(K) (magtune_core/ltp/hinf_gradient.py, issue 9 thirteenth pass) against
+"""Cost of the exact gradient of J(K) (magtune_core/ltp/hinf_gradient.py) against
 the alternative it replaces: central differences of J over the 18 gain entries (36 gains, one batched
 ``hinfnorm`` call, same rtol), on the shipped gains at 128 and 256 Magnus steps and the LQ starts at 128, and their agreement.
 

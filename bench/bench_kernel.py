@@ -1,5 +1,5 @@
 """Timing of the compiled gamma-test (magtune_core/ltp/hinf_kernel.py) against its np.linalg version,
-and of one J(K) = hinfnorm at rtol 1e-4 with and without what was added since (issue 9, ninth and tenth passes).
+and of one J(K) = hinfnorm at rtol 1e-4 with and without what was added since (the exponent polynomial, the threads, the compiled level model).
 
 The version before the hand-written linear algebra (git 4091808) is written to a temporary module and
 compiled next to the current one, so both run in the same process on the same inputs: one full
@@ -7,7 +7,7 @@ gamma-test at gamma = 1.001 J for the four shipped / paper gains, and the pieces
 interval exponent, one star product of 6x6 blocks, kappa alone) in compiled loops (no dispatch cost).
 The last table times a whole single-gain J(K) (``hinfnorm``, rtol 1e-4, no guess: ``magtune analyze``'s
 call) four ways in one run, alternating: A = the Hamiltonian assembled and its Magnus exponents formed
-at every level (``exponent_polynomial`` switched off), B = the ninth pass's ``hinf.py`` (git PREV_COMMIT:
+at every level (``exponent_polynomial`` switched off), B = the ``hinf.py`` before the compiled level model (git PREV_COMMIT:
 the level model and its bookkeeping in numpy over the batch, exponents from the polynomial in numpy),
 C = now (level model compiled, ``hinf_levels``; exponents gathered by ``exponents_at``) on one thread,
 D = now with the kernel's intervals split over all threads.
@@ -38,7 +38,7 @@ from magtune_core.ltp.system import generator_at_nodes, magnus_exponent
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 OLD_COMMIT = "4091808"
-PREV_COMMIT = "a3e4f25"  # the ninth pass: level model of hinfnorm in numpy
+PREV_COMMIT = "a3e4f25"  # level model of hinfnorm in numpy
 CASES = (  # (gain file, sigma, Magnus steps)
     ("config/gains/paper_method/sigma_60.yaml", 60.0, 64),
     ("config/gains/sigma_60.yaml", 60.0, 256),

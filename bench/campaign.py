@@ -2,7 +2,7 @@
 
     . scripts/env.sh; nice python bench/campaign.py [--runs 200] [--loop-runs 3] [--orbits 5] [--batch-size 100]
 
-The issue's measurement (README "Monte Carlo campaigns"): ``--runs 1000 --orbits 5 --batch-size 500 --loop-runs 2``.
+The issue's measurement (bench/README.md, docs/campaigns.md): ``--runs 1000 --orbits 5 --batch-size 500 --loop-runs 2``.
 
 One spec (config/campaigns/example.yaml with the sensor noise switched off, so the per-run
 ``simulate`` computes exactly the same runs: the bench checks that the batched figures equal the

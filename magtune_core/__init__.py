@@ -1,6 +1,6 @@
 """magtune_core: H-infinity tuning of projection-based magnetorquer attitude controllers.
 
-Pure Python (numpy/scipy, no ROS). Implements Zanchettin & Lovera, IFAC 2011; the README maps
+Pure Python (numpy/scipy, no ROS). Implements Zanchettin & Lovera, IFAC 2011; ``docs/paper.md`` maps
 each equation to its code and ``docs/architecture.md`` draws the layers. Bottom to top:
 
 * ``ltp``     general linear time-periodic analysis (no satellite);

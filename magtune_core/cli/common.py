@@ -139,7 +139,7 @@ def environment_options(args) -> FullEnvironmentOptions:
 START_SCALES = ("feasible", "gain")
 START_SCALE_HELP = ("coordinates of the first CMA-ES run under the hold constraint: 'feasible' = each entry's "
                     "feasible range (default; 5-10x closer to the optimum in 90 s on the paper's periodic field), "
-                    "'gain' = the start gain's own entries (faster on a constant field; README)")
+                    "'gain' = the start gain's own entries (faster on a constant field; docs/tuning.md)")
 GAIN_MARGIN_HELP = ("feasible gains keep the sample-and-hold loop at --ts stable with K times this factor "
                     "(default 2 = 6 dB; 0 = no constraint, the paper's problem; design/sampled.py)")
 

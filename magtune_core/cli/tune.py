@@ -28,7 +28,7 @@ def register(sub) -> None:
     t.add_argument("--sigma", type=float, required=True, help="control-effort weight of z = [Z x; sigma K x]")
     t.add_argument("--method", choices=METHODS, default="cma",
                    help="cma (default): CMA-ES with batched populations, local restarts and a certified stop "
-                        "(README 'Tuning to the optimum'); paper: the randomized algorithm of paper 4.2 as published")
+                        "(docs/tuning.md); paper: the randomized algorithm of paper 4.2 as published")
     t.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     t.add_argument("--start", metavar="GAINS", default=None,
                    help="start from this gains file (default: the LQ gain of the averaged model, paper 4.2)")

@@ -10,7 +10,7 @@ learns the valley's shape (covariance) and step size, uses only the ranking of J
 bisection accuracy ``rtol`` and inf for unstable gains are harmless) and evaluates a whole
 population per generation, which is one batched Riccati gamma-test bisection (``objective``).
 
-The algorithm (decisions documented in README, section "Tuning to the optimum"):
+The algorithm (docs/tuning.md; the decisions and their measurements: docs/decisions.md):
 
 1. coordinates: K = K0 + S * x, x0 = 0. Under a hold constraint (the default of ``magtune tune``)
    the first run's S_ij is the **feasible range** of entry ij (:func:`feasible_scale`: how far it
@@ -21,7 +21,7 @@ The algorithm (decisions documented in README, section "Tuning to the optimum"):
    start's, and the LQ gain leaves the coupling entries at ~1e-16, so in K0-scaled units the
    optimum is ~300 steps away and the search spends most of its budget travelling; the feasible
    ranges are of the optimum's size (measured at sigma = 60: 90-s runs 10.8-20.5 % above the best
-   known J with K0-scaled, ~1-3 % with feasible-scaled coordinates; README);
+   known J with K0-scaled, ~1-3 % with feasible-scaled coordinates; bench/README.md);
 2. a run is stopped when its best J has not improved by more than ``rtol_stall`` (relative) over
    ``stall`` generations, or by the cma package's own criteria (tolx, tolfun, conditioning);
 3. **local restarts** from the best gain so far, with a fresh covariance, in coordinates
@@ -116,7 +116,7 @@ def feasible_scale(feasible, K0: np.ndarray, decades: tuple = (-4.0, 4.0), point
     Why: the optimum's entries are 3-300x the LQ start's and the LQ gain has (numerically) zero
     coupling entries, so coordinates scaled to K0 put the optimum hundreds of steps away; the
     feasible range is what bounds the optimum when the hold constraint is active (J keeps falling
-    along the segment LQ -> optimum up to the boundary; bench/ and README). Moves are on a
+    along the segment LQ -> optimum up to the boundary; bench/README.md). Moves are on a
     geometric grid ``max |K0| x 10^decades`` (``points`` values); an entry that is feasible at every
     move gets the grid's end, one that fails at the first gets its first value.
 

@@ -6,7 +6,7 @@ the worst case over them. Every optimizer of :mod:`magtune_core.design` calls an
 the evaluation is one batched Riccati gamma-test bisection per model (``ltp.hinfnorm``), not n
 separate ones, and is spread over ``workers`` processes when asked.
 
-Conventions (documented in README, tested in tests/design/test_objective.py):
+Conventions (docs/numerics.md, tested in tests/design/test_objective.py):
 
 * a gain whose closed loop is not exponentially stable (max |characteristic multiplier| >= 1
   for any model, paper Theorem 2.1 / eq. 30) gets J = inf; it is screened by the cheap

@@ -14,7 +14,7 @@ spectral radius decides stability of the digital controller (Bittanti & Colaneri
 systems, ch. 6). Gamma_k does not depend on K, so it is built once per model and Ts and a batch
 of gains costs N batched 6x6 products.
 
-Decision (README "Sampled-data gain margin"): T is rarely a multiple of Ts, so the interval is
+Decision (docs/decisions.md, "J is minimized under a sample-and-hold gain margin of 2"): T is rarely a multiple of Ts, so the interval is
 h = T / round(T / Ts) (relative change below Ts / (2 T), 1e-4 at Ts = 1 s); the integral is a
 composite 4-point Gauss-Legendre rule on panels of at most 2.5 s (one panel at Ts = 1 s; checked
 against scipy's ZOH discretization and a dense RK4 integration in tests/design/test_sampled.py).
@@ -151,7 +151,7 @@ class HoldConstraint:
     """Feasibility of a gain for its digital implementation: the sample-and-hold loop at ``ts``
     stays stable with the gain multiplied by ``gain_margin`` (2 = the classical 6 dB).
 
-    Why (README "Sampled-data gain margin"): J alone rewards loop gain without bound at large
+    Why (docs/tuning.md, "What is minimized"): J alone rewards loop gain without bound at large
     sigma (the infimum needs unbounded gains, as in the constant-field case), and the J-optimal
     gains of sigma = 120 / 240 are unstable when held at Ts = 1 s.
     """

@@ -7,7 +7,7 @@ incumbent's: one gamma-test at gamma = J(K(i)) each, all candidates in one batch
 candidates that pass enter a batched "tournament" bisection that finds the argmin (eq. 24)
 without computing every norm. mu adapts with r (step 6); the run stops when r >= r_max (step 7).
 
-Decisions where the paper is silent (documented in README):
+Decisions where the paper is silent (docs/decisions.md, "The paper's tuner kept as published"):
 * a candidate that is not stabilizing has J = inf (it fails the gamma-test, which implies
   closed-loop stability since (C_sigma, A) is detectable);
 * when no candidate beats the incumbent (r = 1), K(i) is kept: the paper's step 5 would

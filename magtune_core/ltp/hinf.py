@@ -466,8 +466,8 @@ def hinfnorm(sys: LTPSystem, rtol: float = 1e-6, steps: int = DEFAULT_STEPS, gue
     # tolerance, the last round tests est - u and est + u together, closing the bracket. A round
     # whose prediction is unavailable or outside the bracket, and every third round after two model
     # rounds that did not halve the bracket, tests the geometric midpoint instead: the bracket always
-    # shrinks and the result never depends on the model being right. Measured (bench/bench_hinf_levels.py,
-    # issue 9 sixth pass): in the tuner's batches 9-10 tests per gain at rtol 1e-4 and 10.5-13 at 1e-6,
+    # shrinks and the result never depends on the model being right. Measured (bench/bench_hinf_levels.py):
+    # in the tuner's batches 9-10 tests per gain at rtol 1e-4 and 10.5-13 at 1e-6,
     # against 12-13 / 16-19 with the straddling rule used before and 10 / 17 for plain bisection
     # handed the +-5 % bracket for free.
     hist = np.full(batch + (3, 3), np.nan)  # last three passing (gamma, (ln rho)^2, 1 - kappa), newest first

@@ -31,7 +31,7 @@ rare paths keep ``np.linalg``: kappa for an Hb that is not PSD to round-off, and
 solve and one ``eigvals`` per system). Where the library version raised (a singular Pade
 denominator, a non-finite L' Ga L in ``eigvalsh``) this one returns NaN, i.e. the test fails.
 
-Threads (issue 9, ninth pass): a single system's intervals and the pairs of each tree level are
+Threads: a single system's intervals and the pairs of each tree level are
 independent, so :func:`_one_threads` splits them over numba's threads (``prange``; bit-identical to
 :func:`_one`): ~1.9x on 2 cores for the test, ~1.45x for a whole single-gain J (bench/bench_kernel.py),
 whose remaining time is the Python level placement of :func:`.hinf.hinfnorm`. Batches stay in one

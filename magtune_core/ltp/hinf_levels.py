@@ -6,7 +6,7 @@ a power law or a line), places one or two levels (:func:`plan_round`) and, after
 moves the bracket and the history (:func:`update_round`). Written with numpy over the batch, that
 bookkeeping was ~60 array operations per round: for a single gain (``magtune analyze``, the
 tuner's incumbent checks) ~0.6 ms per round against ~0.65 ms for the gamma-test itself, i.e. ~45 %
-of a J(K) (issue 9, tenth pass; bench/bench_kernel.py). Here it is one loop over the systems in
+of a J(K) (bench/bench_kernel.py). Here it is one loop over the systems in
 scalars, the same arithmetic in the same order as the numpy version it replaced (git a3e4f25),
 for a single system and a batch alike; ``hinf.predict_norm``, ``quadratic_zero`` and
 ``margin_zero`` are thin wrappers over the same functions, so there is one implementation.

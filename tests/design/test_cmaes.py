@@ -278,7 +278,7 @@ def test_feasible_scale_on_the_held_paper_loop():
     """The paper model held at Ts = 1 s with gain margin 2 (the default of magtune tune): every entry
     of the LQ gain moved alone by its scale, in one direction at least, is still feasible, and the
     scale is set by the constraint (not the grid's end) and 2-3 orders above the LQ gain's entries
-    where the LQ gain is (numerically) zero, as the optimum's are (README "Tuning to the optimum")."""
+    where the LQ gain is (numerically) zero, as the optimum's are (docs/tuning.md)."""
     model = AttitudeLTP.from_params(SpacecraftParams())
     K0 = lq_gain(model, SIGMA)
     with HinfObjective(model, SIGMA, steps=64, hold=HoldConstraint(1.0, 2.0)) as obj:

@@ -119,7 +119,7 @@ def test_feedthrough_is_refused():
         hinfnorm_gradient(s)
 
 
-# A 90-s CMA-ES gain at sigma = 60 (issue 9, eleventh pass): the norm's pair collides at -1 as a nearly
+# A 90-s CMA-ES gain at sigma = 60 (found in a short tuning run): the norm's pair collides at -1 as a nearly
 # double real pair, which moved by ~sqrt(eps) between eigvals and ordqz and was once missed by the selection.
 K_COLLIDE_AT_MINUS_ONE = np.array([
     [3.6446269364015650e-03, -2.8971974781261820e-02, -6.5582938464818816e-02, -3.7514797650046566e-01,

@@ -184,7 +184,7 @@ def test_hinfnorm_accuracy_and_guess_independence(loops, rtol):
             assert abs(got - J) <= rtol * J
 
 
-#: The sigma = 240 gain shipped until issue 9's fifth pass (git 9681a17, config/gains/sigma_240.yaml):
+#: The sigma = 240 gain shipped before the hold constraint (git 9681a17, config/gains/sigma_240.yaml):
 #: unconstrained, unstable when held at 1 s, but the stiffest loop we have a reference norm for.
 STIFF_240 = np.array([
     -0.01161245815088814, -0.00063589229990895, -0.08769805665734315, -0.16265027576500315,
@@ -195,7 +195,7 @@ STIFF_240 = np.array([
 
 
 def test_stiff_loop_keeps_its_norm_on_a_coarse_grid():
-    """A stiff closed loop (the unconstrained sigma = 240 gain shipped until issue 9's fifth pass, J
+    """A stiff closed loop (the unconstrained sigma = 240 gain shipped before the hold constraint, J
     542.94, kept here as ``STIFF_240``: fast modes, |lambda| h ~ 44 at 256 steps) grows its
     Hamiltonian flow by ~1e19 over one interval. Forming that exponential and then splitting it
     into scattering blocks loses the decaying part to cancellation: every level failed (J = inf)

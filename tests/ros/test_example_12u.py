@@ -1,4 +1,4 @@
-"""End-to-end example for another spacecraft (config/examples/cubesat12u, README "Your own satellite
+"""End-to-end example for another spacecraft (config/examples/cubesat12u, docs/own_satellite.md "Your own satellite
 and orbit"): magtune fit-field -> tune --field -> analyze -> sil --environment full, 2 orbits.
 
 Kept bounded for CI: the fit averages 1 day at 60 s steps (the shipped field file: 3 days at 20 s),
