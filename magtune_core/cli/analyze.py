@@ -8,10 +8,11 @@ import numpy as np
 
 from ..base.errors import ConfigError
 from ..design.gains import load_gains
+from ..design.pipeline import ANALYSIS_STEPS
 from ..design.problem import cost_gradient, figures
 from ..design.resolution import resolved_steps
 from ..design.sampled import SampledLoop, hold_gain_margin
-from .common import ANALYSIS_STEPS, CommandError, field_model_argument, load_model
+from .common import CommandError, field_model_argument, load_model
 
 
 def register(sub) -> None:

@@ -14,7 +14,6 @@ import numpy as np
 from ..base.ament import ROOT, AmentNotFound
 from ..base.errors import ConfigError, SilError
 from ..design.field import FIELD_MODELS
-from ..design.pipeline import ANALYSIS_STEPS  # noqa: F401 (the figures' Magnus steps, re-used by the commands)
 from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions
 
 

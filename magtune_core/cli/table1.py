@@ -4,10 +4,11 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..design.gains import load_gains
+from ..design.pipeline import ANALYSIS_STEPS
 from ..design.problem import figures
 from ..design.resolution import resolved_steps
 from ..design.sampled import SampledLoop, hold_gain_margin
-from .common import ANALYSIS_STEPS, add_force_argument, check_output, field_model_argument, load_model, repo_path, say, shown_path
+from .common import add_force_argument, check_output, field_model_argument, load_model, repo_path, say, shown_path
 
 PAPER_TABLE1 = {60: (239.19, 12072.45, 0.00283), 120: (283.96, 11039.75, 0.00345), 240: (399.32, 9348.98, 0.00598)}
 

@@ -70,6 +70,7 @@ class TuneOutcome:
     steps: int             # Magnus steps the search started with
     analysis_steps: int    # Magnus steps of the final figures
     notes: list = field(default_factory=list)  # what the pipeline adjusted on the way (one line each)
+    robust: object = None  # robust tuning: the figures of every model (design.robust.RobustFigures)
 
     @property
     def state(self) -> str:
@@ -199,6 +200,4 @@ def tune_robust_gains(model, models, sigma: float, *, seed: int = 0, start_K=Non
         label = prov["start"] = str(start_name or "gain")
     elif sigma0 != sigma:
         label = prov["start"] = f"LQ of sigma {sigma0:g} (the LQ gain of sigma {sigma:g} does not stabilize every model)"
-    out = TuneOutcome(Gains(res.K, sigma, ts, prov), res, label, steps, analysis_steps)
-    out.robust = rf
-    return out
+    return TuneOutcome(Gains(res.K, sigma, ts, prov), res, label, steps, analysis_steps, robust=rf)

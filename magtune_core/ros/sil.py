@@ -160,10 +160,17 @@ def _executables(scenario: SilScenario) -> dict[str, Path]:
 
 
 def _launch(scenario: SilScenario, exes: dict, pfiles: dict, env: dict, log_dir: Path, fds: tuple,
-            procs: list[NodeProcess]) -> None:
+            procs: list[NodeProcess]) -> dict[str, NodeProcess]:
     """Start the recorder (first: it must listen before step 0), the Foxglove bridge and each
     satellite's nodes (each with its own parameter file; ``-r __ns:=NS -r /clock:=NS/clock``),
-    appending each to ``procs`` as it starts (the caller stops them whatever happens)."""
+    appending each to ``procs`` as it starts (the caller stops them whatever happens).
+
+    Returns
+    -------
+    dict
+        namespace -> the satellite's simulator process (the run ends when they exit).
+    """
+    sims = {}
     if "recorder" in exes:
         procs.append(start_node("recorder", exes["recorder"], _recorder_ros_args(scenario), env, log_dir, fds))
     if scenario.foxglove is not None:
@@ -177,14 +184,16 @@ def _launch(scenario: SilScenario, exes: dict, pfiles: dict, env: dict, log_dir:
         for node in NODES:
             procs.append(start_node(f"{prefix}{node}", exes[node], ["--params-file", str(pfiles[ns][node])] + remap,
                                     env, log_dir, fds))
+            if node == "simulator":
+                sims[ns] = procs[-1]
+    return sims
 
 
 # ------------------------------------------------------------------ wait
-def _wait(scenario: SilScenario, procs: list[NodeProcess], res_paths: dict, progress, t0: float) -> None:
-    """Poll until every simulator exited with its trajectory written; SilError on a failed node,
-    a diverged simulation or the run's timeout. ``progress(k, n)``: summed step lines."""
-    sims = {s.namespace: next(p for p in procs if p.name == (f"{tag(s.namespace)}_" if s.namespace else "")
-                              + "simulator") for s in scenario.satellites}
+def _wait(scenario: SilScenario, procs: list[NodeProcess], sims: dict, res_paths: dict, progress, t0: float) -> None:
+    """Poll until every simulator (``sims``: namespace -> process) exited with its trajectory
+    written; SilError on a failed node, a diverged simulation or the run's timeout.
+    ``progress(k, n)``: summed step lines."""
     deadline = time.monotonic() + (scenario.timeout if scenario.timeout else
                                    scenario.startup_timeout + 60.0 + 0.05 * scenario.n_steps * len(sims))
     watches = {ns: LogProgress(p.log, (lambda k, n: None) if progress else None) for ns, p in sims.items()}
@@ -267,10 +276,10 @@ def run_fleet(scenario: SilScenario, *, on_start=None, progress=None) -> dict[st
     stops = StopSignals().__enter__()
     try:
         env = child_env(lock.domain_id, prefix, *([exes["recorder"].parents[2]] if "recorder" in exes else []))
-        _launch(scenario, exes, pfiles, env, log_dir, (lock.fh.fileno(),), procs)
+        sims = _launch(scenario, exes, pfiles, env, log_dir, (lock.fh.fileno(),), procs)
         if on_start:
             on_start(lock.domain_id, procs)
-        _wait(scenario, procs, res_paths, progress, t0)
+        _wait(scenario, procs, sims, res_paths, progress, t0)
     except SilError as exc:
         raise SilError(f"{exc}\n(node logs in {log_dir})") from None
     finally:
