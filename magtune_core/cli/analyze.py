@@ -8,10 +8,8 @@ import numpy as np
 
 from ..base.errors import ConfigError
 from ..design.gains import load_gains
-from ..design.pipeline import ANALYSIS_STEPS
-from ..design.problem import cost_gradient, figures
+from ..design.pipeline import ANALYSIS_STEPS, analyze_gains, gain_sensitivity
 from ..design.resolution import resolved_steps
-from ..design.sampled import SampledLoop, hold_gain_margin
 from .common import CommandError, field_model_argument, load_model
 
 
@@ -40,12 +38,14 @@ def run(args) -> int:
     g = load_gains(args.path)
     if args.robust:
         return run_robust(args, model, g)
-    args.steps = args.steps or resolved_steps(model, g.K, g.sigma, ANALYSIS_STEPS)[0]
-    fig = figures(model, g.K, g.sigma, steps=args.steps)
+    a = analyze_gains(model, g, steps=args.steps)
+    args.steps, fig, margin, sens = a.steps, a.figures, a.hold_gain_margin, None
+    if args.sensitivity and fig.stable:
+        try:
+            sens = gain_sensitivity(model, g, a.steps)
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:  # e.g. flow not finite at the norm
+            raise CommandError(f"--sensitivity: the gradient of J could not be computed ({exc})") from None
     d = fig.as_dict()
-    # the digital implementation at the file's ts (design/sampled.py): 0 = unstable when held
-    margin = hold_gain_margin(SampledLoop.build(model, g.ts), g.K)
-    sens = _sensitivity(model, g, args.steps) if args.sensitivity and fig.stable else None
     if args.json:
         print(json.dumps({**{k: d[k] for k in ("J", "c1", "c2", "rho", "stable")}, "ts": g.ts,
                           "hold_gain_margin": margin, **(sens or {})}))
@@ -68,18 +68,6 @@ def run(args) -> int:
         for i, row in enumerate(sens["elasticity"]):
             print(f"    u_{'xyz'[i]}    " + " ".join(f"{v:8.3f}" for v in row))
     return 0
-
-
-def _sensitivity(model, g, steps: int) -> dict:
-    """Exact dJ/dK of the gains file (design/problem.cost_gradient) and the worst-case frequency."""
-    try:
-        J, dK, grad = cost_gradient(model, g.K, g.sigma, steps=steps)
-    except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:  # e.g. flow not finite at the norm
-        raise CommandError(f"--sensitivity: the gradient of J could not be computed ({exc})") from None
-    angle = float(abs(np.angle(grad.multipliers).mean()))
-    w_orbit = 2.0 * math.pi / model.period
-    return {"dJ_dK": dK.tolist(), "elasticity": (np.asarray(g.K).reshape(3, 6) * dK / J).tolist(),
-            "worst_multiplier_angle": angle, "worst_frequency_mod_orbit": angle / model.period, "orbit_rate": w_orbit}
 
 
 def run_robust(args, model, g) -> int:

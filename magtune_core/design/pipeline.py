@@ -1,4 +1,4 @@
-"""Tuning as a library call: start gain, Magnus resolution, optimizer, figures, provenance -> ``Gains``.
+"""Tuning and analysis as library calls: start gain, Magnus resolution, optimizer, figures, provenance -> ``Gains``.
 
 ``tune_gains(model, sigma)`` is what ``magtune tune`` runs: the start gain and Magnus steps
 resolved for the model (:mod:`.resolution`; the paper's LQ start, section 4.2), the CMA-ES tuner
@@ -7,7 +7,8 @@ paper's randomized algorithm (:mod:`.tuner`, eqs. 23-25), the figures of merit J
 (eqs. 20-22, 28-30) at a resolution that resolves them, and the provenance a gains file
 carries. ``tune_robust_gains`` does the same for the worst J over a model set
 (:mod:`.robust`). Both return a :class:`TuneOutcome`; writing the file is the caller's
-(``save_gains``).
+(``save_gains``). ``analyze_gains`` recomputes a gain's figures, its sample-and-hold margin and,
+if asked, the exact gradient of J (what ``magtune analyze`` prints).
 
 Example (the paper's satellite at sigma = 60, a short paper-method run)::
 
@@ -20,14 +21,15 @@ Example (the paper's satellite at sigma = 60, a short paper-method run)::
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .gains import Gains
-from .problem import figures
+from .problem import Figures, cost_gradient, figures
 from .resolution import resolved_steps, start_gain
-from .sampled import HoldConstraint, feasible_start, hold_provenance
+from .sampled import HoldConstraint, SampledLoop, feasible_start, hold_gain_margin, hold_provenance
 
 #: Magnus steps of the final figures (at least; doubled while J moves, :func:`.resolution.resolved_steps`):
 #: ~1e-5 relative for the paper's satellite (bench/README.md).
@@ -201,3 +203,47 @@ def tune_robust_gains(model, models, sigma: float, *, seed: int = 0, start_K=Non
     elif sigma0 != sigma:
         label = prov["start"] = f"LQ of sigma {sigma0:g} (the LQ gain of sigma {sigma:g} does not stabilize every model)"
     return TuneOutcome(Gains(res.K, sigma, ts, prov), res, label, steps, analysis_steps, robust=rf)
+
+
+@dataclass
+class Analysis:
+    """A gain's figures recomputed (:func:`analyze_gains`)."""
+
+    figures: Figures               # J, c1, c2, rho (paper eqs. 21, 28-30), stable
+    steps: int                     # Magnus steps they were computed with
+    hold_gain_margin: float        # sample-and-hold gain margin at the gains' Ts (0: unstable when held)
+    sensitivity: dict | None = None  # :func:`sensitivity`, when asked for and the loop is stable
+
+
+def analyze_gains(model, gains: Gains, *, steps: int | None = None, sensitivity: bool = False) -> Analysis:
+    """J, c1, c2, rho of ``gains`` on ``model`` at ``steps`` Magnus steps (default: ANALYSIS_STEPS,
+    doubled until J is resolved, :func:`.resolution.resolved_steps`), the hold gain margin at the
+    gains' Ts (:func:`.sampled.hold_gain_margin`, paper section 5) and optionally the gradient.
+
+    Returns
+    -------
+    Analysis
+        the figures, the steps used, the margin and the sensitivity (None unless asked for and stable).
+    """
+    steps = steps or resolved_steps(model, gains.K, gains.sigma, ANALYSIS_STEPS)[0]
+    fig = figures(model, gains.K, gains.sigma, steps=steps)
+    margin = hold_gain_margin(SampledLoop.build(model, gains.ts), gains.K)
+    sens = gain_sensitivity(model, gains, steps) if sensitivity and fig.stable else None
+    return Analysis(fig, steps, margin, sens)
+
+
+def gain_sensitivity(model, gains: Gains, steps: int) -> dict:
+    """Exact dJ/dK (:func:`.problem.cost_gradient`) and the worst-case disturbance frequency.
+
+    Returns
+    -------
+    dict
+        ``dJ_dK`` (3 x 6), ``elasticity`` K_ij dJ/dK_ij / J, ``worst_multiplier_angle`` [rad],
+        ``worst_frequency_mod_orbit`` [rad/s] and ``orbit_rate`` [rad/s]. Raises ArithmeticError,
+        ValueError or LinAlgError when the gradient cannot be computed (e.g. a flow not finite at the norm).
+    """
+    J, dK, grad = cost_gradient(model, gains.K, gains.sigma, steps=steps)
+    angle = float(abs(np.angle(grad.multipliers).mean()))
+    return {"dJ_dK": dK.tolist(), "elasticity": (np.asarray(gains.K).reshape(3, 6) * dK / J).tolist(),
+            "worst_multiplier_angle": angle, "worst_frequency_mod_orbit": angle / model.period,
+            "orbit_rate": 2.0 * math.pi / model.period}
