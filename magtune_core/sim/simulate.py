@@ -17,13 +17,14 @@ from dataclasses import field as dc_field
 import numpy as np
 
 from ..design.law import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD, ProjectionController, linear_state
+from ..design.node_params import INITIAL_RATE_ERROR
 from ..design.params import SpacecraftParams
 from .dynamics import AttitudeDynamics
 from .fullenv import full_params, make_dynamics
 from .metrics import figures_of_merit
 
-#: Initial rate error of the paper's simulation study, dw(0) [rad/s].
-DW0 = (1e-3, 2e-3, 0.0)
+#: Initial rate error of the paper's simulation study, dw(0) [rad/s] (the simulator node's default too).
+DW0 = INITIAL_RATE_ERROR
 
 
 @dataclass
