@@ -7,8 +7,10 @@ import signal
 import sys
 
 from ..base.errors import ConfigError
+from ..design.cmaes import CmaSettings
 from ..design.gains import load_gains, save_gains
-from ..design.pipeline import METHODS, CmaOptions, InfeasibleStart, PaperOptions, tune_gains, tune_robust_gains
+from ..design.pipeline import METHODS, InfeasibleStart, tune_gains, tune_robust_gains
+from ..design.tuner import TunerSettings
 from .common import (
     GAIN_MARGIN_HELP,
     START_SCALE_HELP,
@@ -109,8 +111,9 @@ def run(args) -> int:
         with stop if args.method == "cma" else _NoStop():
             res = tune_gains(model, args.sigma, method=args.method, seed=args.seed, start_K=start_K,
                              start_name=args.start, workers=args.workers, ts=args.ts, gain_margin=args.gain_margin,
-                             cma=CmaOptions(args.popsize, args.max_evals, args.restarts, args.start_scale),
-                             paper=PaperOptions(args.samples, args.r_max, args.mu, args.max_iter, args.patience),
+                             cma=_cma_settings(args),
+                             paper=TunerSettings(samples=args.samples, r_max=args.r_max, mu=args.mu,
+                                                 max_iter=args.max_iter, patience=args.patience),
                              progress=progress)
     except InfeasibleStart as exc:  # one line, exit 2, before the search
         raise ConfigError("--start" if args.start else "--gain-margin", None,
@@ -132,6 +135,11 @@ def run(args) -> int:
           f"{r.evaluations} evaluations, {r.seconds:.1f} s, {res.state}; c1={g['c1']:.3f} c2={g['c2']:.2f} "
           f"rho={g['rho']:.5f} ({res.analysis_steps} steps); wrote {out}")
     return 130 if res.interrupted else 0
+
+
+def _cma_settings(args) -> CmaSettings:
+    """The CMA-ES options of the command line (workers and Magnus steps are the pipeline's)."""
+    return CmaSettings(popsize=args.popsize, max_evals=args.max_evals, certify=args.restarts, start_scale=args.start_scale)
 
 
 class _NoStop:
@@ -183,7 +191,7 @@ def _run_robust(args, model, out) -> int:
         res = tune_robust_gains(model, models, args.sigma, seed=args.seed,
                                 start_K=load_gains(args.start).K if args.start else None, start_name=args.start,
                                 workers=args.workers, ts=args.ts, gain_margin=args.gain_margin,
-                                cma=CmaOptions(args.popsize, args.max_evals, args.restarts, args.start_scale),
+                                cma=_cma_settings(args),
                                 spec_name=args.robust)
     except ImportError:
         raise CommandError("--robust needs the CMA-ES tuner (magtune_core.design.cmaes), not installed here") from None

@@ -14,22 +14,25 @@ Example (the paper's satellite at sigma = 60, a short paper-method run)::
 
     from magtune_core.design.model import AttitudeLTP
     from magtune_core.design.params import SpacecraftParams
-    from magtune_core.design.pipeline import PaperOptions, tune_gains
+    from magtune_core.design.pipeline import tune_gains
+    from magtune_core.design.tuner import TunerSettings
     out = tune_gains(AttitudeLTP.from_params(SpacecraftParams()), 60.0, method="paper",
-                     paper=PaperOptions(samples=20, max_iter=2))
+                     paper=TunerSettings(samples=20, max_iter=2))
     out.gains.K, out.gains.provenance["J"]
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .cmaes import CmaSettings
 from .gains import Gains
 from .problem import Figures, cost_gradient, figures
 from .resolution import resolved_steps, start_gain
 from .sampled import HoldConstraint, SampledLoop, feasible_start, hold_gain_margin, hold_provenance
+from .tuner import TunerSettings
 
 #: Magnus steps of the final figures (at least; doubled while J moves, :func:`.resolution.resolved_steps`):
 #: ~1e-5 relative for the paper's satellite (bench/README.md).
@@ -39,27 +42,6 @@ METHODS = ("cma", "paper")
 
 class InfeasibleStart(ValueError):
     """The start gain cannot be brought within the hold constraint (a smaller margin or a longer Ts may)."""
-
-
-@dataclass(frozen=True)
-class CmaOptions:
-    """What a user sets of the CMA-ES tuner (:class:`magtune_core.design.cmaes.CmaSettings`)."""
-
-    popsize: int = 8
-    max_evals: int = 30000
-    restarts: int = 2          # consecutive non-improving local restarts that certify convergence
-    start_scale: str = "feasible"
-
-
-@dataclass(frozen=True)
-class PaperOptions:
-    """The randomized algorithm's settings (paper 4.2; :class:`magtune_core.design.tuner.TunerSettings`)."""
-
-    samples: int = 540
-    r_max: float = 0.995
-    mu: float = 1e-3
-    max_iter: int = 300
-    patience: int = 1
 
 
 @dataclass
@@ -101,20 +83,18 @@ def _start(model, sigma: float, start_K, start_name: str | None):
     return K0, label, steps
 
 
-def _run_paper(model, sigma, K0, steps, *, seed, workers, paper: PaperOptions, progress):
-    from .tuner import TunerSettings, tune
+def _run_paper(model, sigma, K0, steps, *, seed, workers, paper: TunerSettings, progress):
+    from .tuner import tune
 
-    settings = TunerSettings(samples=paper.samples, r_max=paper.r_max, mu=paper.mu, workers=workers,
-                             max_iter=paper.max_iter, patience=paper.patience, steps=steps)
+    settings = replace(paper or TunerSettings(), workers=workers, steps=steps)
     return tune(model, sigma, seed=seed, settings=settings, K0=K0, progress=progress)
 
 
-def _run_cma(model, sigma, K0, steps, *, seed, workers, cma: CmaOptions, hold, progress, notes):
-    from .cmaes import CmaSettings, tune_cma
+def _run_cma(model, sigma, K0, steps, *, seed, workers, cma: CmaSettings, hold, progress, notes):
+    from .cmaes import tune_cma
     from .objective import HinfObjective
 
-    settings = CmaSettings(popsize=cma.popsize, max_evals=cma.max_evals, certify=cma.restarts, workers=workers,
-                           steps=steps, start_scale=cma.start_scale)
+    settings = replace(cma or CmaSettings(), workers=workers, steps=steps)
     with HinfObjective(model, sigma, steps=settings.steps, rtol=settings.rtol, workers=workers, hold=hold) as obj:
         res = tune_cma(obj, K0, sigma, seed=seed, settings=settings, progress=progress)
     if obj.steps != steps:
@@ -123,8 +103,8 @@ def _run_cma(model, sigma, K0, steps, *, seed, workers, cma: CmaOptions, hold, p
 
 
 def tune_gains(model, sigma: float, *, method: str = "cma", seed: int = 0, start_K=None, start_name: str | None = None,
-               workers: int = 1, ts: float = 1.0, gain_margin: float = 2.0, cma: CmaOptions = CmaOptions(),
-               paper: PaperOptions = PaperOptions(), progress=None) -> TuneOutcome:
+               workers: int = 1, ts: float = 1.0, gain_margin: float = 2.0, cma: CmaSettings | None = None,
+               paper: TunerSettings | None = None, progress=None) -> TuneOutcome:
     """H-infinity tuning of K for one sigma on ``model`` (an ``AttitudeLTP``).
 
     ``method`` "cma" (CMA-ES to a certified optimum, under the hold constraint of ``ts`` /
@@ -169,7 +149,7 @@ def tune_gains(model, sigma: float, *, method: str = "cma", seed: int = 0, start
 
 
 def tune_robust_gains(model, models, sigma: float, *, seed: int = 0, start_K=None, start_name: str | None = None,
-                      workers: int = 1, ts: float = 1.0, gain_margin: float = 2.0, cma: CmaOptions = CmaOptions(),
+                      workers: int = 1, ts: float = 1.0, gain_margin: float = 2.0, cma: CmaSettings | None = None,
                       spec_name: str = "") -> TuneOutcome:
     """Robust tuning: minimize the worst J over ``models`` (``design.robust.model_set`` of a
     robust spec; ``model``: the nominal one) with the CMA-ES tuner (:func:`magtune_core.design.robust.tune_robust`).
@@ -180,11 +160,9 @@ def tune_robust_gains(model, models, sigma: float, *, seed: int = 0, start_K=Non
         ``gains`` with the nominal figures, the worst model's (``worst_*``) and the spec's name
         in the provenance; ``result.J0`` is the start's worst J.
     """
-    from .cmaes import CmaSettings
     from .robust import robust_figures, tune_robust
 
-    settings = CmaSettings(popsize=cma.popsize, max_evals=cma.max_evals, certify=cma.restarts, workers=workers,
-                           start_scale=cma.start_scale)
+    settings = replace(cma or CmaSettings(), workers=workers)
     K0 = None if start_K is None else np.asarray(start_K, dtype=float).reshape(3, 6)
     hold = HoldConstraint(ts, gain_margin) if gain_margin else None
     res, sigma0, steps = tune_robust(models, sigma, seed=seed, settings=settings, K0=K0, hold=hold)

@@ -9,14 +9,15 @@ from magtune_core.base.ament import ROOT
 from magtune_core.design.gains import Gains, load_gains
 from magtune_core.design.model import AttitudeLTP
 from magtune_core.design.params import SpacecraftParams
-from magtune_core.design.pipeline import InfeasibleStart, PaperOptions, analyze_gains, tune_gains
+from magtune_core.design.pipeline import InfeasibleStart, analyze_gains, tune_gains
 from magtune_core.design.problem import figures
+from magtune_core.design.tuner import TunerSettings
 
 MODEL = AttitudeLTP.from_params(SpacecraftParams())
 
 
 def test_tune_gains_returns_gains_with_their_provenance():
-    out = tune_gains(MODEL, 120.0, method="paper", seed=1, ts=2.0, paper=PaperOptions(samples=20, max_iter=2))
+    out = tune_gains(MODEL, 120.0, method="paper", seed=1, ts=2.0, paper=TunerSettings(samples=20, max_iter=2))
     g = out.gains
     assert isinstance(g, Gains) and g.sigma == 120.0 and g.ts == 2.0 and np.array_equal(g.K, out.result.K)
     # the provenance's figures are the gain's, at the analysis resolution (recomputed independently here)
