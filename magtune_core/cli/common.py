@@ -140,7 +140,8 @@ START_SCALE_HELP = ("coordinates of the first CMA-ES run under the hold constrai
                     "feasible range (default; 5-10x closer to the optimum in 90 s on the paper's periodic field), "
                     "'gain' = the start gain's own entries (faster on a constant field; docs/tuning.md)")
 GAIN_MARGIN_HELP = ("feasible gains keep the sample-and-hold loop at --ts stable with K times this factor "
-                    "(default 2 = 6 dB; 0 = no constraint, the paper's problem; design/sampled.py)")
+                    "(2 = 6 dB; 0 = no constraint, the paper's unconstrained problem; design/sampled.py); given "
+                    "with or without --ts, a single-period constraint replaces the design spec")
 
 
 def hold_constraint(args):
@@ -148,11 +149,34 @@ def hold_constraint(args):
     checked: one line naming the option, exit 2, before any work."""
     from ..design.sampled import HoldConstraint
 
-    if not (np.isfinite(args.ts) and args.ts > 0):
-        raise ConfigError("--ts", None, f"must be a positive sample period in seconds, got {args.ts:g}")
-    if not (np.isfinite(args.gain_margin) and (args.gain_margin == 0 or args.gain_margin >= 1)):
-        raise ConfigError("--gain-margin", None, f"must be 0 (no constraint) or a factor >= 1, got {args.gain_margin:g}")
-    return HoldConstraint(args.ts, args.gain_margin) if args.gain_margin else None
+    ts = 1.0 if args.ts is None else args.ts
+    gm = 2.0 if args.gain_margin is None else args.gain_margin
+    if not (np.isfinite(ts) and ts > 0):
+        raise ConfigError("--ts", None, f"must be a positive sample period in seconds, got {ts:g}")
+    if not (np.isfinite(gm) and (gm == 0 or gm >= 1)):
+        raise ConfigError("--gain-margin", None, f"must be 0 (no constraint) or a factor >= 1, got {gm:g}")
+    return HoldConstraint(ts, gm) if gm else None
+
+
+SPEC_HELP = ("design spec: the hard requirements (sample-period range, hold gain margin, dipole budget) and the "
+             "pointing requirements of verify (default config/design.yaml; docs/requirements.md)")
+
+
+def add_spec_argument(p: argparse.ArgumentParser) -> None:
+    """``--spec DESIGN_SPEC``: the one option every command reading the requirements takes."""
+    p.add_argument("--spec", metavar="DESIGN_SPEC", default=None, help=SPEC_HELP)
+
+
+def load_design_spec(args, model=None):
+    """The requirements of ``--spec`` (default ``config/design.yaml``; the built-in defaults when that
+    file is absent), the dipole limit resolved against ``--config``'s: one line and exit 2 if bad."""
+    from ..design.requirements import Requirements, load_requirements, spacecraft_dipole_limit
+
+    limit = spacecraft_dipole_limit(args.config)
+    path = args.spec or repo_path("config/design.yaml")
+    if args.spec is None and not Path(path).is_file():
+        return Requirements.from_mapping({}, limit)
+    return load_requirements(path, limit)
 
 
 def load_model(args):

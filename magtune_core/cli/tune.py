@@ -17,9 +17,11 @@ from .common import (
     START_SCALES,
     CommandError,
     add_force_argument,
+    add_spec_argument,
     check_output,
     field_model_argument,
     hold_constraint,
+    load_design_spec,
     load_model,
     repo_path,
 )
@@ -41,7 +43,8 @@ def register(sub) -> None:
     c.add_argument("--max-evals", type=int, default=30000, help="evaluation budget (default 30000)")
     c.add_argument("--restarts", type=int, default=2,
                    help="consecutive non-improving local restarts that certify convergence (default 2)")
-    c.add_argument("--gain-margin", type=float, default=2.0, help=GAIN_MARGIN_HELP)
+    add_spec_argument(c)
+    c.add_argument("--gain-margin", type=float, default=None, help=GAIN_MARGIN_HELP)
     c.add_argument("--start-scale", choices=START_SCALES, default="feasible", help=START_SCALE_HELP)
     p = t.add_argument_group("paper method")
     p.add_argument("--samples", type=int, default=540, help="candidates per iteration N (paper: 540)")
@@ -50,7 +53,9 @@ def register(sub) -> None:
     p.add_argument("--max-iter", type=int, default=300, help="iteration limit (default 300)")
     p.add_argument("--patience", type=int, default=1,
                    help="stop at the P-th consecutive iteration with r >= r_max (1 = the paper's rule)")
-    t.add_argument("--ts", type=float, default=1.0, help="controller sampling period written to the file [s]")
+    t.add_argument("--ts", type=float, default=None,
+                   help="controller sampling period written to the file [s] (default: the design spec's ts_min; "
+                        "given, the hold constraint is asked at this period only)")
     t.add_argument("--robust", metavar="SPEC", default=None,
                    help="robust tuning: minimize the worst J over the model set of this robust spec "
                         "(magtune_core/design/robust.py; CMA-ES tuner)")
@@ -58,13 +63,17 @@ def register(sub) -> None:
     t.add_argument("--out", help="gains file to write (default config/gains/sigma_<sigma>.yaml of the "
                                  "repository; an existing file is kept unless --force)")
     add_force_argument(t)
+    t.add_argument("--verify-runs", type=int, default=24,
+                   help="runs per period of the closing Monte Carlo check under a design spec, written into the "
+                        "file's provenance (default 24; 0: none; the full check is magtune verify)")
     t.add_argument("--quiet", action="store_true", help="no progress bar")
     t.set_defaults(func=run)
 
 
 #: Options that only one method reads, with their defaults: given to the other method they would be
 #: silently ignored (a paper-style ``--samples 200 --max-iter 6`` does not shorten a CMA-ES run).
-METHOD_ONLY = {"cma": {"popsize": 8, "max_evals": 30000, "restarts": 2, "gain_margin": 2.0, "start_scale": "feasible"},
+METHOD_ONLY = {"cma": {"popsize": 8, "max_evals": 30000, "restarts": 2, "gain_margin": None, "start_scale": "feasible",
+                       "spec": None},
                "paper": {"samples": 540, "r_max": 0.995, "mu": 1e-3, "max_iter": 300, "patience": 1}}
 
 
@@ -75,6 +84,8 @@ def _check_args(args) -> None:
                 if getattr(args, name) != default:
                     raise ConfigError("--" + name.replace("_", "-"), None,
                                       f"is an option of --method {method}; add --method {method} or drop it")
+    if args.verify_runs < 0:
+        raise ConfigError("--verify-runs", None, f"must be 0 (none) or a positive number of runs, got {args.verify_runs}")
     for name in ("workers", "popsize", "max_evals", "restarts", "samples", "max_iter", "patience"):
         if getattr(args, name) < 1:
             raise ConfigError("--" + name.replace("_", "-"), None, f"must be a positive integer, got {getattr(args, name)}")
@@ -83,12 +94,23 @@ def _check_args(args) -> None:
     hold_constraint(args)
 
 
+def requirements_of(args):
+    """The design spec the CMA-ES tuner is asked to meet: None for the paper method, for
+    ``--gain-margin 0`` (the paper's unconstrained problem) and for a single-period constraint
+    (``--ts`` / ``--gain-margin`` given); otherwise ``--spec`` or config/design.yaml."""
+    if args.method != "cma" or args.gain_margin == 0 or (args.spec is None and (args.ts is not None
+                                                                                or args.gain_margin is not None)):
+        return None
+    return load_design_spec(args)
+
+
 def run(args) -> int:
     from tqdm import tqdm
 
     _check_args(args)
     out = check_output(args.out or repo_path(f"config/gains/sigma_{args.sigma:g}.yaml"), force=args.force)
     model = load_model(args)
+    req = requirements_of(args)
     if args.robust:
         return _run_robust(args, model, out)
     start_K = load_gains(args.start).K if args.start else None
@@ -110,14 +132,15 @@ def run(args) -> int:
     try:
         with stop if args.method == "cma" else _NoStop():
             res = tune_gains(model, args.sigma, method=args.method, seed=args.seed, start_K=start_K,
-                             start_name=args.start, workers=args.workers, ts=args.ts, gain_margin=args.gain_margin,
-                             cma=_cma_settings(args),
+                             start_name=args.start, workers=args.workers, ts=1.0 if args.ts is None else args.ts,
+                             gain_margin=2.0 if args.gain_margin is None else args.gain_margin,
+                             cma=_cma_settings(args), requirements=req,
                              paper=TunerSettings(samples=args.samples, r_max=args.r_max, mu=args.mu,
                                                  max_iter=args.max_iter, patience=args.patience),
                              progress=progress)
     except InfeasibleStart as exc:  # one line, exit 2, before the search
-        raise ConfigError("--start" if args.start else "--gain-margin", None,
-                          f"{exc}; try a smaller --gain-margin or a longer --ts") from None
+        raise ConfigError("--start" if args.start else ("--spec" if req is not None else "--gain-margin"), None,
+                          f"{exc}" if req is not None else f"{exc}; try a smaller --gain-margin or a longer --ts") from None
     except ValueError as exc:
         raise CommandError(f"{exc}") from None
     finally:
@@ -126,15 +149,48 @@ def run(args) -> int:
         print(f"tune: {note}")
     if args.method == "paper":
         header = f"magtune tune --method paper --sigma {args.sigma:g} --seed {args.seed} --samples {args.samples}"
+    elif req is not None:
+        header = (f"magtune tune --sigma {args.sigma:g} --seed {args.seed} --spec {args.spec or 'config/design.yaml'}"
+                  f" ({req.describe()})" + (f" --start {args.start}" if args.start else ""))
     else:
-        header = (f"magtune tune --sigma {args.sigma:g} --seed {args.seed} --ts {args.ts:g} --gain-margin {args.gain_margin:g}"
-                  + (f" --start {args.start}" if args.start else ""))
+        header = (f"magtune tune --sigma {args.sigma:g} --seed {args.seed} --ts {res.gains.ts:g} --gain-margin "
+                  f"{2.0 if args.gain_margin is None else args.gain_margin:g}" + (f" --start {args.start}" if args.start else ""))
+    if req is not None and args.verify_runs > 0 and not res.interrupted:
+        res.gains.provenance["verification"] = _closing_verification(args, res.gains, req)
     save_gains(out, res.gains, header=header)
     g, r = res.gains.provenance, res.result
     print(f"sigma={args.sigma:g} [{r.method}]  J: {r.J0:.3f} ({res.start}, {res.steps} Magnus steps) -> {g['J']:.3f} in "
           f"{r.evaluations} evaluations, {r.seconds:.1f} s, {res.state}; c1={g['c1']:.3f} c2={g['c2']:.2f} "
           f"rho={g['rho']:.5f} ({res.analysis_steps} steps); wrote {out}")
+    if req is not None:
+        print(f"requirements ({req.describe()}): {'met' if g['requirements_met'] else 'NOT met'}; smallest hold margin "
+              f"{g['hold_margin_min']:.3g} at Ts = {g['hold_tightest_ts']:.4g} s, peak dipole (linear) "
+              f"{g['dipole_peak_proxy']:.3g} of {g['dipole_budget']:.3g} A m^2")
     return 130 if res.interrupted else 0
+
+
+def _closing_verification(args, gains, req) -> dict:
+    """A short Monte Carlo (``--verify-runs`` per period, in this process) of the new gain against
+    the design spec (studies.verify): its summary for the provenance, one line printed."""
+    import tempfile
+
+    from ..design.gains import save_gains
+    from ..design.params import load_spacecraft
+    from ..studies import verify
+
+    with tempfile.TemporaryDirectory(prefix="magtune_tune_verify_") as tmp:
+        path = f"{tmp}/gains.yaml"
+        save_gains(path, gains)
+        res = verify.run_verify(path, req, repo_path("config/campaigns/example.yaml"), args.verify_runs, f"{tmp}/mc",
+                                tightest=gains.provenance.get("hold_tightest_ts"), p=load_spacecraft(args.config),
+                                scheduler="synchronous")
+    summary = verify.summary(res)
+    summary["campaign"] = "config/campaigns/example.yaml"
+    failing = sorted({f"{r.name} at Ts = {r.ts:g} s" for r in res["rows"] if not r.ok})
+    print(f"verification ({args.verify_runs} runs per period, Ts = {', '.join(f'{t:g}' for t in res['periods'])} s, "
+          f"{res['seconds']:.0f} s): " + ("pass" if res["passed"] else "FAIL: " + "; ".join(failing))
+          + "; the full check: magtune verify")
+    return summary
 
 
 def _cma_settings(args) -> CmaSettings:
@@ -190,9 +246,9 @@ def _run_robust(args, model, out) -> int:
     try:
         res = tune_robust_gains(model, models, args.sigma, seed=args.seed,
                                 start_K=load_gains(args.start).K if args.start else None, start_name=args.start,
-                                workers=args.workers, ts=args.ts, gain_margin=args.gain_margin,
-                                cma=_cma_settings(args),
-                                spec_name=args.robust)
+                                workers=args.workers, ts=1.0 if args.ts is None else args.ts,
+                                gain_margin=2.0 if args.gain_margin is None else args.gain_margin,
+                                cma=_cma_settings(args), spec_name=args.robust, requirements=requirements_of(args))
     except ImportError:
         raise CommandError("--robust needs the CMA-ES tuner (magtune_core.design.cmaes), not installed here") from None
     except ValueError as exc:

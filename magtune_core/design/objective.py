@@ -28,7 +28,6 @@ import numpy as np
 from ..ltp import DEFAULT_STEPS, hinfnorm, spectral_radius
 from .model import AttitudeLTP
 from .problem import attitude_system, performance_system
-from .sampled import HoldConstraint, SampledLoop, sampled_margin_ok
 
 
 def one_thread_per_worker() -> None:
@@ -45,10 +44,11 @@ def one_thread_per_worker() -> None:
     numba.set_num_threads(1)
 
 
-def model_feasible(model: AttitudeLTP, Ks: np.ndarray, steps: int, hold: tuple | None = None) -> np.ndarray:
+def model_feasible(model: AttitudeLTP, Ks: np.ndarray, steps: int, hold=None) -> np.ndarray:
     """Whether each gain (n, 3, 6) is feasible on one model: the continuous-time closed loop is
-    exponentially stable (max |multiplier| < 1, Theorem 2.1) and, with ``hold`` = (SampledLoop,
-    gain_margin), the sample-and-hold loop meets the margin. The screen of :func:`model_norms`.
+    exponentially stable (max |multiplier| < 1, Theorem 2.1) and, with ``hold`` (a screen of this
+    model: ``HoldConstraint.screen`` or ``Requirements.screen``), meets the hold and dipole
+    requirements. The screen of :func:`model_norms`.
 
     Returns
     -------
@@ -62,15 +62,15 @@ def model_feasible(model: AttitudeLTP, Ks: np.ndarray, steps: int, hold: tuple |
         rho = spectral_radius(attitude_system(model, Ks), steps)
     ok = np.isfinite(rho) & (rho < 1.0)
     if hold is not None and ok.any():
-        ok[ok] = sampled_margin_ok(hold[0], Ks[ok], hold[1])
+        ok[ok] = hold(Ks[ok])
     return ok
 
 
 def model_norms(model: AttitudeLTP, sigma: float, Ks: np.ndarray, steps: int, rtol: float,
-                guess=None, spread: float | None = None, hold: tuple | None = None) -> np.ndarray:
+                guess=None, spread: float | None = None, hold=None) -> np.ndarray:
     """||G_zTd^sigma(K)||_inf for a batch of gains (n, 3, 6) on one model; inf where unstable.
 
-    ``hold`` = (SampledLoop, gain_margin): gains whose sample-and-hold loop fails the margin are
+    ``hold`` (a screen of this model, :func:`model_feasible`): gains that fail it are
     infeasible too (inf), screened after the continuous-time test and before any bisection.
 
     Returns
@@ -129,17 +129,18 @@ class HinfObjective:
     workers : int
         Processes the population is split over (1 = in this process). Workers have their BLAS
         pinned to one thread; use the objective as a context manager or call :meth:`close`.
-    hold : HoldConstraint, optional
-        Digital-implementation constraint (design/sampled.py): a gain whose sample-and-hold loop
-        at ``hold.ts`` is unstable with the gain times ``hold.gain_margin`` on any model is
-        infeasible (J = inf), like a continuous-time unstable one. None: the paper's problem.
+    hold : HoldConstraint or Requirements, optional
+        Hard requirements (design/sampled.py, design/requirements.py): a gain whose sample-and-hold
+        loop fails the gain margin (at ``hold.ts``, or at every checked period of a Requirements)
+        or, for Requirements, exceeds the dipole budget on any model is infeasible (J = inf), like
+        a continuous-time unstable one. None: the paper's problem.
 
     Calling the objective with ``Ks`` (n, 3, 6) returns J (n,); :meth:`per_model` returns the
     (n, n_models) matrix and :meth:`worst` the index of the model attaining the max.
     """
 
     def __init__(self, models: AttitudeLTP | Sequence[AttitudeLTP], sigma: float, steps: int = DEFAULT_STEPS,
-                 rtol: float = 1e-4, workers: int = 1, hold: HoldConstraint | None = None):
+                 rtol: float = 1e-4, workers: int = 1, hold=None):
         self.models = (models,) if isinstance(models, AttitudeLTP) else tuple(models)
         if not self.models:
             raise ValueError("HinfObjective: at least one model is needed")
@@ -148,8 +149,7 @@ class HinfObjective:
         self.evaluations = 0
         self._pool = None
         self.hold = hold
-        self._holds = None if hold is None else [(SampledLoop.build(m, hold.ts), hold.gain_margin)
-                                                 for m in self.models]
+        self._holds = None if hold is None else [hold.screen(m) for m in self.models]
 
     def __enter__(self):
         return self

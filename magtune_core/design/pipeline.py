@@ -30,10 +30,13 @@ import numpy as np
 from .cmaes import CmaSettings
 from .gains import Gains
 from .problem import Figures, cost_gradient, figures
+from .requirements import Requirements, scan_hold
 from .resolution import resolved_steps, start_gain
 from .sampled import HoldConstraint, SampledLoop, feasible_start, hold_gain_margin, hold_provenance
 from .tuner import TunerSettings
 
+#: Rounds of the dense scan (a failing period is added to the checked set and the search resumed).
+SCAN_ROUNDS = 3
 #: Magnus steps of the final figures (at least; doubled while J moves, :func:`.resolution.resolved_steps`):
 #: ~1e-5 relative for the paper's satellite (bench/README.md).
 ANALYSIS_STEPS = 128
@@ -104,53 +107,141 @@ def _run_cma(model, sigma, K0, steps, *, seed, workers, cma: CmaSettings, hold, 
 
 def tune_gains(model, sigma: float, *, method: str = "cma", seed: int = 0, start_K=None, start_name: str | None = None,
                workers: int = 1, ts: float = 1.0, gain_margin: float = 2.0, cma: CmaSettings | None = None,
-               paper: TunerSettings | None = None, progress=None) -> TuneOutcome:
+               paper: TunerSettings | None = None, progress=None, requirements: Requirements | None = None) -> TuneOutcome:
     """H-infinity tuning of K for one sigma on ``model`` (an ``AttitudeLTP``).
 
-    ``method`` "cma" (CMA-ES to a certified optimum, under the hold constraint of ``ts`` /
-    ``gain_margin`` when ``gain_margin`` >= 1; 0: none) or "paper" (the randomized algorithm of
-    paper 4.2, no constraint); ``start_K``: start from this gain instead of the LQ gain of the
-    averaged model; ``progress``: the optimizer's callback (raise KeyboardInterrupt in it to stop
-    with the best gain so far).
+    ``method`` "cma" (CMA-ES to a certified optimum under hard requirements) or "paper" (the
+    randomized algorithm of paper 4.2, no constraint). The hard requirements are ``requirements``
+    (a design spec, :mod:`.requirements`: hold margin over a sample-period range, dipole budget;
+    the gains' Ts is its ts_min) or, without one, the hold constraint of ``ts`` / ``gain_margin``
+    (``gain_margin`` 0: none, the paper's unconstrained problem). ``start_K``: start from this
+    gain instead of the LQ gain of the averaged model; ``progress``: the optimizer's callback
+    (raise KeyboardInterrupt in it to stop with the best gain so far).
 
     Returns
     -------
     TuneOutcome
-        ``gains`` (K, sigma, ``ts``, provenance: J, c1, c2, rho of eqs. 20-22 at
-        ``analysis_steps`` Magnus steps, the optimizer's record, the start, the hold margin).
+        ``gains`` (K, sigma, Ts, provenance: J, c1, c2, rho of eqs. 20-22 at ``analysis_steps``
+        Magnus steps, the optimizer's record, the start, the requirements and their values).
         Raises ValueError when no start gain stabilizes the model, :class:`InfeasibleStart`
-        when the start cannot meet the constraint.
+        (naming the binding requirement) when the start cannot meet the requirements.
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if requirements is not None:
+        ts, gain_margin = requirements.ts, requirements.gain_margin
     K0, label, steps = _start(model, sigma, start_K, start_name)
     notes: list = []
     if method == "paper":
         res = _run_paper(model, sigma, K0, steps, seed=seed, workers=workers, paper=paper, progress=progress)
     else:
-        hold = HoldConstraint(ts, gain_margin) if gain_margin else None
-        if hold is not None:
-            try:
-                K0, note = feasible_start(model, K0, hold)
-            except ValueError as exc:  # a start far beyond the margin
-                raise InfeasibleStart(str(exc)) from None
-            if note:
-                label += f", {note}"
-                notes.append(f"start gain {note} to meet --gain-margin {hold.gain_margin:g} at --ts {hold.ts:g}")
-        res = _run_cma(model, sigma, K0, steps, seed=seed, workers=workers, cma=cma, hold=hold, progress=progress,
-                       notes=notes)
+        hold = requirements if requirements is not None and requirements.constrained else (
+            HoldConstraint(ts, gain_margin) if gain_margin and requirements is None else None)
+        res, steps = _constrained_search(model, sigma, K0, label, steps, hold, seed=seed, workers=workers, cma=cma,
+                                         progress=progress, notes=notes)
+        label = notes.pop(0)
     analysis_steps, _ = resolved_steps(model, res.K, sigma, ANALYSIS_STEPS)
     fig = figures(model, res.K, sigma, steps=analysis_steps)
     prov = {**fig.as_dict(), **res.provenance(), "start": label, "design_field": model.field.name,
             "analysis_steps": analysis_steps, "tune_seconds": round(res.seconds, 1)}
     prov.pop("stable", None)
     prov.update(hold_provenance(model, res.K, ts, gain_margin if method == "cma" else 0.0))
+    if requirements is not None and method == "cma":
+        prov.update(requirement_provenance(model, res.K, requirements))
     return TuneOutcome(Gains(res.K, sigma, ts, prov), res, label, steps, analysis_steps, notes)
+
+
+def _constrained_search(model, sigma, K0, label, steps, hold, *, seed, workers, cma, progress, notes):
+    """CMA-ES under ``hold``; with a design spec, the final gain's dense sample-period scan adds
+    any failing period to the checked set and resumes from the gain (at most SCAN_ROUNDS times).
+    The start's label goes first in ``notes``."""
+    seconds = evaluations = 0
+    J0 = None
+    for round_ in range(SCAN_ROUNDS + 1):
+        if hold is not None:
+            try:
+                K0, note = feasible_start(model, K0, hold)
+            except ValueError as exc:  # a start far beyond the requirements
+                raise InfeasibleStart(binding_message(model, K0, hold, str(exc))) from None
+            if note and round_ == 0:
+                label += f", {note}"
+                notes.append(f"start gain {note} to meet " + (hold.describe() if hasattr(hold, "describe") else
+                             f"--gain-margin {hold.gain_margin:g} at --ts {hold.ts:g}"))
+        res = _run_cma(model, sigma, K0, steps, seed=seed + round_, workers=workers, cma=cma, hold=hold,
+                       progress=progress, notes=notes)
+        seconds, evaluations = seconds + res.seconds, evaluations + res.evaluations
+        J0 = res.J0 if J0 is None else J0
+        if not isinstance(hold, Requirements) or not hold.gain_margin or res.stop == "interrupted":
+            break
+        periods, ok = scan_hold(model, res.K, hold)
+        if ok.all():
+            break
+        hold = hold.with_periods(periods[~ok])
+        K0 = res.K
+        notes.append(f"dense scan: the gain fails the hold margin at Ts = "
+                     f"{', '.join(f'{t:.4g}' for t in periods[~ok])} s; added to the checked periods, search resumed")
+    res.seconds, res.evaluations, res.J0 = seconds, evaluations, J0
+    notes.insert(0, label)
+    return res, steps
+
+
+def binding_message(model, K0, req, reason: str) -> str:
+    """Which hard requirement keeps the start gain's scalings infeasible, and by how much: the best
+    value each requirement reaches over the scalings 10^(0..-2) of ``K0`` (a Requirements; other
+    constraints: ``reason`` as is)."""
+    if not isinstance(req, Requirements):
+        return reason
+    screen = req.screen(model)
+    best: dict = {}
+    for f in np.geomspace(1.0, 0.01, 13):
+        for c in screen.checks(f * np.asarray(K0).reshape(3, 6)):
+            key = c.name.split(" at ")[0] if c.kind == "<=" else c.name
+            if key not in best or c.slack > best[key][0].slack:
+                best[key] = (c, f)
+    bind = sorted(((c, f) for c, f in best.values() if not c.ok), key=lambda cf: cf[0].slack)
+    if not bind:
+        return reason
+
+    def words(c, f):
+        if c.kind == ">=" and c.value == 0:
+            return f"{c.name}: the held loop is unstable at every scaling (needs a margin >= {c.limit:g})"
+        return f"{c.name}: at best {c.value:.4g} (needs {c.kind} {c.limit:.4g}, {-c.slack:.0%} short, at {f:.3g} x the start gain)"
+
+    more = f"; {len(bind) - 2} more" if len(bind) > 2 else ""
+    return f"{reason}; binding: " + "; ".join(words(c, f) for c, f in bind[:2]) + more
+
+
+def requirement_provenance(model, K, req: Requirements) -> dict:
+    """What a gains file records about its requirements: the spec in one line, the smallest hold
+    margin of the dense scan and its period (where ``verify`` also flies), the peak-dipole proxy.
+
+    Returns
+    -------
+    dict
+        ``requirements`` (one line), ``requirements_met`` (bool), ``hold_margin_min`` and
+        ``hold_tightest_ts`` [s] (dense scan), ``dipole_peak_proxy`` [A m^2] and ``dipole_budget``.
+    """
+    ts_scan = req.periods(req.sampling["scan_periods"])
+    loops = [SampledLoop.build(model, t) for t in ts_scan]
+    margins = np.array([hold_gain_margin(loop, K) for loop in loops])
+    i = int(np.argmin(margins))
+    screen = req.screen(model)
+    checks = [c for c in screen.checks(K) if c.kind == "<="]
+    peak = max((c.value for c in checks), default=float("nan"))
+    # met as the tuner decides it (the held loop with the gain times the margin is stable at every
+    # scanned period): hold_gain_margin's first crossing is +-1e-3 (its docstring), not the criterion
+    held_ok = not req.gain_margin or bool(all(loop.spectral_radius(req.gain_margin * np.asarray(K).reshape(1, 3, 6))[0] < 1
+                                             for loop in loops))
+    met = bool(held_ok and (not req.dipole_budget or peak <= req.dipole_budget))
+    return {"requirements": req.describe(), "requirements_source": req.source, "requirements_met": met,
+            "hold_margin_min": round(float(margins[i]), 3), "hold_tightest_ts": round(float(loops[i].ts), 4),
+            "hold_ts_range": [float(req.sampling["ts_min"]), float(req.sampling["ts_max"])],
+            "dipole_peak_proxy": round(float(peak), 3), "dipole_budget": round(req.dipole_budget, 3)}
 
 
 def tune_robust_gains(model, models, sigma: float, *, seed: int = 0, start_K=None, start_name: str | None = None,
                       workers: int = 1, ts: float = 1.0, gain_margin: float = 2.0, cma: CmaSettings | None = None,
-                      spec_name: str = "") -> TuneOutcome:
+                      spec_name: str = "", requirements: Requirements | None = None) -> TuneOutcome:
     """Robust tuning: minimize the worst J over ``models`` (``design.robust.model_set`` of a
     robust spec; ``model``: the nominal one) with the CMA-ES tuner (:func:`magtune_core.design.robust.tune_robust`).
 
@@ -165,6 +256,9 @@ def tune_robust_gains(model, models, sigma: float, *, seed: int = 0, start_K=Non
     settings = replace(cma or CmaSettings(), workers=workers)
     K0 = None if start_K is None else np.asarray(start_K, dtype=float).reshape(3, 6)
     hold = HoldConstraint(ts, gain_margin) if gain_margin else None
+    if requirements is not None:  # every model of the set meets the spec's checked periods and budget
+        ts, gain_margin = requirements.ts, requirements.gain_margin
+        hold = requirements if requirements.constrained else None
     res, sigma0, steps = tune_robust(models, sigma, seed=seed, settings=settings, K0=K0, hold=hold)
     analysis_steps, _ = resolved_steps([m.model for m in models], res.K, sigma, ANALYSIS_STEPS)
     rf = robust_figures(models, res.K, sigma, steps=analysis_steps)
@@ -175,6 +269,8 @@ def tune_robust_gains(model, models, sigma: float, *, seed: int = 0, start_K=Non
             **{f"worst_{k}": v for k, v in worst.items()}}
     prov.pop("stable", None)
     prov.update(hold_provenance(model, res.K, ts, gain_margin))
+    if requirements is not None:
+        prov.update(requirement_provenance(model, res.K, requirements))
     label = "LQ start"
     if start_K is not None:
         label = prov["start"] = str(start_name or "gain")

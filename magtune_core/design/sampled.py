@@ -82,11 +82,18 @@ class SampledLoop:
         e^{A h}, the open-loop map over one interval.
     Gamma : ndarray (N, 6, 3)
         Held-torque input maps, x_{k+1} = (Ad + Gamma_k K) x_k.
+    G : ndarray (N, 6, 3)
+        Held-dipole input maps: a dipole m held over interval k moves the state by G_k m
+        (Gamma_k = G_k C_k; a constant residual dipole enters the same way).
+    C : ndarray (N, 3, 3)
+        S(b_k)^T / |b_k|^2: the commanded dipole is m_k = C_k K x_k (eq. 17).
     """
 
     ts: float
     Ad: np.ndarray
     Gamma: np.ndarray
+    G: np.ndarray | None = None
+    C: np.ndarray | None = None
 
     @classmethod
     def build(cls, model: AttitudeLTP, ts: float, nodes: int = 4, panel: float = 2.5) -> "SampledLoop":
@@ -108,7 +115,7 @@ class SampledLoop:
             G += w[j] * np.einsum("ab,kbc->kac", E[j], skew_field(model.field(tk + s[j])))
         b0 = model.field(tk)
         Ck = np.swapaxes(skew_field(b0), -1, -2) / np.sum(b0**2, axis=-1)[:, None, None]
-        return cls(ts=h, Ad=expm(A * h), Gamma=G @ Ck)
+        return cls(ts=h, Ad=expm(A * h), Gamma=G @ Ck, G=G, C=Ck)
 
     @property
     def intervals(self) -> int:
@@ -165,6 +172,23 @@ class HoldConstraint:
         if not (np.isfinite(self.gain_margin) and self.gain_margin >= 1):
             raise ValueError(f"hold constraint: gain_margin must be >= 1, got {self.gain_margin}")
 
+    def screen(self, model: AttitudeLTP) -> "HoldScreen":
+        """The check of this constraint on one model (:class:`HoldScreen`)."""
+        return HoldScreen(SampledLoop.build(model, self.ts), self.gain_margin)
+
+
+@dataclass(frozen=True)
+class HoldScreen:
+    """Callable Ks (n, 3, 6) -> bool (n,): the held loop meets the gain margin (one model, one Ts).
+    The single-period case of ``.requirements.FlightScreen``; picklable (sent to the tuner's workers)."""
+
+    loop: SampledLoop
+    gain_margin: float
+
+    def __call__(self, Ks) -> np.ndarray:
+        """Whether each gain's held loop is stable with the gain times ``gain_margin``."""
+        return sampled_margin_ok(self.loop, Ks, self.gain_margin)
+
 
 def hold_gain_margin(loop: SampledLoop, K, upper: float = 16.0, points: int = 48, rtol: float = 1e-3) -> float:
     """Largest factor g in (0, upper] with a stable sampled loop for every g' in [1, g], of one gain.
@@ -203,8 +227,9 @@ def hold_gain_margin(loop: SampledLoop, K, upper: float = 16.0, points: int = 48
     return float(lo)
 
 
-def feasible_start(model, K0, hold: HoldConstraint, shrink: float = 0.95, tries: int = 90):
-    """A start gain meeting ``hold``: K0 itself, or K0 scaled down by the largest factor that meets it
+def feasible_start(model, K0, hold, shrink: float = 0.95, tries: int = 90):
+    """A start gain meeting ``hold`` (a HoldConstraint or ``.requirements.Requirements``): K0 itself,
+    or K0 scaled down by the largest factor that meets it
     among 1 - 1e-4 2^i (i = 0..8) and shrink^j (j = 1..tries).
 
     The fine factors first: a gain tuned on the constraint (the shipped optima, margin 2 +- 1e-3)
@@ -223,20 +248,21 @@ def feasible_start(model, K0, hold: HoldConstraint, shrink: float = 0.95, tries:
     """
     models = (model,) if isinstance(model, AttitudeLTP) else tuple(model)
     K0 = np.asarray(K0, dtype=float).reshape(3, 6)
-    loops = [SampledLoop.build(m, hold.ts) for m in models]
+    screens = [hold.screen(m) for m in models]
     fine = 1.0 - 1e-4 * 2.0 ** np.arange(9)
     coarse = shrink ** np.arange(1, tries + 1)
     f = np.concatenate([[1.0], fine, coarse[coarse < fine[-1]]])
     for chunk in np.array_split(np.arange(len(f)), -(-len(f) // 8)):  # batches of 8: the largest feasible
         ok = np.ones(len(chunk), dtype=bool)
-        for loop in loops:
+        for screen in screens:
             if ok.any():
-                ok[ok] = sampled_margin_ok(loop, f[chunk[ok], None, None] * K0, hold.gain_margin)
+                ok[ok] = screen(f[chunk[ok], None, None] * K0)
         if ok.any():
             j = int(chunk[np.argmax(ok)])
             return (K0, "") if j == 0 else (f[j] * K0, f"scaled by {f[j]:.5g}")
-    raise ValueError(f"no scaling of the start gain down to {f[-1]:.2g} meets the hold constraint "
-                     f"(gain margin {hold.gain_margin:g} at Ts = {hold.ts:g} s)")
+    raise ValueError(f"no scaling of the start gain down to {f[-1]:.2g} meets " + (
+        hold.describe() if hasattr(hold, "describe") else
+        f"the hold constraint (gain margin {hold.gain_margin:g} at Ts = {hold.ts:g} s)"))
 
 
 def hold_provenance(model: AttitudeLTP, K, ts: float, gain_margin: float) -> dict:

@@ -161,7 +161,7 @@ def test_tune_and_front_commands(tmp_path):
     out = tmp_path / "g.yaml"
     # --start-scale gain: on a constant field the start gain's own scale moves faster than the feasible
     # ranges (README; measured: 12-40 evaluations in feasible-range units do not improve J here)
-    assert main(["tune", "--sigma", "60", "--field-model", "constant", "--popsize", "4", "--max-evals", "12",
+    assert main(["tune", "--sigma", "60", "--gain-margin", "2", "--field-model", "constant", "--popsize", "4", "--max-evals", "12",
                  "--start-scale", "gain", "--out", str(out), "--quiet"]) == 0
     g = load_gains(out)
     assert g.provenance["method"] == "cma" and g.provenance["evaluations"] >= 12 and g.provenance["J"] > 0

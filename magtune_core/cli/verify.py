@@ -1,0 +1,96 @@
+"""``magtune verify GAINS``: Monte Carlo verification against the design spec's pointing
+requirements (:mod:`..studies.verify`). Exit 0: every requirement passes; 3: a requirement
+fails; 1: a run did not complete; 2: bad input."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ..base.atomic import atomic_write
+from ..base.errors import ConfigError
+from ..studies import verify
+from .common import CommandError, add_spec_argument, load_design_spec, plain_summary, repo_path
+
+OUTPUTS = ("verify.md", "verify.json")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("verify", help="Monte Carlo verification of gains against the design spec (exit 0 pass, 3 fail)",
+                       description=plain_summary(verify.__doc__))
+    p.add_argument("gains", help="gains file (config/gains/sigma_*.yaml)")
+    add_spec_argument(p)
+    p.add_argument("--campaign", metavar="CAMPAIGN_SPEC", default=None,
+                   help="dispersions and environment (default config/campaigns/example.yaml); its gains, ts and "
+                        "criteria are replaced by GAINS, the verified periods and the design spec's requirements")
+    p.add_argument("--runs", type=int, default=200, help="dispersed runs per sample period (default 200)")
+    p.add_argument("--out", required=True, help="report directory (new or empty, unless --force)")
+    p.add_argument("--force", action="store_true", help="write into a non-empty --out")
+    p.add_argument("--record", action="store_true",
+                   help="also write the verdict into GAINS' provenance (key 'verification'; atomic)")
+    p.add_argument("--scheduler", default=None, help="tcp://HOST:PORT of an existing Dask scheduler (as campaign)")
+    p.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: one per core)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def _check(args) -> None:
+    if args.runs < 1:
+        raise ConfigError("--runs", None, f"expected a positive number of runs, got {args.runs}")
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError("--workers", None, f"expected at least 1, got {args.workers}")
+    out = Path(args.out)
+    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not args.force)):
+        raise ConfigError(out, None, "--out exists and is not an empty directory; choose a new one or add --force")
+
+
+def run(args) -> int:
+    from ..design.gains import load_gains
+    from ..design.params import load_spacecraft
+
+    _check(args)
+    gains = load_gains(args.gains)  # ConfigError -> one line, exit 2, before any run
+    req = load_design_spec(args)
+    p = load_spacecraft(args.config)
+    campaign = args.campaign or repo_path("config/campaigns/example.yaml")
+    verify.load_spec(campaign)  # validated before any worker starts
+    tightest = gains.provenance.get("hold_tightest_ts")
+    if tightest is None and req.gain_margin:
+        from ..cli.common import load_model
+        from ..design.pipeline import requirement_provenance
+
+        tightest = requirement_provenance(load_model(args), gains.K, req)["hold_tightest_ts"]
+    periods = verify.verify_periods(req, tightest)
+    print(f"verify {args.gains}: {args.runs} runs at Ts = {', '.join(f'{t:g}' for t in periods)} s "
+          f"(ends of {req.sampling['ts_min']:g}-{req.sampling['ts_max']:g} s and the tightest hold margin), "
+          f"dispersions of {campaign} with the design spec's rates, residual dipoles and torquers "
+          f"({req.dipole_budget or req.dipole_limit:g}-{req.dipole_limit:g} A m^2)", flush=True)
+    try:
+        res = verify.run_verify(args.gains, req, campaign, args.runs, args.out, tightest=tightest, p=p,
+                                scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress)
+    except OSError as exc:
+        raise CommandError(f"cannot reach the Dask scheduler {args.scheduler}: {exc}") from None
+    md = verify.table(res)
+    verdict = "PASS" if res["passed"] else ("FAIL (runs did not complete)" if res["failed_runs"] else "FAIL")
+    text = f"# verify {args.gains}\n\n{md}\n\n{verdict}: {res['runs']} runs per period, {res['seconds']:.0f} s\n"
+    out = Path(args.out)
+    atomic_write(out / "verify.md", text)
+    atomic_write(out / "verify.json", json.dumps(verify.summary(res), indent=1))
+    print(md)
+    print(f"{verdict} ({res['seconds']:.0f} s); wrote {out / 'verify.md'}")
+    if args.record:
+        _record(args.gains, verify.summary(res))
+    if res["failed_runs"]:
+        return verify.RUN_FAILED
+    return verify.PASSED if res["passed"] else verify.REQUIREMENT_FAILED
+
+
+def _record(path, record: dict) -> None:
+    """The verdict into the gains file's provenance, the file's header kept (save_gains writes atomically)."""
+    from ..design.gains import load_gains, save_gains
+
+    g = load_gains(path)
+    g.provenance["verification"] = record
+    comments = [line[2:] for line in Path(path).read_text().splitlines() if line.startswith("# ")]
+    header = "\n".join(comments[2:])  # save_gains writes the first two (what K is) itself
+    save_gains(path, g, header=header)
+    print(f"recorded the verdict in {path}")

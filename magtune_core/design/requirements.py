@@ -1,0 +1,279 @@
+"""The flight's requirements as part of the tuning problem: one validated design spec.
+
+J (paper eq. 21) is the soft goal; the hard requirements are what the flight needs and J does
+not see (docs/requirements.md):
+
+* ``sampling``: the sample-and-hold loop (:mod:`.sampled`) stays stable with the gain times
+  ``gain_margin`` at every sample period of [ts_min, ts_max] (paper section 5: no significant
+  degradation up to Ts = 20 s). The tuner checks ``check_periods`` periods (geometric, both ends
+  included); the final gain is scanned at ``scan_periods`` periods, and a period that fails the
+  scan is added to the checked set and the search resumed (:func:`scan_hold`, ``design.pipeline``);
+* ``dipole``: the worst-case peak commanded dipole per axis of the held loop at ts_min and ts_max
+  (:mod:`.dipole`) from the requirement's initial states and residual dipoles stays within the
+  budget ``budget_fraction`` x ``limit`` (default: the spacecraft file's ``dipole_limit``);
+* ``pointing``: what ``magtune verify`` accepts a gain by (Monte Carlo in the full environment).
+
+The same file is read by ``tune``, ``front``, ``analyze`` and ``verify`` (``config/design.yaml``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..base.errors import ConfigError
+from ..base.schema import Field, parse
+from .dipole import DipoleCase, peak_dipole
+from .model import AttitudeLTP
+from .node_params import INITIAL_RATE_ERROR
+from .sampled import SampledLoop, hold_gain_margin
+
+SAMPLING_FIELDS = (
+    Field("ts_min", "float", "shortest sample period the flight computer may run [s] (the gains' Ts)", 1.0,
+          positive=True, unit="s"),
+    Field("ts_max", "float", "longest sample period the gains must hold at [s]", 20.0, positive=True, unit="s"),
+    Field("gain_margin", "float", "sample-and-hold gain margin at every Ts of the range (factor; 0: no hold "
+          "requirement, the paper's unconstrained problem)", 4.0, nonnegative=True),
+    Field("check_periods", "int", "sample periods the tuner checks (geometric in [ts_min, ts_max])", 8, positive=True),
+    Field("scan_periods", "int", "sample periods of the final gain's dense scan", 96, positive=True),
+)
+DIPOLE_FIELDS = (
+    Field("limit", "float", "per-axis dipole the torquers deliver [A m^2] (default: the spacecraft file's "
+          "dipole_limit)", None, positive=True, unit="A m^2"),
+    Field("budget_fraction", "float", "fraction of the limit the linear closed loop may command (0: no dipole "
+          "requirement); the rest is left to noise and unmodelled torques", 0.8, nonnegative=True),
+    Field("rate_nominal", "float[]", "initial rate error dw(0), nominal [rad/s]", INITIAL_RATE_ERROR, size=3),
+    Field("rate_radius", "float[]", "initial rate error: +- per axis [rad/s]", (5e-4, 5e-4, 5e-4), size=3,
+          nonnegative=True),
+    Field("attitude_max_deg", "float", "initial attitude error: any rotation up to this angle [deg] (0: the paper's dq(0) = 0; an "
+          "acquisition from a large error saturates briefly, which verify's saturation fraction bounds)", 0.0,
+          nonnegative=True, bounds=(0.0, 90.0)),
+    Field("residual_nominal", "float[]", "residual dipole, nominal per body axis [A m^2]", (1.0, 1.0, 1.0), size=3),
+    Field("residual_radius", "float[]", "residual dipole: +- per axis [A m^2] (3 sigma of the example dispersion)",
+          (0.9, 0.9, 0.9), size=3, nonnegative=True),
+    Field("horizon_orbits", "float", "horizon of the peak check [orbits]", 2.0, positive=True),
+)
+POINTING_FIELDS = (
+    Field("settle_threshold_deg", "float", "pointing error below which a run counts as settled [deg]", 2.0,
+          positive=True),
+    Field("max_settling_orbits", "float", "settle within this many orbits", 2.0, positive=True),
+    Field("max_pointing_deg", "float", "peak pointing error after settling [deg]", 3.0, positive=True),
+    Field("max_rms_pointing_deg", "float", "RMS pointing error after settling [deg]", 1.0, positive=True),
+    Field("max_saturation_fraction", "float", "fraction of controller steps with a saturated axis", 0.01,
+          nonnegative=True),
+    Field("pass_fraction", "float", "fraction of Monte Carlo runs that must meet every pointing requirement", 0.99,
+          positive=True, bounds=(0.0, 1.0)),
+)
+SECTIONS = {"sampling": SAMPLING_FIELDS, "dipole": DIPOLE_FIELDS, "pointing": POINTING_FIELDS}
+
+
+@dataclass(frozen=True)
+class Check:
+    """One hard requirement evaluated on one gain: ``value`` against ``limit`` (``kind`` says which side)."""
+
+    name: str
+    value: float
+    limit: float
+    kind: str  # ">=": value must be at least limit (a margin); "<=": at most (a peak)
+
+    @property
+    def ok(self) -> bool:
+        """Whether the requirement holds."""
+        return bool(self.value >= self.limit) if self.kind == ">=" else bool(self.value <= self.limit)
+
+    @property
+    def slack(self) -> float:
+        """Relative distance to the limit: > 0 met, < 0 violated (-0.1: 10 % short)."""
+        if not np.isfinite(self.value):
+            return np.inf if (self.kind == ">=") == (self.value > 0) else -np.inf
+        return (self.value / self.limit - 1.0) if self.kind == ">=" else (1.0 - self.value / self.limit)
+
+    def __str__(self) -> str:
+        return f"{self.name} {self.value:.4g} {'>=' if self.kind == '>=' else '<='} {self.limit:.4g}"
+
+
+@dataclass(frozen=True)
+class Requirements:
+    """A validated design spec (module docstring): its three sections' values."""
+
+    sampling: dict
+    dipole: dict
+    pointing: dict
+    dipole_limit: float  # the resolved per-axis limit [A m^2]
+    source: str = "defaults"
+    extra_periods: tuple = field(default=())  # periods added by the dense scan (cutting planes)
+
+    @classmethod
+    def from_mapping(cls, raw: dict | None, spacecraft_limit: float, where="design spec") -> "Requirements":
+        """Validate a design spec mapping (sections ``sampling``, ``dipole``, ``pointing``); ConfigError if bad."""
+        raw = raw or {}
+        if not isinstance(raw, dict):
+            raise ConfigError(where, None, f"expected a mapping with sections {', '.join(SECTIONS)}")
+        for key in raw:
+            if key not in SECTIONS:
+                raise ConfigError(where, str(key), f"unknown section; expected {', '.join(SECTIONS)}")
+        vals = {}
+        for name, fields in SECTIONS.items():
+            sec = raw.get(name) or {}
+            if not isinstance(sec, dict):
+                raise ConfigError(where, name, "expected a mapping of fields")
+            vals[name] = parse(sec, fields, where, allowed=())
+        s = vals["sampling"]
+        if s["ts_max"] < s["ts_min"]:
+            raise ConfigError(where, "sampling.ts_max", f"must be >= ts_min ({s['ts_min']:g} s)")
+        if 0 < s["gain_margin"] < 1:
+            raise ConfigError(where, "sampling.gain_margin", f"expected 0 (none) or >= 1, got {s['gain_margin']:g}")
+        limit = vals["dipole"]["limit"] or float(spacecraft_limit)
+        return cls(vals["sampling"], vals["dipole"], vals["pointing"], float(limit), str(where))
+
+    @property
+    def ts(self) -> float:
+        """The gains' sample period: the shortest of the range."""
+        return float(self.sampling["ts_min"])
+
+    @property
+    def gain_margin(self) -> float:
+        """Required hold gain margin (0: none)."""
+        return float(self.sampling["gain_margin"])
+
+    @property
+    def dipole_budget(self) -> float:
+        """Per-axis dipole the linear loop may command [A m^2] (0: no dipole requirement)."""
+        return float(self.dipole["budget_fraction"]) * self.dipole_limit
+
+    @property
+    def constrained(self) -> bool:
+        """False for the paper's unconstrained problem (no hold, no dipole requirement)."""
+        return self.gain_margin > 0 or self.dipole_budget > 0
+
+    def periods(self, points: int | None = None) -> np.ndarray:
+        """The checked sample periods: geometric in [ts_min, ts_max] (``points``, default check_periods),
+        plus the periods the dense scan added, ascending."""
+        lo, hi = self.sampling["ts_min"], self.sampling["ts_max"]
+        n = int(points or self.sampling["check_periods"])
+        base = np.array([lo]) if hi == lo or n == 1 else np.geomspace(lo, hi, max(n, 2))
+        return np.unique(np.concatenate([base, np.asarray(self.extra_periods, dtype=float)]))
+
+    def with_periods(self, extra) -> "Requirements":
+        """The same requirements with more checked periods (the dense scan's cutting planes)."""
+        return replace(self, extra_periods=tuple(sorted(set(self.extra_periods) | {float(t) for t in extra})))
+
+    def dipole_case(self) -> DipoleCase:
+        """The initial states and residual dipoles of the budget (:class:`.dipole.DipoleCase`)."""
+        d = self.dipole
+        return DipoleCase(tuple(d["rate_nominal"]), tuple(d["rate_radius"]), float(d["attitude_max_deg"]),
+                          tuple(d["residual_nominal"]), tuple(d["residual_radius"]), float(d["horizon_orbits"]))
+
+    def screen(self, model: AttitudeLTP) -> "FlightScreen":
+        """The compiled checks of these requirements on one model (:class:`FlightScreen`)."""
+        return FlightScreen.build(model, self)
+
+    def describe(self) -> str:
+        """One line: what the tuner is asked (what a gains file's provenance records)."""
+        s = self.sampling
+        parts = [f"hold gain margin {s['gain_margin']:g} at Ts {s['ts_min']:g}-{s['ts_max']:g} s"
+                 if self.gain_margin else "no hold requirement"]
+        parts.append(f"peak |m_i| <= {self.dipole_budget:.4g} A m^2" if self.dipole_budget else "no dipole budget")
+        return "; ".join(parts)
+
+
+def spacecraft_dipole_limit(spacecraft_path) -> float:
+    """The torquers' per-axis limit of a spacecraft file (its nodes' ``dipole_limit``, the weakest
+    axis; the controller's default when the file gives none) [A m^2]."""
+    from ..base.paramfile import read_ros_params
+    from .node_params import DEFAULT_DIPOLE_LIMIT
+
+    value = read_ros_params(spacecraft_path).get("dipole_limit", DEFAULT_DIPOLE_LIMIT)
+    return float(np.min(np.asarray(value, dtype=float)))
+
+
+def load_requirements(path, spacecraft_limit: float) -> Requirements:
+    """Read and validate a design spec file (ConfigError naming the file and field).
+
+    Returns
+    -------
+    Requirements
+        The spec, its dipole limit resolved against ``spacecraft_limit``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(path, None, "design spec not found")
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(path, None, f"not valid YAML ({str(exc).splitlines()[0]})") from None
+    return Requirements.from_mapping(raw, spacecraft_limit, where=str(path))
+
+
+@dataclass(frozen=True)
+class FlightScreen:
+    """The hard requirements of :class:`Requirements` compiled for one model: held loops at the
+    checked periods (longest first: the cheapest and, for these loops, usually the binding one)
+    and the dipole proxy's loops at ts_min and ts_max. Picklable (sent to the tuner's workers)."""
+
+    loops: tuple          # SampledLoop per checked period, longest Ts first
+    gain_margin: float
+    dipole_loops: tuple   # SampledLoop at ts_min (and ts_max)
+    case: DipoleCase
+    budget: float
+
+    @classmethod
+    def build(cls, model: AttitudeLTP, req: Requirements) -> "FlightScreen":
+        """Interval maps of every checked period (:meth:`.sampled.SampledLoop.build`)."""
+        loops = tuple(SampledLoop.build(model, t) for t in req.periods()[::-1]) if req.gain_margin else ()
+        lo, hi = req.sampling["ts_min"], req.sampling["ts_max"]
+        dl = tuple(SampledLoop.build(model, t) for t in sorted({lo, hi})) if req.dipole_budget else ()
+        return cls(loops, req.gain_margin, dl, req.dipole_case(), req.dipole_budget)
+
+    def __call__(self, Ks) -> np.ndarray:
+        """Whether each gain meets every hard requirement (n,): hold margins, then the dipole budget.
+
+        Returns
+        -------
+        ndarray of bool (n,)
+        """
+        Ks = np.asarray(Ks, dtype=float).reshape(-1, 3, 6)
+        ok = np.ones(len(Ks), dtype=bool)
+        for loop in self.loops:
+            if ok.any():
+                ok[ok] = loop.spectral_radius(self.gain_margin * Ks[ok]) < 1.0
+        for loop in self.dipole_loops:
+            if ok.any():
+                ok[ok] = peak_dipole(loop, Ks[ok], self.case).max(axis=-1) <= self.budget
+        return ok
+
+    def checks(self, K) -> list:
+        """Every hard requirement of one gain, with its value (what binds and by how much).
+
+        Returns
+        -------
+        list of Check
+            the hold gain margin at each checked period (``>=`` gain_margin) and the peak
+            dipole per axis at each dipole period (``<=`` budget).
+        """
+        K = np.asarray(K, dtype=float).reshape(3, 6)
+        out = [Check(f"hold gain margin at Ts = {loop.ts:.4g} s", hold_gain_margin(loop, K), self.gain_margin, ">=")
+               for loop in self.loops]
+        for loop in self.dipole_loops:
+            pk = peak_dipole(loop, K[None], self.case)[0]
+            i = int(np.argmax(pk))
+            out.append(Check(f"peak |m_{'xyz'[i]}| at Ts = {loop.ts:.4g} s [A m^2]", float(pk[i]), self.budget, "<="))
+        return out
+
+
+def scan_hold(model: AttitudeLTP, K, req: Requirements, points: int | None = None):
+    """Dense scan of the sample-and-hold requirement for one gain: is the loop with the gain times
+    ``gain_margin`` stable at ``points`` periods (default scan_periods) of [ts_min, ts_max]?
+
+    Returns
+    -------
+    (ndarray, ndarray of bool)
+        the scanned periods (the intervals actually used, T / round(T / Ts)) and whether each holds.
+    """
+    K = np.asarray(K, dtype=float).reshape(1, 3, 6)
+    ts = req.periods(points or req.sampling["scan_periods"])
+    loops = [SampledLoop.build(model, t) for t in ts]
+    ok = np.array([loop.spectral_radius(req.gain_margin * K)[0] < 1.0 for loop in loops])
+    return np.array([loop.ts for loop in loops]), ok
