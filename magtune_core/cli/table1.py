@@ -72,9 +72,9 @@ def run(args) -> int:
             f"{'/'.join(str(r[5]) for r in rows)}, doubled until J is resolved to 1e-3). Shipped gains: {seeds}.\n\n"
             f"c1 = H-inf norm T_d -> dq_R, c2 = H2 norm T_d -> m, rho = max |characteristic multiplier|, "
             f"J = H-inf norm T_d -> z (the tuned cost, not in the paper's table), hold gain margin = largest factor "
-            f"on K keeping the sample-and-hold loop at the file's ts stable (design/sampled.py; the tuner asks "
-            f"for 2). Method cma: the shipped "
-            f"gains (`magtune tune`); method paper: `magtune tune --method paper`, kept in "
+            f"on K keeping the sample-and-hold loop at the file's ts stable (design/sampled.py; the design spec "
+            f"asks for 4 at every Ts of 1-20 s, docs/requirements.md). Method cma: the shipped "
+            f"gains (`magtune tune` under config/design.yaml); method paper: `magtune tune --method paper`, kept in "
             f"`config/gains/paper_method/`.\n\n{table}\n\n{TABLE1_MARKER}{notes}")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(body if body.endswith("\n") else body + "\n")
