@@ -4,13 +4,14 @@ Shared by the writer, the reader and recovery; see :mod:`magtune_core.bags` for 
 """
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NamedTuple
 
 import yaml
 from mcap.reader import make_reader
+
+from ..base.atomic import atomic_write
 
 METADATA_VERSION = 9
 STORAGE_ID = "mcap"
@@ -109,11 +110,7 @@ def _with_files(bag_dir, topics, start_ns, end_ns, custom_data, stats: list[dict
 
 def write_metadata(bag_dir: Path, doc: dict) -> Path:
     """Atomically write ``metadata.yaml``."""
-    path = Path(bag_dir) / "metadata.yaml"
-    tmp = path.with_suffix(".yaml.tmp")
-    tmp.write_text(yaml.safe_dump(doc, sort_keys=False, default_flow_style=False))
-    os.replace(tmp, path)
-    return path
+    return atomic_write(Path(bag_dir) / "metadata.yaml", yaml.safe_dump(doc, sort_keys=False, default_flow_style=False))
 
 
 def read_metadata(bag_dir: Path) -> dict:

@@ -8,11 +8,11 @@ rebuilt, and the report says how many messages were recovered out of how many ex
 """
 from __future__ import annotations
 
-import json
 import sys
 
 from .. import bags
 from ..bags import recover
+from ..base import jsonout
 from ..base.errors import ConfigError
 
 
@@ -42,7 +42,7 @@ def run_info(args) -> int:
     except OSError as exc:
         raise ConfigError(args.bag, None, f"cannot read the bag: {exc.strerror or exc}") from None
     if args.json:
-        print(json.dumps(inf, indent=1))
+        print(jsonout.dumps(inf, indent=1))
         return 0
     integ, timing = inf["integrity"], inf["timing"]
     state = "complete" if inf["complete"] else "DAMAGED/UNFINISHED: run magtune bag recover"
@@ -85,7 +85,7 @@ def integrity_lines(integ: dict) -> list[str]:
 
 def run_recover(args) -> int:
     rep = recover.recover(args.bag, args.output, in_place=args.in_place)
-    print(json.dumps(rep, indent=1))
+    print(jsonout.dumps(rep, indent=1))
     exp = rep["messages_expected"]
     print(f"recovered {rep['messages_recovered']} of {exp} messages into {rep['output']}"
           f" (original untouched: {rep['original_kept']})", file=sys.stderr)

@@ -1,12 +1,13 @@
 """``magtune sampling``: the sampling-period study, sigma x Ts grid (:mod:`..studies.sampling`)."""
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
 
+from ..base import jsonout
 from ..base.ament import ROOT
+from ..base.atomic import atomic_write
 from ..studies import sampling
 from .common import CommandError, add_environment_arguments, add_force_argument, check_outputs, environment_options, plain_summary, positive_floats
 
@@ -66,7 +67,7 @@ def run(args) -> int:
                 conclusion=args.conclusion)
     md = sampling.write_markdown(rows, out / "sampling.md", meta)
     sampling.plot(rows, out / "sampling.png")
-    (out / "sampling.json").write_text(json.dumps(dict(meta=meta, rows=[
+    atomic_write(out / "sampling.json", jsonout.dumps(dict(meta=meta, rows=[
         {k: v for k, v in r.items() if k not in ("t_plot", "dq_plot", "m_plot")} for r in rows]), indent=1))
     print(md)
     print(f"wrote {out / 'sampling.md'}, {out / 'sampling.png'}, {out / 'sampling.json'} in {wall:.0f} s")

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import base64
 import html
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +36,8 @@ import yaml
 
 from .. import bags as baglib
 from ..bags.decode import Decoder, stamp_ns
+from ..base import jsonout
+from ..base.atomic import atomic_savefig, atomic_write
 from ..base.rotations import rotation_matrix
 from ..base.topics import DIPOLE, TOPIC_DIPOLE, TOPIC_INERTIAL_RATE, TOPIC_TRUTH, TRUTH
 from ..design.law import DEFAULT_DIPOLE_LIMIT, linear_state
@@ -220,7 +221,7 @@ def plot_norms(runs: list[Run], T: float, lo_orbit: float, hi_orbit: float, titl
     for a in ax:
         a.grid(True, alpha=0.3)
     _legend_outside(fig, ax)
-    fig.savefig(out, dpi=110)
+    atomic_savefig(fig, out, dpi=110)
     plt.close(fig)
 
 
@@ -246,7 +247,7 @@ def plot_quaternion(runs: list[Run], T: float, out: Path):
     h0, l0 = ax[0, 0].get_legend_handles_labels()
     h1, l1 = ax[0, 1].get_legend_handles_labels()
     fig.legend(h0 + h1, l0 + l1, loc="outside right upper", fontsize=8)
-    fig.savefig(out, dpi=110)
+    atomic_savefig(fig, out, dpi=110)
     plt.close(fig)
 
 
@@ -275,7 +276,7 @@ def plot_rates_dipoles(runs: list[Run], T: float, out: Path, dipole_limit: float
     h1, l1 = ax[0, 1].get_legend_handles_labels()
     seen = dict(zip(l0 + l1, h0 + h1))
     fig.legend(list(seen.values()), list(seen.keys()), loc="outside right upper", fontsize=8)
-    fig.savefig(out, dpi=110)
+    atomic_savefig(fig, out, dpi=110)
     plt.close(fig)
 
 
@@ -341,10 +342,10 @@ def make_report(bags, out, *, run: str | None = None, truth=TRUTH, dipole=DIPOLE
     plot_rates_dipoles(detail, T, out / FIGURES[3], dipole_limit)
     summary = {r.name: {"label": r.label, **run_figures(r, T), "integrity": r.integrity}
                for r in runs}
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    atomic_write(out / "summary.json", jsonout.dumps(summary, indent=1))
     md = _markdown(summary, [r.name for r in detail], T, win, dipole_limit)
-    (out / "summary.md").write_text(md)
-    (out / "report.html").write_text(_html(summary, out, T, win, [r.name for r in detail], dipole_limit))
+    atomic_write(out / "summary.md", md)
+    atomic_write(out / "report.html", _html(summary, out, T, win, [r.name for r in detail], dipole_limit))
     return summary
 
 

@@ -122,12 +122,17 @@ def test_sil_bad_gains_file_exits_2(tmp_path, capsys):
 
 def test_huge_gain_analyzes_as_unstable(tmp_path, capsys):
     """Why #5: a gain of 10 per entry crashed analyze (overflow in the monodromy). It is a valid
-    (if absurd) gain: the loop is reported unstable with rho = inf."""
+    (if absurd) gain: the loop is reported unstable with rho = inf, printed as strict JSON
+    (``null``, never ``Infinity``/``NaN``, which strict parsers reject)."""
     g = _edit(tmp_path, GAINS, "g10.yaml", gain=[10.0] * 18)
     assert cli_main(["analyze", "--json", str(g)]) == 0
     out = capsys.readouterr().out
-    d = json.loads(out.strip().splitlines()[-1])
-    assert d["stable"] is False and d["rho"] == float("inf")
+
+    def strict(name):
+        raise ValueError(f"not JSON: {name}")
+
+    d = json.loads(out.strip().splitlines()[-1], parse_constant=strict)
+    assert d["stable"] is False and d["rho"] is None
 
 
 def test_same_error_same_exit_code_everywhere(tmp_path, capsys):
@@ -183,3 +188,14 @@ def test_packaged_sil_defaults_are_the_schemas():
         parsed, defaults = parse(given, fields, path, allowed=()), parse({}, fields, path)
         differ = sorted(k for k in given if not np.array_equal(parsed[k], defaults[k]))
         assert differ == (["orbits"] if node == "simulator" else []), (node, differ)
+
+
+@pytest.mark.parametrize("keep", [6, 10, 20, 23])
+def test_truncated_gains_file_is_one_line(tmp_path, capsys, keep):
+    """Why: a gains file cut short (a write that failed half-way) must not load: the gain list is
+    short or sigma is missing; one line, exit 2 (cut at 6: inside the header, 10/20: inside the
+    18-entry gain, 23: after the gain, before sigma)."""
+    bad = tmp_path / "g.yaml"
+    bad.write_text("".join(GAINS.read_text().splitlines(keepends=True)[:keep]))
+    err = _one_line_exit2(capsys, ["analyze", str(bad)])
+    assert "field 'gain'" in err or "field 'sigma'" in err, err
