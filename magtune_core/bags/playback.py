@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..base.errors import ConfigError
+from .integrity import integrity_lines
 from .reader import info, topics_of
 
 #: default wait for subscribers [wall s] before the first message
@@ -49,6 +50,7 @@ class Selection:
     end_ns: int          # last log time to play (inclusive)
     bag_start_ns: int
     bag_end_ns: int
+    warnings: list = field(default_factory=list)   # integrity problems of the bag (damaged/missing files, counts)
 
 
 def validate(bag, opts: ReplayOptions) -> Selection:
@@ -107,4 +109,5 @@ def validate(bag, opts: ReplayOptions) -> Selection:
             raise ConfigError("--playback-until", None, f"{opts.playback_until:g} is before the start point "
                               f"{start_ns * 1e-9:.3f} s (the bag spans {b0 * 1e-9:.3f} .. {b1 * 1e-9:.3f} s, log time)")
         end_ns = min(end_ns, until)
-    return Selection(names, start_ns, end_ns, b0, b1)
+    warnings = [] if inf["complete"] else (integrity_lines(inf["integrity"]) or ["the bag is not complete"])
+    return Selection(names, start_ns, end_ns, b0, b1, warnings)

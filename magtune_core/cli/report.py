@@ -1,11 +1,13 @@
 """``magtune report``: paper Figs. 2-5 and figures of merit from recorded bags (:mod:`..studies.report`)."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from ..base.topics import DIPOLE, TRUTH
 from ..design.law import DEFAULT_DIPOLE_LIMIT
 from ..studies import report
+from .bag import integrity_lines
 from .common import CommandError, check_output, plain_summary, say
 
 
@@ -45,4 +47,7 @@ def run(args) -> int:
     except (OSError, ValueError) as exc:
         raise CommandError(str(exc)) from None
     print(Path(args.out, "summary.md").read_text())
+    for name, run in s.items():  # every damaged or missing file, every count metadata.yaml gets wrong
+        for line in [] if run["integrity"]["complete"] else integrity_lines(run["integrity"]) or ["bag not complete"]:
+            print(f"magtune report: warning: {name}: {line}", file=sys.stderr)
     return 0 if s else 1

@@ -144,7 +144,8 @@ def load_run(path, *, truth=TRUTH, dipole=DIPOLE, orbit_rate: float | None = Non
     integ = {"complete": bool(report.get("complete", True))}
     if not integ["complete"]:
         integ.update({k: report.get(k) for k in ("messages_recovered", "messages_expected",
-                                                "messages_in_damaged_chunks", "chunks_bad", "problem")})
+                                                "messages_in_damaged_chunks", "chunks_bad", "problem",
+                                                "missing_files", "metadata_disagreements", "metadata_message_count")})
     return Run(name or path.name, label, np.array(t), q_arr, x, np.array(tm), np.array(m).reshape(-1, 3), integ)
 
 
@@ -349,14 +350,25 @@ def make_report(bags, out, *, run: str | None = None, truth=TRUTH, dipole=DIPOLE
     return summary
 
 
+def _integrity_cell(integ: dict) -> str:
+    """The report table's "bag integrity" cell: complete, or what was recovered and what is wrong."""
+    if integ["complete"]:
+        return "complete"
+    text = f"damaged: {integ.get('messages_recovered')} msgs recovered"
+    if integ.get("missing_files"):
+        text += f"; missing file(s) {', '.join(integ['missing_files'])}"
+    if integ.get("metadata_disagreements"):
+        text += f"; metadata.yaml says {integ.get('metadata_message_count')} msgs"
+    return text
+
+
 def _rows(summary: dict) -> tuple[list[str], list[list[str]]]:
     head = ["bag", "label", "orbits", "final pointing [deg]", "peak pointing [deg]", "RMS pointing [deg]",
             "RMS window [s]", "final abs(dq_R)", "peak abs(dq_R)", "RMS abs(dq_R)", "peak abs(m) [A m^2]",
             "RMS abs(m) [A m^2]", "samples truth/dipole", "bag integrity"]
     rows = []
     for name, s in summary.items():
-        integ = "complete" if s["integrity"]["complete"] else \
-            f"damaged: {s['integrity'].get('messages_recovered')} msgs recovered"
+        integ = _integrity_cell(s["integrity"])
         lo, hi = s["rms_window"]
         rows.append([name, s["label"], f"{s['orbits']:.3f}", f"{s['final_deg']:.4f}", f"{s['peak_deg']:.4f}",
                      f"{s['rms_deg']:.4f}", f"{lo:.0f}-{hi:.0f}", f"{s['final_dq']:.4e}", f"{s['peak_dq']:.4e}",

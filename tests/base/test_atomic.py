@@ -85,35 +85,11 @@ def test_save_gains_force_under_file_size_limit_keeps_old_file(tmp_path):
 
 @pytest.fixture
 def full_tmpfs(tmp_path):
-    """A 64 kB tmpfs mounted on a fresh directory (root only), unmounted afterwards."""
-    import shutil
-    import subprocess
+    """A 64 kB tmpfs (tests/support/smallfs.py), unmounted afterwards."""
+    from smallfs import small_tmpfs
 
-    mnt = tmp_path / "small"
-    mnt.mkdir()
-    if shutil.which("mount") is None:
-        pytest.skip("no mount command")
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mnt)], capture_output=True, text=True)
-    if r.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here ({r.stderr.strip() or 'not permitted'})")
-    try:
+    with small_tmpfs(tmp_path / "small") as mnt:
         yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
-
-
-def _fill(directory):
-    """Fill the filesystem of ``directory`` up to the last byte (ENOSPC)."""
-    import errno
-
-    fd = os.open(directory / "filler", os.O_WRONLY | os.O_CREAT)
-    try:
-        while True:
-            os.write(fd, b"\0" * 512)
-    except OSError as exc:
-        assert exc.errno == errno.ENOSPC
-    finally:
-        os.close(fd)
 
 
 def test_save_gains_on_full_filesystem_keeps_old_file(tmp_path, full_tmpfs):
@@ -124,7 +100,9 @@ def test_save_gains_on_full_filesystem_keeps_old_file(tmp_path, full_tmpfs):
     g = load_gains(ROOT / "config" / "gains" / "sigma_60.yaml")
     save_gains(p, g)
     before = p.read_bytes()
-    _fill(full_tmpfs)
+    from smallfs import fill
+
+    fill(full_tmpfs)
     g.provenance["design"] = {"note": "x" * 20_000}
     with pytest.raises(OSError):
         save_gains(p, g)
