@@ -12,6 +12,7 @@ import yaml
 from mcap.reader import make_reader
 
 from ..base.atomic import atomic_write
+from ..base.paramfile import check_path
 
 METADATA_VERSION = 9
 STORAGE_ID = "mcap"
@@ -140,6 +141,7 @@ def listed_files(bag) -> tuple[list[Path], list[str]]:
         (present files, missing file names); FileNotFoundError when no file is there at all.
     """
     p = Path(bag)
+    check_path(p)  # a symbolic link loop: one line, as for every other file argument
     if p.is_file():
         return [p], []
     listed: list[str] = []

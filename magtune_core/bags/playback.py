@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..base.errors import ConfigError
+from ..base.paramfile import check_path
 from .integrity import integrity_lines
 from .reader import info, topics_of
 
@@ -62,6 +63,7 @@ def validate(bag, opts: ReplayOptions) -> Selection:
         one line naming the bad option, the value and the fix.
     """
     p = Path(bag)
+    check_path(p)
     if not p.exists():
         raise ConfigError(bag, None, "no such bag (expected a bag directory or an .mcap file)")
     if not math.isfinite(opts.rate) or opts.rate < 0:

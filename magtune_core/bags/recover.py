@@ -33,6 +33,7 @@ from mcap.writer import CompressionType, Writer
 
 from ..base.atomic import atomic_output
 from ..base.errors import ConfigError
+from ..base.paramfile import check_path
 from .integrity import bag_metadata, bag_report, expected_count, unreadable_report
 from .layout import LIBRARY, STORAGE_ID, build_metadata, listed_files, mcap_file_name, read_metadata, write_metadata
 from .scan import scan
@@ -52,6 +53,7 @@ def check_storage(bag) -> tuple[Path, list[Path], list[str]]:
     """(bag directory, its .mcap files, names listed in metadata.yaml but missing) of an MCAP
     bag; ConfigError for any other storage."""
     p = Path(bag)
+    check_path(p)
     if not p.exists():
         raise ConfigError(p, None, "no such bag (expected a bag directory or an .mcap file)")
     bag_dir = p if p.is_dir() else p.parent

@@ -34,6 +34,7 @@ from mcap.records import Channel, Chunk, Footer, Message, MessageIndex, Schema
 from mcap.stream_reader import breakup_chunk
 
 from ..base.errors import ConfigError
+from ..base.paramfile import check_path
 from .layout import BagMessage, TopicInfo, listed_files, resolve_mcap
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -365,6 +366,7 @@ def check_file(bag) -> Path:
     it); only a bag none of whose files can be read is. Cheap: commands call it before starting
     any process."""
     p = Path(bag)
+    check_path(p)
     if not p.exists():
         raise ConfigError(p, None, "no such bag (expected a bag directory bags/NAME or an .mcap file)")
     try:

@@ -8,6 +8,7 @@ from pathlib import Path
 from ..base import jsonout
 from ..base.ament import ROOT
 from ..base.atomic import atomic_write
+from ..base.paramfile import read_user_text
 from ..studies import sampling
 from .common import CommandError, add_environment_arguments, add_force_argument, check_outputs, environment_options, plain_summary, positive_floats
 
@@ -45,7 +46,7 @@ def run(args) -> int:
     opts = environment_options(args)
     conclusion_arg = args.conclusion if args.conclusion.startswith("@") else ("..." if args.conclusion else "")
     if args.conclusion.startswith("@"):
-        args.conclusion = Path(args.conclusion[1:]).read_text().strip()
+        args.conclusion = read_user_text(args.conclusion[1:]).strip()
     env_opts = dict(gravity_gradient=opts.gravity_gradient, drag=opts.drag, srp=opts.srp, field=opts.field,
                     igrf_degree=opts.igrf_degree)
     out = Path(args.out_dir)

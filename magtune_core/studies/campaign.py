@@ -57,6 +57,7 @@ from ..base import jsonout
 from ..base.ament import ROOT
 from ..base.atomic import atomic_output, atomic_write
 from ..base.errors import ConfigError
+from ..base.paramfile import load_user_yaml
 from ..base.schema import Field, parse
 from ..design.gains import load_gains
 from ..design.params import SpacecraftParams, load_spacecraft
@@ -205,12 +206,7 @@ def load_spec(path) -> CampaignSpec:
     Raises ConfigError naming the file, the field and the fix (unknown keys and sections too).
     """
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(path, None, "campaign spec not found")
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(path, None, f"not valid YAML ({str(exc).splitlines()[0]})") from None
+    raw = load_user_yaml(path, "expected a campaign spec")  # missing, loop, not UTF-8, malformed, duplicate key
     if not isinstance(raw, dict):
         raise ConfigError(path, None, f"expected a mapping with sections {', '.join(SECTIONS)}")
     for key in raw:
