@@ -116,7 +116,11 @@ def write_metadata(bag_dir: Path, doc: dict) -> Path:
 
 def read_metadata(bag_dir: Path) -> dict:
     """The ``rosbag2_bagfile_information`` mapping of a bag directory."""
-    doc = yaml.safe_load((Path(bag_dir) / "metadata.yaml").read_text())
+    try:
+        text = (Path(bag_dir) / "metadata.yaml").read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:  # every caller treats it as a malformed metadata.yaml
+        raise yaml.YAMLError(f"metadata.yaml is not UTF-8 text (byte offset {exc.start})") from None
+    doc = yaml.safe_load(text)
     return doc["rosbag2_bagfile_information"]
 
 

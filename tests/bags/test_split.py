@@ -194,3 +194,12 @@ def test_replay_validation_names_every_bad_file(tmp_path):
     assert sel.bag_start_ns == 100 * DT and sel.bag_end_ns == 299 * DT
     assert "run_3.mcap: listed in metadata.yaml but missing (its messages are lost; the bag is not complete)" in sel.warnings
     assert any(w.startswith("run_0.mcap: unreadable (empty file") for w in sel.warnings), sel.warnings
+
+
+def test_metadata_not_utf8_is_ignored_not_a_traceback(tmp_path, capsys):
+    bag = _split(tmp_path)
+    (bag / "metadata.yaml").write_bytes(b"\xff\xfe garbage")
+    assert bags.info(bag)["message_count"] == N       # the files are found by name and read
+    code, _, err = _cli(capsys, "bag", "recover", str(bag))
+    assert code == 0 and "Traceback" not in err
+    assert bags.info(tmp_path / "run_recovered")["complete"]

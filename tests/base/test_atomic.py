@@ -109,3 +109,4 @@ def test_save_gains_on_full_filesystem_keeps_old_file(tmp_path, full_tmpfs):
     assert p.read_bytes() == before
     assert sorted(os.listdir(full_tmpfs)) == ["filler", p.name]  # no temporary file left
     assert load_gains(p).K.tolist() == g.K.tolist()
+
