@@ -203,3 +203,24 @@ def test_metadata_not_utf8_is_ignored_not_a_traceback(tmp_path, capsys):
     code, _, err = _cli(capsys, "bag", "recover", str(bag))
     assert code == 0 and "Traceback" not in err
     assert bags.info(tmp_path / "run_recovered")["complete"]
+
+
+def test_recover_in_place_on_full_disk_changes_nothing(tmp_path, capsys):
+    import shutil
+
+    from smallfs import fill, small_tmpfs
+
+    src = _split(tmp_path)
+    _truncate(src / "run_1.mcap")
+    with small_tmpfs(tmp_path / "small", "96k") as mnt:
+        bag = mnt / "run"
+        shutil.copytree(src, bag)
+        before = {p.name: p.read_bytes() for p in bag.iterdir()}
+        filler = fill(mnt)
+        code, _, err = _cli(capsys, "bag", "recover", "--in-place", str(bag))
+        assert code == 1 and len(err.strip().splitlines()) == 1, err
+        assert {p.name: p.read_bytes() for p in bag.iterdir()} == before      # nothing replaced, nothing left
+        filler.unlink()
+        code, _, err = _cli(capsys, "bag", "recover", "--in-place", str(bag))
+        assert code == 0, err
+        assert bags.info(bag)["complete"] and (bag / "run_1.mcap.damaged").read_bytes() == before["run_1.mcap"]
