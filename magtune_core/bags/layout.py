@@ -4,13 +4,15 @@ Shared by the writer, the reader and recovery; see :mod:`magtune_core.bags` for 
 """
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NamedTuple
 
 import yaml
 from mcap.reader import make_reader
+
+from ..base.atomic import atomic_write
+from ..base.paramfile import check_path
 
 METADATA_VERSION = 9
 STORAGE_ID = "mcap"
@@ -109,16 +111,16 @@ def _with_files(bag_dir, topics, start_ns, end_ns, custom_data, stats: list[dict
 
 def write_metadata(bag_dir: Path, doc: dict) -> Path:
     """Atomically write ``metadata.yaml``."""
-    path = Path(bag_dir) / "metadata.yaml"
-    tmp = path.with_suffix(".yaml.tmp")
-    tmp.write_text(yaml.safe_dump(doc, sort_keys=False, default_flow_style=False))
-    os.replace(tmp, path)
-    return path
+    return atomic_write(Path(bag_dir) / "metadata.yaml", yaml.safe_dump(doc, sort_keys=False, default_flow_style=False))
 
 
 def read_metadata(bag_dir: Path) -> dict:
     """The ``rosbag2_bagfile_information`` mapping of a bag directory."""
-    doc = yaml.safe_load((Path(bag_dir) / "metadata.yaml").read_text())
+    try:
+        text = (Path(bag_dir) / "metadata.yaml").read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:  # every caller treats it as a malformed metadata.yaml
+        raise yaml.YAMLError(f"metadata.yaml is not UTF-8 text (byte offset {exc.start})") from None
+    doc = yaml.safe_load(text)
     return doc["rosbag2_bagfile_information"]
 
 
@@ -132,47 +134,49 @@ class BagMessage(NamedTuple):
     data: bytes
 
 
-def resolve_mcaps(bag) -> list[Path]:
-    """Every ``.mcap`` file of a bag, in order (a split bag has several: ``relative_file_paths``
-    of metadata.yaml, else ``NAME_<i>.mcap`` by index); a file path gives itself."""
+def listed_files(bag) -> tuple[list[Path], list[str]]:
+    """The ``.mcap`` files of a bag in order, and the names ``metadata.yaml`` lists that are not
+    there (a split bag has several files: ``relative_file_paths``; without a usable list, every
+    ``NAME_<i>.mcap`` by index). A file path gives itself and nothing missing.
+
+    Returns
+    -------
+    tuple
+        (present files, missing file names); FileNotFoundError when no file is there at all.
+    """
     p = Path(bag)
+    check_path(p)  # a symbolic link loop: one line, as for every other file argument
     if p.is_file():
-        return [p]
-    meta = p / "metadata.yaml"
-    if meta.is_file():
+        return [p], []
+    listed: list[str] = []
+    if (p / "metadata.yaml").is_file():
         try:
-            files = [p / f for f in (read_metadata(p).get("relative_file_paths") or [])]
-            if files and all(f.is_file() for f in files):
-                return files
-        except (yaml.YAMLError, KeyError, TypeError):
-            pass
+            listed = [str(f) for f in (read_metadata(p).get("relative_file_paths") or [])]
+        except (OSError, yaml.YAMLError, KeyError, TypeError, AttributeError, UnicodeDecodeError):
+            listed = []
+    if listed:
+        present = [p / f for f in listed if (p / f).is_file()]
+        missing = [f for f in listed if not (p / f).is_file()]
+        if present:
+            return present, missing
     cands = list(p.glob("*.mcap"))
     if not cands:
-        raise FileNotFoundError(f"no .mcap file in {p}")
+        raise FileNotFoundError(f"no .mcap file in {p}" + (f" (metadata.yaml lists {', '.join(listed)})" if listed else ""))
 
     def index(f: Path):
         tail = f.stem.rpartition("_")[2]
         return (0, int(tail), f.name) if tail.isdigit() else (1, 0, f.name)
-    return sorted(cands, key=index)
+    return sorted(cands, key=index), listed
+
+
+def resolve_mcaps(bag) -> list[Path]:
+    """Every ``.mcap`` file of a bag that is there, in order (:func:`listed_files`)."""
+    return listed_files(bag)[0]
 
 
 def resolve_mcap(bag) -> Path:
-    """The ``.mcap`` file of a bag directory (or the file itself)."""
-    p = Path(bag)
-    if p.is_file():
-        return p
-    meta = p / "metadata.yaml"
-    if meta.is_file():
-        try:
-            files = read_metadata(p).get("relative_file_paths") or []
-            if files and (p / files[0]).is_file():
-                return p / files[0]
-        except (yaml.YAMLError, KeyError, TypeError):
-            pass
-    cands = sorted(p.glob("*.mcap"))
-    if not cands:
-        raise FileNotFoundError(f"no .mcap file in {p}")
-    return cands[0]
+    """The first ``.mcap`` file of a bag directory (or the file itself)."""
+    return resolve_mcaps(bag)[0]
 
 
 def has_summary(mcap_path: Path) -> bool:

@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..base.errors import ConfigError
+from ..base.paramfile import check_path
+from .integrity import integrity_lines
 from .reader import info, topics_of
 
 #: default wait for subscribers [wall s] before the first message
@@ -49,6 +51,7 @@ class Selection:
     end_ns: int          # last log time to play (inclusive)
     bag_start_ns: int
     bag_end_ns: int
+    warnings: list = field(default_factory=list)   # integrity problems of the bag (damaged/missing files, counts)
 
 
 def validate(bag, opts: ReplayOptions) -> Selection:
@@ -60,6 +63,7 @@ def validate(bag, opts: ReplayOptions) -> Selection:
         one line naming the bad option, the value and the fix.
     """
     p = Path(bag)
+    check_path(p)
     if not p.exists():
         raise ConfigError(bag, None, "no such bag (expected a bag directory or an .mcap file)")
     if not math.isfinite(opts.rate) or opts.rate < 0:
@@ -107,4 +111,5 @@ def validate(bag, opts: ReplayOptions) -> Selection:
             raise ConfigError("--playback-until", None, f"{opts.playback_until:g} is before the start point "
                               f"{start_ns * 1e-9:.3f} s (the bag spans {b0 * 1e-9:.3f} .. {b1 * 1e-9:.3f} s, log time)")
         end_ns = min(end_ns, until)
-    return Selection(names, start_ns, end_ns, b0, b1)
+    warnings = [] if inf["complete"] else (integrity_lines(inf["integrity"]) or ["the bag is not complete"])
+    return Selection(names, start_ns, end_ns, b0, b1, warnings)

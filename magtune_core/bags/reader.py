@@ -9,7 +9,9 @@ from typing import Iterator
 import yaml
 from mcap.reader import make_reader
 
-from .layout import STORAGE_ID, BagMessage, TopicInfo, has_summary, read_metadata, resolve_mcap, resolve_mcaps
+from ..base.errors import ConfigError
+from .integrity import bag_metadata, bag_report, unreadable_report
+from .layout import STORAGE_ID, BagMessage, TopicInfo, has_summary, listed_files, read_metadata, resolve_mcap, resolve_mcaps
 from .scan import scan
 from .timing import TimingCheck, has_header
 
@@ -31,20 +33,22 @@ def iter_messages(bag, topics=None, start_ns: int | None = None, report: dict | 
         return
     if order != "log":
         raise ValueError(f"order must be 'log' or 'publish', not {order!r}")
-    files = resolve_mcaps(bag)
-    if len(files) > 1:   # split bag: the files' streams merged by log time (stable: file order on ties)
+    files, missing = listed_files(bag)
+    if len(files) > 1 or missing or Path(bag).is_dir():
+        # a bag directory (split or not): the files' streams merged by log time (stable: file
+        # order on ties); the report checks every listed file and metadata.yaml's counts
         reports = [{} for _ in files]
-        yield from heapq.merge(*(iter_messages(f, topics, start_ns, r) for f, r in zip(files, reports)),
-                               key=lambda m: m.log_time)
+        streams = [iter_messages(f, topics, start_ns, r) for f, r in zip(files, reports)] if len(files) == 1 else \
+            [_tolerant(f, topics, start_ns, r) for f, r in zip(files, reports)]
+        yield from heapq.merge(*streams, key=lambda m: m.log_time)
         if report is not None:
-            report.update({"complete": all(r.get("complete", True) for r in reports)})
-            bad = [r for r in reports if not r.get("complete", True)]
-            if bad:
-                report.update({k: v for k, v in bad[0].items() if k != "complete"})
+            report.update(bag_report(bag, files, reports, missing))
         return
-    path = resolve_mcap(bag)
+    path = files[0]
     wanted = set(topics) if topics is not None else None
     if wanted is not None and not wanted:
+        if report is not None:
+            report.update(scan(path, topics=wanted).summary())
         return
     res = scan(path, topics=wanted)
     if report is not None:
@@ -54,13 +58,27 @@ def iter_messages(bag, topics=None, start_ns: int | None = None, report: dict | 
     yield from msgs
 
 
+def _tolerant(path, topics, start_ns, report: dict) -> Iterator[BagMessage]:
+    """The messages of one file of a split bag; a file that cannot be read at all is reported
+    (:func:`.integrity.unreadable_report`) and the other files are still read."""
+    try:
+        yield from iter_messages(path, topics, start_ns, report)
+    except ConfigError as exc:
+        report.clear()
+        report.update(unreadable_report(path, exc))
+
+
 def topics_of(bag) -> dict[str, TopicInfo]:
     """Topics (name -> :class:`TopicInfo` with counts) from the MCAP itself."""
     files = resolve_mcaps(bag)
     if len(files) > 1:   # split bag: counts summed over the files
         out: dict[str, TopicInfo] = {}
         for f in files:
-            for name, t in topics_of(f).items():
+            try:
+                found = topics_of(f)
+            except ConfigError:  # an unreadable file of a split bag: reported by the integrity check
+                continue
+            for name, t in found.items():
                 if name in out:
                     out[name].message_count += t.message_count
                 else:
@@ -97,19 +115,27 @@ def info(bag, ts: float | None = None) -> dict:
         (:meth:`magtune_core.bags.timing.TimingCheck.report`: /clock gaps, log time vs stamp, over
         all files), ``start_utc``/``end_utc``, ``storage_identifier``, ``ros_distro``, ``files``.
     """
-    files = resolve_mcaps(bag)
+    files, missing = listed_files(bag)
     if ts is None:
         ts = _metadata_ts(bag)
     check = TimingCheck()
     parts, stamped = [], set()
     for f in files:
-        res = scan(f, visit=lambda m: check.add(m.topic, m.log_time, m.data))
-        integ = res.summary()
-        integ.pop("per_topic", None)
+        try:
+            res = scan(f, visit=lambda m: check.add(m.topic, m.log_time, m.data))
+        except ConfigError as exc:
+            if len(files) == 1:
+                raise
+            parts.append({"path": str(f), "complete": False, "size_bytes": f.stat().st_size, "message_count": 0,
+                          "start_ns": 0, "end_ns": 0, "chunks": 0, "integrity": unreadable_report(f, exc), "topics": {}})
+            continue
         stamped.update(_stamped_topics(res))
         parts.append({"path": str(f), "complete": res.complete, "size_bytes": f.stat().st_size,
                       "message_count": res.message_count, "start_ns": res.start_ns, "end_ns": res.end_ns,
-                      "chunks": res.chunks_ok, "integrity": integ, "topics": res.topics})
+                      "chunks": res.chunks_ok, "integrity": res.summary(), "topics": res.topics})
+    integ = bag_report(bag, files, [p["integrity"] for p in parts], missing)
+    for d in [integ] + integ.get("files", []) + [p["integrity"] for p in parts]:
+        d.pop("per_topic", None)
     used = [p for p in parts if p["message_count"]]
     count = sum(p["message_count"] for p in parts)
     start = min((p["start_ns"] for p in used), default=0)
@@ -119,18 +145,14 @@ def info(bag, ts: float | None = None) -> dict:
         for n, t in p["topics"].items():
             e = topics.setdefault(n, {"type": t.type, "count": 0})
             e["count"] += t.message_count
-    meta = {}
-    if Path(bag).is_dir():
-        try:
-            meta = read_metadata(Path(bag))
-        except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError):
-            meta = {}
-    single = len(parts) == 1
-    return {"path": parts[0]["path"] if single else str(Path(bag)), "complete": all(p["complete"] for p in parts),
+    meta = bag_metadata(bag) or {}
+    single = len(parts) == 1 and not missing
+    return {"path": parts[0]["path"] if single else str(Path(bag)), "complete": integ["complete"],
             "size_bytes": sum(p["size_bytes"] for p in parts), "message_count": count, "start_ns": start,
             "end_ns": end, "duration_s": (end - start) / 1e9 if count else 0.0,
             "chunks": sum(p["chunks"] for p in parts), "topics": dict(sorted(topics.items())),
-            "integrity": parts[0]["integrity"] if single else {"files": [p["integrity"] for p in parts]},
+            "integrity": integ, "missing_files": integ["missing_files"],
+            "metadata_disagreements": integ["metadata_disagreements"],
             "timing": check.report(ts, stamped),
             "storage_identifier": meta.get("storage_identifier", STORAGE_ID),
             "ros_distro": meta.get("ros_distro", ""),

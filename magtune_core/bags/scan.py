@@ -34,7 +34,8 @@ from mcap.records import Channel, Chunk, Footer, Message, MessageIndex, Schema
 from mcap.stream_reader import breakup_chunk
 
 from ..base.errors import ConfigError
-from .layout import BagMessage, TopicInfo, resolve_mcap
+from ..base.paramfile import check_path
+from .layout import BagMessage, TopicInfo, listed_files, resolve_mcap
 
 MAGIC = b"\x89MCAP0\r\n"
 MAX_RECORD = 1 << 31  # larger length fields are treated as corruption
@@ -359,16 +360,30 @@ def scan(path, topics=None, visit=None) -> ScanResult:
 
 
 def check_file(bag) -> Path:
-    """The .mcap file of ``bag`` if it can be a bag (exists, non-empty, MCAP magic or at least
-    MCAP-like after a damaged magic); ConfigError naming the problem otherwise. Cheap: commands
-    call it before starting any process."""
+    """The first .mcap file of ``bag`` that can be a bag (exists, non-empty, MCAP magic or at
+    least MCAP-like after a damaged magic); ConfigError naming the problem otherwise. For a split
+    bag, a damaged, empty or missing later file is not an error here (the integrity report names
+    it); only a bag none of whose files can be read is. Cheap: commands call it before starting
+    any process."""
     p = Path(bag)
+    check_path(p)
     if not p.exists():
         raise ConfigError(p, None, "no such bag (expected a bag directory bags/NAME or an .mcap file)")
     try:
-        path = resolve_mcap(p)
+        files, _ = listed_files(p)
     except FileNotFoundError:
         raise ConfigError(p, None, "no .mcap file in this directory (expected a rosbag2 MCAP bag)") from None
+    first_error = None
+    for path in files:
+        try:
+            return _check_one(path)
+        except ConfigError as exc:
+            first_error = first_error or exc
+    raise first_error
+
+
+def _check_one(path: Path) -> Path:
+    """``path`` if it is a non-empty, MCAP-like file; ConfigError otherwise."""
     try:
         with open(path, "rb") as f:
             head = f.read(8)

@@ -83,3 +83,21 @@ def atomic_write(path, data, *, overwrite: bool = True, encoding: str = "utf-8")
                        overwrite=overwrite, encoding=encoding) as fh:
         fh.write(data)
     return Path(path)
+
+
+def atomic_savefig(fig, path, **kwargs) -> Path:
+    """Save a matplotlib figure atomically: render into memory, then :func:`atomic_write`
+    (``savefig`` writes in place, so a failure would leave a truncated image).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    import io
+
+    path = Path(path)
+    buf = io.BytesIO()
+    kwargs.setdefault("format", path.suffix.lstrip(".") or "png")
+    fig.savefig(buf, **kwargs)
+    return atomic_write(path, buf.getvalue())

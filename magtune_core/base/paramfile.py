@@ -7,9 +7,17 @@ PyYAML loads it: lists mixing types (``[1, 2.5]``: write ``[1.0, 2.5]``), lists 
 mappings, lists holding null, and strings that YAML 1.1 reads as booleans inside string lists
 (``[x, y]``: ``y`` is ``true``). A node handed such a file fails inside ``rclpy.init`` with a
 parser message; this check names the offending parameter instead.
+
+Every user file (parameter files, gains, spacecraft, campaign and robust specs) is read through
+:func:`read_user_text` and :func:`safe_load`, so the same problem gets the same one line from
+every command: a missing file, a symbolic-link loop, a directory, a file that is not UTF-8 text,
+malformed YAML, and a mapping key given twice (PyYAML keeps the last one silently; a SIL once
+flew the second gain under a header naming the first) are :class:`ConfigError`.
 """
 from __future__ import annotations
 
+import errno
+import os
 import re
 from pathlib import Path
 
@@ -18,17 +26,103 @@ import yaml
 from .errors import ConfigError
 
 
+class UniqueKeyLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that rejects a mapping key given twice, naming the key and both lines
+    (merge keys ``<<`` may still be overridden, as YAML says)."""
+
+    def construct_mapping(self, node, deep=False):
+        """The mapping of ``node``; ConstructorError at the second occurrence of a key."""
+        if isinstance(node, yaml.MappingNode):
+            seen: dict = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    first = seen.setdefault(key, key_node.start_mark.line)
+                except TypeError:  # an unhashable key: the base class reports it
+                    continue
+                if first != key_node.start_mark.line:
+                    raise yaml.constructor.ConstructorError(
+                        "while constructing a mapping", node.start_mark,
+                        f"duplicate key {key!r} (first given at line {first + 1}; keep one)", key_node.start_mark)
+        return super().construct_mapping(node, deep)
+
+
+def safe_load(text: str):
+    """``yaml.safe_load`` that rejects duplicate mapping keys (:class:`UniqueKeyLoader`)."""
+    return yaml.load(text, Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+
+
+_OS_REASONS = {
+    errno.ENOENT: "file not found",
+    errno.ELOOP: "symbolic link loop (too many levels of symbolic links); point it at a real file",
+    errno.EISDIR: "is a directory; expected a file",
+    errno.EACCES: "permission denied",
+    errno.ENAMETOOLONG: "file name too long",
+    errno.ENOTDIR: "a component of the path is not a directory",
+}
+
+
+def os_reason(exc: OSError) -> str:
+    """The one wording every command uses for an OSError on a user's path."""
+    return _OS_REASONS.get(exc.errno, exc.strerror or str(exc))
+
+
+def check_path(path, option: str | None = None) -> None:
+    """ConfigError if ``path`` cannot even be looked up (a symbolic link loop, a too-long name);
+    a path that does not exist yet is fine (outputs), and other errors are left to the caller's
+    own checks. ``option``: the command-line option named in the message (else the path)."""
+    try:
+        os.stat(path)
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        if exc.errno in (errno.ELOOP, errno.ENAMETOOLONG):  # the rest: the caller's own checks name the option
+            raise ConfigError(option or path, None, (f"{path}: " if option else "") + os_reason(exc)) from None
+
+
+def read_user_text(path, expected: str = "") -> str:
+    """The text of a user's file, UTF-8; ConfigError naming the file and the fix otherwise.
+
+    ``expected``: what the file should be, appended to "file not found" (e.g. "expected a ROS 2
+    parameter YAML file").
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        reason = os_reason(exc)
+        raise ConfigError(path, None, f"{reason} ({expected})" if expected and exc.errno == errno.ENOENT else reason) from None
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise ConfigError(path, None, f"not UTF-8 text (byte 0x{data[exc.start]:02x} at line {line}, offset {exc.start}); "
+                                      "save the file as UTF-8") from None
+
+
+def yaml_error(path, exc: yaml.YAMLError) -> ConfigError:
+    """The one line for malformed YAML (and duplicate keys): where and what."""
+    mark = getattr(exc, "problem_mark", None)
+    at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+    return ConfigError(path, None, f"malformed YAML{at}: {getattr(exc, 'problem', None) or exc}")
+
+
+def load_user_yaml(path, expected: str = ""):
+    """A user's YAML file parsed (:func:`read_user_text`, :func:`safe_load`); ConfigError for any
+    problem (missing, loop, not UTF-8, malformed, duplicate key)."""
+    text = read_user_text(path, expected)
+    try:
+        return safe_load(text)
+    except yaml.YAMLError as exc:
+        raise yaml_error(path, exc) from None
+
+
 def _load(path) -> dict:
     """The parsed file, checked to be ``{node: {ros__parameters: {...}}}`` (read once)."""
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(path, None, "file not found (expected a ROS 2 parameter YAML file)")
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        raise ConfigError(path, None, f"malformed YAML{at}: {getattr(exc, 'problem', exc)}") from None
+    doc = load_user_yaml(path, "expected a ROS 2 parameter YAML file")
     if not isinstance(doc, dict) or not doc:
         raise ConfigError(path, None, "expected a mapping 'node_name: {ros__parameters: {...}}'")
     for name, body in doc.items():

@@ -1,11 +1,11 @@
 """``magtune analyze``: J, c1, c2, rho of a gains file (paper eqs. 21, 28-30), recomputed."""
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
 
+from ..base import jsonout
 from ..base.errors import ConfigError
 from ..design.gains import load_gains
 from ..design.pipeline import ANALYSIS_STEPS, analyze_gains, gain_sensitivity
@@ -47,7 +47,7 @@ def run(args) -> int:
             raise CommandError(f"--sensitivity: the gradient of J could not be computed ({exc})") from None
     d = fig.as_dict()
     if args.json:
-        print(json.dumps({**{k: d[k] for k in ("J", "c1", "c2", "rho", "stable")}, "ts": g.ts,
+        print(jsonout.dumps({**{k: d[k] for k in ("J", "c1", "c2", "rho", "stable")}, "ts": g.ts,
                           "hold_gain_margin": margin, **(sens or {})}))
         return 0
     print(f"{args.path}: sigma={g.sigma:g}, field model {model.field.name}, {args.steps} Magnus steps")
@@ -80,7 +80,7 @@ def run_robust(args, model, g) -> int:
     rf = robust_figures(models, g.K, g.sigma, steps=args.steps)
     nom, worst = rf.nominal(), rf.worst()
     if args.json:
-        print(json.dumps({"nominal": nom.as_dict() if nom else None, "worst": worst, "worst_model": rf.worst_name,
+        print(jsonout.dumps({"nominal": nom.as_dict() if nom else None, "worst": worst, "worst_model": rf.worst_name,
                           "stable_all": all(f.stable for f in rf.figures),
                           "models": {n: f.as_dict() for n, f in zip(rf.names, rf.figures)}}))
         return 0

@@ -8,12 +8,14 @@ rebuilt, and the report says how many messages were recovered out of how many ex
 """
 from __future__ import annotations
 
-import json
 import sys
 
 from .. import bags
 from ..bags import recover
+from ..bags.integrity import integrity_lines
+from ..base import jsonout
 from ..base.errors import ConfigError
+from .common import CommandError
 
 
 def register(sub) -> None:
@@ -42,7 +44,7 @@ def run_info(args) -> int:
     except OSError as exc:
         raise ConfigError(args.bag, None, f"cannot read the bag: {exc.strerror or exc}") from None
     if args.json:
-        print(json.dumps(inf, indent=1))
+        print(jsonout.dumps(inf, indent=1))
         return 0
     integ, timing = inf["integrity"], inf["timing"]
     state = "complete" if inf["complete"] else "DAMAGED/UNFINISHED: run magtune bag recover"
@@ -56,37 +58,29 @@ def run_info(args) -> int:
     for f in inf["files"]:
         print(f"  {f['path']}  {f['size_bytes']} bytes  {f['message_count']} messages"
               + ("" if f["complete"] else "  UNFINISHED/DAMAGED"))
+    for name in inf["missing_files"]:
+        print(f"  {name}  MISSING (listed in metadata.yaml)")
     for name, t in inf["topics"].items():
         print(f"  {name:32s} {t['type']:40s} {t['count']:8d}")
-    for part in integ.get("files", [integ]):   # a split bag: one integrity summary per file
-        for line in integrity_lines(part):
-            print(f"warning: {line}")
+    for line in integrity_lines(integ):
+        print(f"warning: {line}")
     for line in timing["warnings"]:
         print(f"warning: {line}")
     return 0
 
 
-def integrity_lines(integ: dict) -> list[str]:
-    """One line per integrity problem of a scan summary (shared by info, replay, report)."""
-    out = []
-    for c in integ.get("chunks_bad") or []:
-        held = "unknown number of" if c.get("messages") is None else str(c["messages"])
-        span = (f", log time {c['start_ns'] * 1e-9:.3f}..{c['end_ns'] * 1e-9:.3f} s"
-                if c.get("start_ns") is not None else "")
-        out.append(f"damaged chunk at byte {c['offset']} ({held} messages{span}): {c['reason']}")
-    if integ.get("problem"):
-        out.append(integ["problem"])
-    if integ.get("unreadable_tail_bytes"):
-        out.append(f"{integ['unreadable_tail_bytes']} bytes at the end are unreadable (no summary)")
-    if integ.get("orphan_messages"):
-        out.append(f"{integ['orphan_messages']} messages belong to a channel whose definition was lost")
-    return out
-
-
 def run_recover(args) -> int:
-    rep = recover.recover(args.bag, args.output, in_place=args.in_place)
-    print(json.dumps(rep, indent=1))
-    exp = rep["messages_expected"]
-    print(f"recovered {rep['messages_recovered']} of {exp} messages into {rep['output']}"
-          f" (original untouched: {rep['original_kept']})", file=sys.stderr)
+    try:
+        rep = recover.recover(args.bag, args.output, in_place=args.in_place)
+    except OSError as exc:  # disk full, quota, file-size limit: the partial output is already removed
+        raise CommandError(f"{args.bag}: cannot write the recovered bag ({exc.strerror or exc}); nothing was "
+                           "written and the bag is untouched: free some space and run it again") from None
+    print(jsonout.dumps(rep, indent=1))
+    exp, meta = rep["messages_expected"], rep.get("messages_expected_metadata")
+    print(f"recovered {rep['messages_recovered']} of {exp} messages"
+          + (f" (metadata.yaml: {meta})" if meta is not None and meta != exp else "")
+          + f" into {rep['output']} ({len(rep['recovered_files'])} file(s); "
+          + ("original kept: " if args.in_place else "original untouched: ") + f"{rep['original_kept']})", file=sys.stderr)
+    for line in integrity_lines(rep):
+        print(f"warning: {line}", file=sys.stderr)
     return 0

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..base.ament import ROOT, AmentNotFound
 from ..base.errors import ConfigError, SilError
+from ..base.paramfile import check_path
 from ..design.field import FIELD_MODELS
 from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions
 
@@ -249,6 +250,7 @@ def check_output(path, *, force: bool = False, option: str = "--out", directory:
         One line naming the path, what is wrong and the option to change (exit status 2).
     """
     path = Path(path)
+    check_path(path)  # a symbolic link loop: one line, the same in every command
     if directory:
         if path.exists() and not path.is_dir():
             raise ConfigError(path, None, f"exists and is not a directory (choose another {option})")

@@ -9,6 +9,7 @@ its exit status.
 from __future__ import annotations
 
 import argparse
+import sys
 
 from ..bags.live import DEFAULT_PORT
 from ..bags.playback import DEFAULT_WAIT_SUBSCRIBERS, ReplayOptions
@@ -54,4 +55,5 @@ def run(args) -> int:
         rate=args.rate, topics=args.topics, exclude=args.exclude, start=args.start,
         playback_duration=args.playback_duration, playback_until=args.playback_until, loop=args.loop,
         no_clock=args.no_clock, start_paused=args.start_paused, wait_subscribers=args.wait_subscribers,
-        progress=args.progress, foxglove=args.foxglove, ros_args=list(args.ros_args or [])))
+        progress=args.progress, foxglove=args.foxglove, ros_args=list(args.ros_args or [])),
+        warn=lambda line: print(f"magtune replay: warning: {line}", file=sys.stderr, flush=True))

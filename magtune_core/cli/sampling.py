@@ -1,12 +1,14 @@
 """``magtune sampling``: the sampling-period study, sigma x Ts grid (:mod:`..studies.sampling`)."""
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
 
+from ..base import jsonout
 from ..base.ament import ROOT
+from ..base.atomic import atomic_write
+from ..base.paramfile import read_user_text
 from ..studies import sampling
 from .common import CommandError, add_environment_arguments, add_force_argument, check_outputs, environment_options, plain_summary, positive_floats
 
@@ -44,7 +46,7 @@ def run(args) -> int:
     opts = environment_options(args)
     conclusion_arg = args.conclusion if args.conclusion.startswith("@") else ("..." if args.conclusion else "")
     if args.conclusion.startswith("@"):
-        args.conclusion = Path(args.conclusion[1:]).read_text().strip()
+        args.conclusion = read_user_text(args.conclusion[1:]).strip()
     env_opts = dict(gravity_gradient=opts.gravity_gradient, drag=opts.drag, srp=opts.srp, field=opts.field,
                     igrf_degree=opts.igrf_degree)
     out = Path(args.out_dir)
@@ -66,7 +68,7 @@ def run(args) -> int:
                 conclusion=args.conclusion)
     md = sampling.write_markdown(rows, out / "sampling.md", meta)
     sampling.plot(rows, out / "sampling.png")
-    (out / "sampling.json").write_text(json.dumps(dict(meta=meta, rows=[
+    atomic_write(out / "sampling.json", jsonout.dumps(dict(meta=meta, rows=[
         {k: v for k, v in r.items() if k not in ("t_plot", "dq_plot", "m_plot")} for r in rows]), indent=1))
     print(md)
     print(f"wrote {out / 'sampling.md'}, {out / 'sampling.png'}, {out / 'sampling.json'} in {wall:.0f} s")

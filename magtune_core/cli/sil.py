@@ -1,8 +1,7 @@
 """``magtune sil``: software-in-the-loop run of the ROS 2 nodes (lockstep, sim time)."""
 from __future__ import annotations
 
-import json
-
+from ..base import jsonout
 from ..ros import sil
 from ..ros.scenario import SilScenario, normalize_namespace
 from .common import CommandError, add_environment_arguments, environment_options, plain_summary
@@ -78,9 +77,9 @@ def run(args) -> int:
                                     "counters": res.counters, "log_dir": str(res.log_dir) if res.log_dir else None})
 
     if list(runs) == [""]:  # one satellite, root namespace: the summary as before
-        print(json.dumps(as_json(runs[""])) if args.json else runs[""].summary())
+        print(jsonout.dumps(as_json(runs[""])) if args.json else runs[""].summary())
     elif args.json:
-        print(json.dumps({ns or "/": as_json(r) for ns, r in runs.items()}))
+        print(jsonout.dumps({ns or "/": as_json(r) for ns, r in runs.items()}))
     else:
         for ns, r in runs.items():
             print(f"== {ns or '/'} ({sats.get(ns, '')})\n{r.summary()}")

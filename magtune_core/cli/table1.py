@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..base.atomic import atomic_write
 from ..design.gains import load_gains
 from ..design.pipeline import ANALYSIS_STEPS
 from ..design.problem import figures
@@ -77,6 +78,6 @@ def run(args) -> int:
             f"gains (`magtune tune` under config/design.yaml); method paper: `magtune tune --method paper`, kept in "
             f"`config/gains/paper_method/`.\n\n{table}\n\n{TABLE1_MARKER}{notes}")
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(body if body.endswith("\n") else body + "\n")
+    atomic_write(out, body if body.endswith("\n") else body + "\n")  # old table and notes survive a failure
     print(f"wrote {out}")
     return 0

@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..base.atomic import atomic_write
 from ..base.errors import ConfigError
 from ..base.paramfile import read_ros_params
 from ..base.schema import Field, parse
@@ -133,7 +134,7 @@ def write_field_model(path, field: FourierField, report: FitReport, meta: dict) 
     ]
     for key, val in meta.items():
         lines.append(f"    field_fit_{key}: {val!r}" if isinstance(val, str) else f"    field_fit_{key}: {val}")
-    path.write_text("\n".join(lines) + "\n")
+    atomic_write(path, "\n".join(lines) + "\n")
 
 
 #: The schema of a field-model file (``magtune fit-field`` output); ``field_fit_*`` is provenance.

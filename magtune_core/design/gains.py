@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ..base.atomic import atomic_write
 from ..base.paramfile import read_ros_params
 from ..base.schema import Field, parse
 from .node_params import CONTROLLER_FIELDS, NODE_COMMON, NODE_PARAMETERS, SAMPLE_PERIOD
@@ -102,7 +103,7 @@ def save_gains(path, gains: Gains, header: str = "") -> None:
              "# gain: 3x6 K, row-major; rows = torque axes (x yaw, y roll, z pitch), columns = [dq; dw]."]
     lines += [f"# {h}" for h in header.splitlines() if h]
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    Path(path).write_text("\n".join(lines) + "\n" + text)
+    atomic_write(path, "\n".join(lines) + "\n" + text)  # the old file survives a failed write
 
 
 def _plain(v):

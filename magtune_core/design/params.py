@@ -70,6 +70,19 @@ def check_orbit(altitude: float, inclination_deg: float, where="command line") -
     parse_value(fields["inclination"], float(inclination_deg), where)
 
 
+def check_inertia(inertia, where) -> None:
+    """ConfigError unless the principal moments are those of a rigid body: each at most the sum
+    of the other two (the triangle inequality; equality is a flat plate). A body with
+    Ixx > Iyy + Izz does not exist, and its dynamics would be meaningless."""
+    m = [float(x) for x in inertia]
+    for i, axis in enumerate("xyz"):
+        others = m[(i + 1) % 3] + m[(i + 2) % 3]
+        if m[i] > others * (1.0 + 1e-12):
+            o1, o2 = "xyz"[(i + 1) % 3], "xyz"[(i + 2) % 3]
+            raise ConfigError(where, "inertia", f"I{axis}{axis} = {m[i]:g} > I{o1}{o1} + I{o2}{o2} = {others:g}: not a rigid "
+                                                "body (each principal moment must be at most the sum of the other two)")
+
+
 @dataclass(frozen=True)
 class SpacecraftParams:
     """Inertia, wheel and circular-orbit data of paper section 5 (SI units)."""
@@ -136,6 +149,7 @@ class SpacecraftParams:
 
         v = parse(params, cls.FIELDS, where, allowed=NODE_PARAMETERS if strict else None)
         epoch = parse_epoch(v["epoch"], where)
+        check_inertia(v["inertia"], where)
         p = cls(inertia=v["inertia"], wheel_inertia=v["wheel_inertia"], wheel_speed=v["wheel_speed"],
                 altitude=v["altitude"], inclination_deg=v["inclination"], raan_deg=v["raan"],
                 arg_lat_deg=v["arg_latitude"], epoch=epoch, period_model=v["period_model"],

@@ -63,9 +63,14 @@ def player_command(bag, opts: ReplayOptions) -> list[str]:
     return cmd
 
 
-def run_player(bag, opts: ReplayOptions) -> int:
-    """Validate, run the player on ``bag`` until it ends; forward SIGINT/SIGTERM; return its exit status."""
-    validate(bag, opts)
+def run_player(bag, opts: ReplayOptions, warn=None) -> int:
+    """Validate, run the player on ``bag`` until it ends; forward SIGINT/SIGTERM; return its exit status.
+
+    ``warn``: called with each integrity problem of the bag (a damaged or missing file of a
+    split bag, metadata.yaml counts that disagree) before the player starts."""
+    sel = validate(bag, opts)
+    for line in sel.warnings if warn is not None else ():
+        warn(line)
     cmd = player_command(bag, opts)
     proc = subprocess.Popen(cmd, env=ament.child_env(ament.package_prefix(PACKAGE)), start_new_session=True,
                             preexec_fn=die_with_parent())

@@ -24,7 +24,7 @@ import yaml
 
 from ..base.ament import ROOT
 from ..base.errors import ConfigError, SilError
-from ..base.paramfile import check_ros_params, load_ros_params, merge_ros_params
+from ..base.paramfile import check_path, check_ros_params, load_ros_params, merge_ros_params
 from ..design.fitfield import field_for_spacecraft
 from ..design.gains import CONTROLLER_NODE, Gains
 from ..design.params import SpacecraftParams, check_sample_period
@@ -86,6 +86,7 @@ def check_writable(path, flag: str, *, directory: bool = False, empty: bool = Fa
     nothing for root or a read-only file system. ``empty``: an existing directory must be empty
     (a bag directory). Nothing is left behind."""
     p = Path(path)
+    check_path(p)  # a symbolic link loop: one line before anything starts
     if directory and p.exists() and not p.is_dir():
         raise ConfigError(flag, None, f"{p} exists and is not a directory")
     if not directory and p.is_dir():

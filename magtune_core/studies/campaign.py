@@ -43,7 +43,6 @@ and ``spec.yaml`` (the input). ``magtune campaign-report DIR`` adds ``summary.md
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 import time
@@ -54,8 +53,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ..base import jsonout
 from ..base.ament import ROOT
+from ..base.atomic import atomic_output, atomic_write
 from ..base.errors import ConfigError
+from ..base.paramfile import load_user_yaml
 from ..base.schema import Field, parse
 from ..design.gains import load_gains
 from ..design.params import SpacecraftParams, load_spacecraft
@@ -204,12 +206,7 @@ def load_spec(path) -> CampaignSpec:
     Raises ConfigError naming the file, the field and the fix (unknown keys and sections too).
     """
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(path, None, "campaign spec not found")
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(path, None, f"not valid YAML ({str(exc).splitlines()[0]})") from None
+    raw = load_user_yaml(path, "expected a campaign spec")  # missing, loop, not UTF-8, malformed, duplicate key
     if not isinstance(raw, dict):
         raise ConfigError(path, None, f"expected a mapping with sections {', '.join(SECTIONS)}")
     for key in raw:
@@ -533,13 +530,15 @@ def write_results(spec: CampaignSpec, runs: int, out: Path, results: list, batch
             rows.append(dict(row, batch=j))
         if res["hist"] is not None:
             h = res["hist"]
-            np.savez_compressed(out / "histories" / f"batch_{j:05d}.npz", run=np.array([i for _, i in res["jobs"]]),
-                                gains_index=np.array([g for g, _ in res["jobs"]]), **h)
+            with atomic_output(out / "histories" / f"batch_{j:05d}.npz", "wb") as fh:
+                np.savez_compressed(fh, run=np.array([i for _, i in res["jobs"]]),
+                                    gains_index=np.array([g for g, _ in res["jobs"]]), **h)
     rows.sort(key=lambda r: (r["gains_index"], r["run"]))
     cols = {}
     for key in rows[0]:
         cols[key] = [r.get(key) for r in rows]
-    pq.write_table(pa.table(cols), out / "runs.parquet")
+    with atomic_output(out / "runs.parquet", "wb") as fh:
+        pq.write_table(pa.table(cols), fh)
     status = [r["status"] for r in rows]
     meta = dict(name=spec.campaign["name"], spec=str(spec.path), seed=spec.seed, runs=runs,
                 total_runs=len(rows), gains=spec.gains_files, environment=spec.campaign["environment"],
@@ -552,8 +551,8 @@ def write_results(spec: CampaignSpec, runs: int, out: Path, results: list, batch
     # CPU time of the tasks (load-independent): per run, and what a wall-clock rate would be on idle cores
     meta["task_cpu_s"] = float(np.nansum([res.get("cpu", math.nan) for _, res in results]))
     meta["cpu_s_per_run"] = meta["task_cpu_s"] / len(rows)
-    (out / "campaign.json").write_text(json.dumps(meta, indent=1, default=str))
-    (out / "spec.yaml").write_text(yaml.safe_dump(spec.raw, sort_keys=False))
+    atomic_write(out / "campaign.json", jsonout.dumps(meta, indent=1, default=str))
+    atomic_write(out / "spec.yaml", yaml.safe_dump(spec.raw, sort_keys=False))
     return meta
 
 

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..base.atomic import atomic_savefig, atomic_write
 from .campaign import FIGURES, STATUSES, read_histories, read_runs
 
 PERCENTILES = (5.0, 50.0, 95.0)
@@ -55,6 +56,8 @@ def write_report(out) -> str:
     """Plots and summary.md in the campaign directory ``out``; returns the markdown."""
     out = Path(out)
     meta = json.loads((out / "campaign.json").read_text())
+    for key in ("wall", "runs_per_second", "cpu_s_per_run"):  # strict JSON writes a non-finite figure as null
+        meta[key] = math.nan if meta.get(key) is None else meta[key]
     cols = read_runs(out)
     h = read_histories(out)
     status = cols["status"].astype(str)
@@ -110,7 +113,7 @@ def write_report(out) -> str:
         _plot_envelopes(h, cols, out / "envelopes.png", meta)
     _plot_histograms(cols, out / "histograms.png")
     md = "\n".join(lines)
-    (out / "summary.md").write_text(md)
+    atomic_write(out / "summary.md", md)
     return md
 
 
@@ -139,7 +142,7 @@ def _plot_envelopes(h: dict, cols: dict, path: Path, meta: dict) -> None:
     ax[1].set_xlabel("time [orbits]")
     ax[0].set_title(f"{meta['name']}: {int(ok.sum())} ok runs, every {meta['record_every'] * meta['ts']:g} s")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    atomic_savefig(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -163,7 +166,7 @@ def _plot_histograms(cols: dict, path: Path) -> None:
     for a in axes.ravel()[nf:]:
         a.set_visible(False)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    atomic_savefig(fig, path, dpi=100)
     plt.close(fig)
 
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..base.atomic import atomic_savefig
 from ..design.cmaes import CmaSettings, tune_cma
 from ..design.lq import lq_gain
 from ..design.model import AttitudeLTP
@@ -147,5 +148,5 @@ def plot_front(points: list[FrontPoint], path) -> None:
         a.set_xlabel("sigma")
         a.set_ylabel(label)
         a.grid(True, which="both", alpha=0.3)
-    fig.savefig(path, dpi=110)
+    atomic_savefig(fig, path, dpi=110)
     plt.close(fig)

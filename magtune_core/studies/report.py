@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import base64
 import html
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +36,8 @@ import yaml
 
 from .. import bags as baglib
 from ..bags.decode import Decoder, stamp_ns
+from ..base import jsonout
+from ..base.atomic import atomic_savefig, atomic_write
 from ..base.rotations import rotation_matrix
 from ..base.topics import DIPOLE, TOPIC_DIPOLE, TOPIC_INERTIAL_RATE, TOPIC_TRUTH, TRUTH
 from ..design.law import DEFAULT_DIPOLE_LIMIT, linear_state
@@ -143,7 +144,8 @@ def load_run(path, *, truth=TRUTH, dipole=DIPOLE, orbit_rate: float | None = Non
     integ = {"complete": bool(report.get("complete", True))}
     if not integ["complete"]:
         integ.update({k: report.get(k) for k in ("messages_recovered", "messages_expected",
-                                                "messages_in_damaged_chunks", "chunks_bad", "problem")})
+                                                "messages_in_damaged_chunks", "chunks_bad", "problem",
+                                                "missing_files", "metadata_disagreements", "metadata_message_count")})
     return Run(name or path.name, label, np.array(t), q_arr, x, np.array(tm), np.array(m).reshape(-1, 3), integ)
 
 
@@ -220,7 +222,7 @@ def plot_norms(runs: list[Run], T: float, lo_orbit: float, hi_orbit: float, titl
     for a in ax:
         a.grid(True, alpha=0.3)
     _legend_outside(fig, ax)
-    fig.savefig(out, dpi=110)
+    atomic_savefig(fig, out, dpi=110)
     plt.close(fig)
 
 
@@ -246,7 +248,7 @@ def plot_quaternion(runs: list[Run], T: float, out: Path):
     h0, l0 = ax[0, 0].get_legend_handles_labels()
     h1, l1 = ax[0, 1].get_legend_handles_labels()
     fig.legend(h0 + h1, l0 + l1, loc="outside right upper", fontsize=8)
-    fig.savefig(out, dpi=110)
+    atomic_savefig(fig, out, dpi=110)
     plt.close(fig)
 
 
@@ -275,7 +277,7 @@ def plot_rates_dipoles(runs: list[Run], T: float, out: Path, dipole_limit: float
     h1, l1 = ax[0, 1].get_legend_handles_labels()
     seen = dict(zip(l0 + l1, h0 + h1))
     fig.legend(list(seen.values()), list(seen.keys()), loc="outside right upper", fontsize=8)
-    fig.savefig(out, dpi=110)
+    atomic_savefig(fig, out, dpi=110)
     plt.close(fig)
 
 
@@ -341,11 +343,23 @@ def make_report(bags, out, *, run: str | None = None, truth=TRUTH, dipole=DIPOLE
     plot_rates_dipoles(detail, T, out / FIGURES[3], dipole_limit)
     summary = {r.name: {"label": r.label, **run_figures(r, T), "integrity": r.integrity}
                for r in runs}
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    atomic_write(out / "summary.json", jsonout.dumps(summary, indent=1))
     md = _markdown(summary, [r.name for r in detail], T, win, dipole_limit)
-    (out / "summary.md").write_text(md)
-    (out / "report.html").write_text(_html(summary, out, T, win, [r.name for r in detail], dipole_limit))
+    atomic_write(out / "summary.md", md)
+    atomic_write(out / "report.html", _html(summary, out, T, win, [r.name for r in detail], dipole_limit))
     return summary
+
+
+def _integrity_cell(integ: dict) -> str:
+    """The report table's "bag integrity" cell: complete, or what was recovered and what is wrong."""
+    if integ["complete"]:
+        return "complete"
+    text = f"damaged: {integ.get('messages_recovered')} msgs recovered"
+    if integ.get("missing_files"):
+        text += f"; missing file(s) {', '.join(integ['missing_files'])}"
+    if integ.get("metadata_disagreements"):
+        text += f"; metadata.yaml says {integ.get('metadata_message_count')} msgs"
+    return text
 
 
 def _rows(summary: dict) -> tuple[list[str], list[list[str]]]:
@@ -354,8 +368,7 @@ def _rows(summary: dict) -> tuple[list[str], list[list[str]]]:
             "RMS abs(m) [A m^2]", "samples truth/dipole", "bag integrity"]
     rows = []
     for name, s in summary.items():
-        integ = "complete" if s["integrity"]["complete"] else \
-            f"damaged: {s['integrity'].get('messages_recovered')} msgs recovered"
+        integ = _integrity_cell(s["integrity"])
         lo, hi = s["rms_window"]
         rows.append([name, s["label"], f"{s['orbits']:.3f}", f"{s['final_deg']:.4f}", f"{s['peak_deg']:.4f}",
                      f"{s['rms_deg']:.4f}", f"{lo:.0f}-{hi:.0f}", f"{s['final_dq']:.4e}", f"{s['peak_dq']:.4e}",

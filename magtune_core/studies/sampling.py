@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from ..base.ament import ROOT
+from ..base.atomic import atomic_savefig, atomic_write
 from ..design.gains import load_gains
 from ..design.law import DEFAULT_DIPOLE_LIMIT
 from ..design.params import load_spacecraft
@@ -169,7 +170,7 @@ def write_markdown(rows, path, meta: dict) -> str:
     if meta.get("conclusion"):
         lines += [meta["conclusion"], ""]
     md = "\n".join(lines)
-    Path(path).write_text(md)
+    atomic_write(path, md)
     return md
 
 
@@ -208,5 +209,5 @@ def plot(rows, path) -> None:
     ax[1, 1].grid(True, which="both", alpha=0.3)
     fig.suptitle("Sample-and-hold period study (dashed line: the paper's Ts = 20 s)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    atomic_savefig(fig, path, dpi=110)
     plt.close(fig)

@@ -52,3 +52,61 @@ def test_file_size_limit_leaves_old_file(tmp_path):
         resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
         signal.signal(signal.SIGXFSZ, old)
     assert p.read_bytes() == before and os.listdir(tmp_path) == ["g.yaml"]
+
+
+def _gains_file(tmp_path):
+    from magtune_core.design.gains import load_gains, save_gains
+
+    p = tmp_path / "sigma_60.yaml"
+    g = load_gains(ROOT / "config" / "gains" / "sigma_60.yaml")
+    save_gains(p, g)
+    return p, g, save_gains
+
+
+ROOT = __import__("pathlib").Path(__file__).resolve().parents[2]
+
+
+def test_save_gains_force_under_file_size_limit_keeps_old_file(tmp_path):
+    """Why: ``tune --force`` (save_gains) under a file-size limit truncated the good file."""
+    p, g, save_gains = _gains_file(tmp_path)
+    before = p.read_bytes()
+    g.provenance["design"] = {"note": "x" * 50_000}  # a file far past the limit
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    old = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    try:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, hard))
+        with pytest.raises(OSError):
+            save_gains(p, g)
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+        signal.signal(signal.SIGXFSZ, old)
+    assert p.read_bytes() == before and os.listdir(tmp_path) == [p.name]
+
+
+@pytest.fixture
+def full_tmpfs(tmp_path):
+    """A 64 kB tmpfs (tests/support/smallfs.py), unmounted afterwards."""
+    from smallfs import small_tmpfs
+
+    with small_tmpfs(tmp_path / "small") as mnt:
+        yield mnt
+
+
+def test_save_gains_on_full_filesystem_keeps_old_file(tmp_path, full_tmpfs):
+    """Why: a full disk during ``tune --force`` left a truncated gains file."""
+    from magtune_core.design.gains import load_gains, save_gains
+
+    p = full_tmpfs / "sigma_60.yaml"
+    g = load_gains(ROOT / "config" / "gains" / "sigma_60.yaml")
+    save_gains(p, g)
+    before = p.read_bytes()
+    from smallfs import fill
+
+    fill(full_tmpfs)
+    g.provenance["design"] = {"note": "x" * 20_000}
+    with pytest.raises(OSError):
+        save_gains(p, g)
+    assert p.read_bytes() == before
+    assert sorted(os.listdir(full_tmpfs)) == ["filler", p.name]  # no temporary file left
+    assert load_gains(p).K.tolist() == g.K.tolist()
+

@@ -122,12 +122,17 @@ def test_sil_bad_gains_file_exits_2(tmp_path, capsys):
 
 def test_huge_gain_analyzes_as_unstable(tmp_path, capsys):
     """Why #5: a gain of 10 per entry crashed analyze (overflow in the monodromy). It is a valid
-    (if absurd) gain: the loop is reported unstable with rho = inf."""
+    (if absurd) gain: the loop is reported unstable with rho = inf, printed as strict JSON
+    (``null``, never ``Infinity``/``NaN``, which strict parsers reject)."""
     g = _edit(tmp_path, GAINS, "g10.yaml", gain=[10.0] * 18)
     assert cli_main(["analyze", "--json", str(g)]) == 0
     out = capsys.readouterr().out
-    d = json.loads(out.strip().splitlines()[-1])
-    assert d["stable"] is False and d["rho"] == float("inf")
+
+    def strict(name):
+        raise ValueError(f"not JSON: {name}")
+
+    d = json.loads(out.strip().splitlines()[-1], parse_constant=strict)
+    assert d["stable"] is False and d["rho"] is None
 
 
 def test_same_error_same_exit_code_everywhere(tmp_path, capsys):
@@ -183,3 +188,105 @@ def test_packaged_sil_defaults_are_the_schemas():
         parsed, defaults = parse(given, fields, path, allowed=()), parse({}, fields, path)
         differ = sorted(k for k in given if not np.array_equal(parsed[k], defaults[k]))
         assert differ == (["orbits"] if node == "simulator" else []), (node, differ)
+
+
+@pytest.mark.parametrize("keep", [6, 10, 20, 23])
+def test_truncated_gains_file_is_one_line(tmp_path, capsys, keep):
+    """Why: a gains file cut short (a write that failed half-way) must not load: the gain list is
+    short or sigma is missing; one line, exit 2 (cut at 6: inside the header, 10/20: inside the
+    18-entry gain, 23: after the gain, before sigma)."""
+    bad = tmp_path / "g.yaml"
+    bad.write_text("".join(GAINS.read_text().splitlines(keepends=True)[:keep]))
+    err = _one_line_exit2(capsys, ["analyze", str(bad)])
+    assert "field 'gain'" in err or "field 'sigma'" in err, err
+
+
+# --- issue 32: undecodable files, symlink loops, duplicate keys, impossible inertia -------------
+
+def _message(err: str) -> str:
+    """The error line without its ``magtune COMMAND: error:`` prefix (to compare commands)."""
+    return err.strip().split(": error: ", 1)[1]
+
+
+def _not_utf8(tmp_path, src: Path, name: str) -> Path:
+    bad = tmp_path / name
+    bad.write_bytes(src.read_bytes().replace(b"ros__parameters:", b"ros__parameters: # \xff\xfe caf\xe9", 1))
+    return bad
+
+
+def test_non_utf8_gains_and_spacecraft_files_are_one_line(tmp_path, capsys):
+    """Why: a non-UTF-8 gains or spacecraft file was a UnicodeDecodeError traceback."""
+    g, sc = _not_utf8(tmp_path, GAINS, "g.yaml"), _not_utf8(tmp_path, SPACECRAFT, "sc.yaml")
+    a = _one_line_exit2(capsys, ["analyze", str(g)])
+    offset = g.read_bytes().index(b"\xff")
+    line = g.read_bytes()[:offset].count(b"\n") + 1
+    assert _message(a) == f"{g}: not UTF-8 text (byte 0xff at line {line}, offset {offset}); save the file as UTF-8"
+    s = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(g)])
+    assert _message(s) == _message(a)                       # the same wording from every command
+    a = _one_line_exit2(capsys, ["analyze", str(GAINS), "--config", str(sc)])
+    s = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--spacecraft", str(sc)])
+    assert _message(s) == _message(a) and "not UTF-8 text" in a
+
+
+def test_symlink_loops_are_one_line_everywhere(tmp_path, capsys):
+    """Why: a --bag (or any file argument) that is a symbolic link loop was an ELOOP traceback."""
+    loop = tmp_path / "loop"
+    loop.symlink_to(loop)
+    expected = f"{loop}: symbolic link loop (too many levels of symbolic links); point it at a real file"
+    for argv in (["analyze", str(loop)], ["sil", "--quiet", "--gains", str(loop)], ["bag", "info", str(loop)],
+                 ["bag", "recover", str(loop)], ["replay", str(loop)], ["report", str(loop), "--out", str(tmp_path / "r")],
+                 ["tune", "--sigma", "60", "--out", str(loop)], ["analyze", str(GAINS), "--config", str(loop)]):
+        assert _message(_one_line_exit2(capsys, argv)) == expected, argv
+
+
+def test_sil_bag_symlink_loop_leaks_no_temporary_directory(tmp_path, capsys, monkeypatch):
+    """Why: ``magtune sil --bag LOOP`` also left its temporary log directory behind."""
+    import tempfile
+
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp))
+    loop = tmp_path / "loop"
+    loop.symlink_to(loop)
+    err = _one_line_exit2(capsys, ["sil", "--gains", str(GAINS), "--bag", str(loop), "--orbits", "0.01"])
+    assert "symbolic link loop" in err and "starting the nodes" not in err
+    assert list(tmp.iterdir()) == []
+
+
+@pytest.mark.parametrize("text, key, lines", [
+    ("/**:\n  ros__parameters:\n    sigma: 60.0\n    ts: 1.0\n    sigma: 120.0\n", "sigma", (5, 3)),
+    ("/**:\n  ros__parameters:\n    sigma: 60.0\n/**:\n  ros__parameters:\n    ts: 1.0\n", "/**", (4, 1)),
+])
+def test_duplicate_keys_are_rejected_with_key_and_lines(tmp_path, capsys, text, key, lines):
+    """Why: duplicate keys in a parameter file: the last one won silently (a SIL flew the second
+    gain under a header naming the first)."""
+    f = tmp_path / "dup.yaml"
+    f.write_text(text)
+    second, first = lines
+    want = f"{f}: malformed YAML at line {second}, column 1" if key == "/**" else f"{f}: malformed YAML at line {second}, column 5"
+    for argv in (["analyze", str(f)], ["sil", "--quiet", "--gains", str(f)], ["analyze", str(GAINS), "--config", str(f)]):
+        msg = _message(_one_line_exit2(capsys, argv))
+        assert msg == f"{want}: duplicate key {key!r} (first given at line {first}; keep one)", (argv, msg)
+
+
+def test_duplicate_key_in_campaign_spec(tmp_path):
+    from magtune_core.studies.campaign import load_spec
+
+    f = tmp_path / "c.yaml"
+    f.write_text("campaign:\n  name: a\n  name: b\n")
+    with pytest.raises(ConfigError, match=r"line 3, column 3: duplicate key 'name' \(first given at line 2"):
+        load_spec(f)
+
+
+@pytest.mark.parametrize("inertia, words", [
+    ([50.0, 17.0, 25.0], "Ixx = 50 > Iyy + Izz = 42"), ([1.0, 10.0, 2.0], "Iyy = 10 > Izz + Ixx = 3"),
+    ([1.0, 1.0, 2.5], "Izz = 2.5 > Ixx + Iyy = 2")])
+def test_inertia_violating_the_triangle_inequality_is_rejected(tmp_path, capsys, inertia, words):
+    """Why: Ixx > Iyy + Izz (no rigid body has it) was accepted."""
+    sc = _edit(tmp_path, SPACECRAFT, "sc.yaml", inertia=inertia)
+    a = _one_line_exit2(capsys, ["analyze", str(GAINS), "--config", str(sc)])
+    assert words in a and "field 'inertia'" in a and "not a rigid body" in a
+    s = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--spacecraft", str(sc)])
+    assert _message(s) == _message(a)
+    SpacecraftParams.from_mapping({**yaml.safe_load(SPACECRAFT.read_text())["/**"]["ros__parameters"],
+                                   "inertia": [2.0, 1.0, 1.0]}, "flat plate")  # equality: a flat plate is allowed

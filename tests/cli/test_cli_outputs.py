@@ -198,3 +198,24 @@ def test_sil_satellite_arguments_checked_first(gains, msg, capsys):
     assert cli_main(["sil", "--gains", *gains, "--orbits", "0.01"]) == 2
     err = capsys.readouterr().err
     assert msg in err and err.count("\n") == 1, err
+
+
+@pytest.mark.slow
+def test_table1_force_failing_write_keeps_old_table_and_notes(tmp_path):
+    """Why: ``table1 --force`` wrote in place; a failed write (here a 1 kB file-size limit: the
+    table is about 2 kB) lost the old table and the notes kept below its marker."""
+    import resource
+
+    from magtune_core.cli.table1 import TABLE1_MARKER
+
+    out = tmp_path / "table1.md"
+    out.write_text(f"# old table\n\n{TABLE1_MARKER}\nmy notes, kept by hand\n")
+    before = out.read_bytes()
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (1024, resource.RLIM_INFINITY))
+
+    r = subprocess.run([sys.executable, "-m", "magtune_core", "table1", "--force", "--out", str(out)],
+                       capture_output=True, text=True, preexec_fn=limit, timeout=300)
+    assert r.returncode != 0 and "| sigma |" in r.stdout, (r.returncode, r.stderr[-500:])  # failed at the write
+    assert out.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["table1.md"]

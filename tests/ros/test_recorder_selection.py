@@ -45,6 +45,8 @@ def test_exclude_regex_and_split_by_duration(tmp_path):
     assert [f["path"].rsplit("/", 1)[-1] for f in inf["files"]] == [f"split_{i}.mcap" for i in range(3)]
     assert sum(f["message_count"] for f in inf["files"]) == sum(want.values())
     assert all(f["complete"] for f in inf["files"])
+    # metadata.yaml's total, per-topic and per-file counts agree with the files: the bag is complete
+    assert inf["complete"] and inf["missing_files"] == [] and inf["metadata_disagreements"] == []
     # each file holds 10 s from its first written message; messages are written in receive order,
     # so a late burst of one topic can carry earlier log times into the next file (seen: 2.4 s at
     # load 15): the files overlap a little, the first and last files still end/start at the run's ends

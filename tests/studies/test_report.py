@@ -19,10 +19,10 @@ from magtune_core.studies import report
 T = 600.0  # short "orbit" so a 5-orbit run stays small
 
 
-def _make(tmp_path, name, sigma, n=3001, dt=1.0):
+def _make(tmp_path, name, sigma, n=3001, dt=1.0, **split):
     d = Decoder()
     Ty = d.types()
-    w = bag.BagWriter(tmp_path / name, custom_data={"sigma": sigma})
+    w = bag.BagWriter(tmp_path / name, custom_data={"sigma": sigma}, **split)
     w.add_topic(TRUTH, "nav_msgs/msg/Odometry")
     w.add_topic(DIPOLE, "geometry_msgs/msg/Vector3Stamped")
     e = np.array([1.0, 2.0, 2.0]) / 3.0
@@ -91,6 +91,24 @@ def test_report_on_damaged_bag_says_so(tmp_path):
     integ = s["cut"]["integrity"]
     assert integ["complete"] is False and 0 < integ["messages_recovered"] < 3000
     assert "damaged" in (tmp_path / "rep" / "summary.md").read_text()
+
+
+def test_report_on_split_bag_names_missing_and_damaged_files(tmp_path, capsys):
+    """Why: a split bag's missing or damaged later file was skipped and the bag called complete."""
+    path, *_ = _make(tmp_path, "split", 60, n=1500, max_duration_ns=500 * 10**9)
+    files = bag.resolve_mcaps(path)
+    assert len(files) == 3
+    files[2].unlink()
+    files[1].write_bytes(files[1].read_bytes()[:2000])
+    out = tmp_path / "rep"
+    assert cli_main(["report", str(path), "--out", str(out), "--orbit-period", str(T)]) == 0
+    err = capsys.readouterr().err
+    integ = json.loads((out / "summary.json").read_text())["split"]["integrity"]
+    assert integ["complete"] is False and integ["missing_files"] == ["split_2.mcap"]
+    assert integ["metadata_message_count"] == 3000 and integ["messages_recovered"] < 2000
+    assert "missing file(s) split_2.mcap; metadata.yaml says 3000 msgs" in (out / "summary.md").read_text()
+    assert "warning: split: split_2.mcap: listed in metadata.yaml but missing" in err
+    assert "warning: split: split_1.mcap: " in err
 
 
 def test_report_errors_are_one_line(tmp_path, capsys):
