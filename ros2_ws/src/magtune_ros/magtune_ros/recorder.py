@@ -212,8 +212,8 @@ class BagWriterThread(threading.Thread):
                                 t = s
                         w.write(item[0], item[2], t, tp)
                         n += 1
+                        self.written += 1  # counted per message: a failing batch keeps what is on disk
                     q.popleft()
-                self.written += n
                 dirty = dirty or n > 0
                 now = time.monotonic()
                 if dirty and now - last_flush >= self.flush_period:
