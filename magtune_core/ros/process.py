@@ -14,6 +14,7 @@ import ctypes
 import fcntl
 import os
 import signal
+import stat
 import subprocess
 import tempfile
 import time
@@ -55,15 +56,48 @@ def child_env(domain_id: int, prefix: Path, *more: Path) -> dict:
     return env
 
 
+#: How a domain lock file is opened: never through a symlink (ELOOP), never truncated, not
+#: inherited by exec'd programs unless passed on purpose (``pass_fds``).
+LOCK_OPEN_FLAGS = os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC
+
+
+def lock_path(domain_id: int) -> Path:
+    """The machine-wide lock file of a ROS_DOMAIN_ID (the domain is shared by every user)."""
+    return Path(tempfile.gettempdir()) / f"magtune_ros_domain_{domain_id}.lock"
+
+
+def open_lock_file(path: Path) -> int | None:
+    """Descriptor of the lock file ``path``, or None when it must be treated as taken.
+
+    Opened with :data:`LOCK_OPEN_FLAGS` (mode 0644): a symlink planted at the path is never
+    followed (ELOOP) and an existing file is never truncated or written (the lock is the flock,
+    not the content). A file owned by another user, a symlink or anything that is not a regular
+    file is "taken": the caller moves on to the next domain id.
+    """
+    try:
+        fd = os.open(path, LOCK_OPEN_FLAGS, 0o644)
+    except OSError:  # ELOOP (symlink), EACCES (another user's 0644 file), ...
+        return None
+    st = os.fstat(fd)
+    if st.st_uid != os.geteuid() or not stat.S_ISREG(st.st_mode):
+        os.close(fd)
+        return None
+    return fd
+
+
 class DomainLock:
-    """Reserve a ROS_DOMAIN_ID for this run with an exclusive lock file in the temp directory."""
+    """Reserve a ROS_DOMAIN_ID for this run with an exclusive flock on a lock file in the temp
+    directory (:func:`open_lock_file`: symlinks and other users' files count as taken)."""
 
     def __init__(self, domain_id: int | None = None):
         self.fh = None
         ids = [domain_id] if domain_id is not None else list(DOMAIN_RANGE)
         start = os.getpid() % len(ids)
         for did in ids[start:] + ids[:start]:
-            fh = open(Path(tempfile.gettempdir()) / f"magtune_ros_domain_{did}.lock", "w")
+            fd = open_lock_file(lock_path(did))
+            if fd is None:
+                continue
+            fh = os.fdopen(fd, "rb", buffering=0)
             try:
                 fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError:
