@@ -46,11 +46,44 @@ def resolve_executable(exe: str, package: str = PACKAGE) -> Path:
         raise SilError(str(exc)) from None
 
 
-def child_env(domain_id: int, prefix: Path, *more: Path) -> dict:
-    """Environment of the node processes: isolated domain, localhost discovery, package paths."""
+#: ``--dds-interfaces`` choices: loopback (default) or all (a multi-host setup).
+DDS_INTERFACES = ("loopback", "all")
+#: The Fast DDS profile of loopback mode: UDPv4 on 127.0.0.1 only + shared memory, no builtin transports.
+LOOPBACK_PROFILE = ament.ROOT / "config" / "dds" / "fastdds_loopback.xml"
+#: The environment variables Fast DDS reads its default XML profile from (2.x and 3.x names).
+PROFILE_VARS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
+
+
+def dds_env(env: dict, interfaces: str = "loopback") -> dict:
+    """Set the DDS network scope of node processes in ``env`` (in place; returned).
+
+    ``loopback``: Fast DDS loads :data:`LOOPBACK_PROFILE` (every DDS socket on 127.0.0.1,
+    discovery by multicast on the loopback interface only; the discovery range is SUBNET, confined
+    to loopback by the profile, because rmw_fastrtps's LOCALHOST range adds an unrestricted UDP
+    transport with sockets on 0.0.0.0 and the host's address). Another RMW ignores the profile:
+    then the range stays LOCALHOST. ``all``: Fast DDS's defaults (or the user's own profile) and
+    the SUBNET range, for nodes on several hosts. Raises SilError if the profile is missing.
+    """
+    if interfaces not in DDS_INTERFACES:
+        raise SilError(f"--dds-interfaces: expected one of {', '.join(DDS_INTERFACES)}, got {interfaces!r}")
+    if interfaces == "all":
+        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SUBNET"
+        return env
+    if not LOOPBACK_PROFILE.is_file():
+        raise SilError(f"the DDS loopback profile {LOOPBACK_PROFILE} is missing (a broken checkout?)")
+    fast = env.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp") in ("", "rmw_fastrtps_cpp")
+    for var in PROFILE_VARS:
+        env[var] = str(LOOPBACK_PROFILE)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SUBNET" if fast else "LOCALHOST"
+    return env
+
+
+def child_env(domain_id: int, prefix: Path, *more: Path, interfaces: str = "loopback") -> dict:
+    """Environment of the node processes: isolated domain, DDS on loopback unless ``interfaces``
+    is ``all`` (:func:`dds_env`), package paths."""
     env = ament.child_env(prefix, *more)
     env["ROS_DOMAIN_ID"] = str(domain_id)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    dds_env(env, interfaces)
     env.pop("ROS_STATIC_PEERS", None)
     env.setdefault("RCUTILS_LOGGING_BUFFERED_STREAM", "1")
     return env
