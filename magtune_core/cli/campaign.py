@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import shutil
+import sys
 from pathlib import Path
 
 from ..base.errors import ConfigError
-from ..studies import campaign, campaign_report
+from ..studies import campaign, campaign_report, cluster
 from .common import CommandError, plain_summary
 
 #: What ``--force`` removes from an existing output directory (our own outputs only).
@@ -21,9 +22,17 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, help="output directory (must be empty or new, unless --force)")
     p.add_argument("--force", action="store_true", help="write into a non-empty --out (replaces earlier campaign outputs)")
     p.add_argument("--scheduler", default=None,
-                   help="tcp://HOST:PORT of an existing Dask scheduler (default: a LocalCluster on this machine); "
+                   help="tls://HOST:PORT (or tcp://, unauthenticated) of an existing Dask scheduler (default: a "
+                        "LocalCluster on this machine, TLS with a temporary certificate: no other client can connect); "
                         "'synchronous' runs in this process without Dask")
     p.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: one per core)")
+    p.add_argument("--dashboard", action="store_true",
+                   help=f"serve the LocalCluster's Dask dashboard on {cluster.DASHBOARD_ADDRESS} (read-only, "
+                        "unauthenticated; default: none)")
+    p.add_argument("--tls-ca-file", default=None, help="tls:// scheduler: CA certificate (PEM) the cluster's "
+                                                       "certificates are signed with")
+    p.add_argument("--tls-cert", default=None, help="tls:// scheduler: this client's certificate (PEM)")
+    p.add_argument("--tls-key", default=None, help="tls:// scheduler: this client's private key (PEM)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     r = sub.add_parser("campaign-report", help="report of a campaign directory: envelopes, histograms, summary.md",
@@ -44,14 +53,30 @@ def _check_out(out: Path, force: bool) -> None:
             shutil.rmtree(out / "histories")
 
 
+def _cluster_options(args):
+    """(scheduler, TlsFiles or None) of the command line, checked before anything starts."""
+    sched = args.scheduler
+    if sched is not None and sched != "synchronous" and not sched.startswith(("tls://", "tcp://")):
+        raise ConfigError("--scheduler", None, f"expected tls://HOST:PORT, tcp://HOST:PORT or synchronous, got {sched!r}")
+    tls = cluster.TlsFiles(args.tls_ca_file, args.tls_cert, args.tls_key)
+    if args.dashboard and sched is not None:
+        raise ConfigError("--dashboard", None, "only for the LocalCluster (an existing cluster serves its own)")
+    if tls.given() and (sched is None or sched == "synchronous"):
+        raise ConfigError("--tls-ca-file", None, "TLS files are for an existing cluster: add --scheduler tls://HOST:PORT")
+    if sched and sched != "synchronous":
+        cluster.scheduler_security(sched, tls)  # ConfigError for a missing file or an incomplete set
+        if sched.startswith("tcp://"):
+            print(f"campaign: warning: {sched} is unauthenticated; anyone who can reach it can run code on its "
+                  "workers (use tls://, docs/campaigns.md)", file=sys.stderr)
+    return sched, tls if tls.given() else None
+
+
 def run(args) -> int:
     if args.runs < 1:
         raise ConfigError("--runs", None, f"expected a positive number of runs, got {args.runs}")
     if args.workers is not None and args.workers < 1:
         raise ConfigError("--workers", None, f"expected at least 1, got {args.workers}")
-    sched = args.scheduler
-    if sched is not None and sched != "synchronous" and "://" not in sched:
-        raise ConfigError("--scheduler", None, f"expected tcp://HOST:PORT or synchronous, got {sched!r}")
+    sched, tls = _cluster_options(args)
     spec = campaign.load_spec(args.spec)  # ConfigError -> one line, exit 2, nothing started
     out = Path(args.out)
     _check_out(out, args.force)
@@ -59,16 +84,22 @@ def run(args) -> int:
     print(f"campaign {spec.campaign['name']}: {args.runs} runs x {len(spec.gains_files)} gains file(s), "
           f"{spec.campaign['environment']} environment, {spec.campaign['orbits']:g} orbits ({steps} steps of "
           f"{spec.campaign['ts']:g} s), batches of {spec.campaign['batch_size']}, "
-          f"scheduler {sched or 'LocalCluster'}", flush=True)
+          f"scheduler {sched or 'LocalCluster (TLS)'}", flush=True)
     try:
         meta = campaign.run_campaign(spec, args.runs, out, scheduler=sched, workers=args.workers,
-                                     progress=not args.no_progress)
+                                     progress=not args.no_progress, dashboard=args.dashboard, tls=tls)
     except OSError as exc:  # scheduler unreachable (distributed raises OSError subclasses on connect timeouts)
         raise CommandError(f"cannot reach the Dask scheduler {sched}: {exc}") from None
     cols = campaign.read_runs(out)
     print("\n".join(campaign_report.summary_lines(meta, cols)))
     print(f"wrote {out / 'runs.parquet'}, {out / 'histories'}/, {out / 'campaign.json'}; "
           f"report: magtune campaign-report {out}")
+    failed = meta["failed_runs"]
+    if failed:
+        print(f"campaign: {len(failed)} of {meta['total_runs']} runs did not complete:", file=sys.stderr)
+        for r in failed:
+            print(f"  run {r['run']} ({r['gains']}): {r['error']}", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -14,6 +14,7 @@ import sys
 from ..bags.live import DEFAULT_PORT
 from ..bags.playback import DEFAULT_WAIT_SUBSCRIBERS, ReplayOptions
 from ..bags.scan import check_file
+from ..ros.process import DDS_INTERFACES
 from ..ros.replay import run_player
 
 
@@ -44,6 +45,9 @@ def register(sub) -> None:
                    help="progress line on stderr (auto: when it is a terminal)")
     p.add_argument("--foxglove", type=int, nargs="?", const=DEFAULT_PORT, default=None, metavar="PORT",
                    help=f"stream to Foxglove over WebSocket on localhost:PORT (default {DEFAULT_PORT})")
+    p.add_argument("--dds-interfaces", choices=DDS_INTERFACES, default="loopback",
+                   help="DDS network scope of the player: loopback (default: every DDS socket on 127.0.0.1) or all "
+                        "(subscribers on other hosts; docs/reliability.md)")
     p.add_argument("--ros-args", nargs=argparse.REMAINDER, default=[], dest="ros_args",
                    help="everything after it goes to the player node (e.g. -r /sensors/attitude:=/other)")
     p.set_defaults(func=run)
@@ -56,4 +60,5 @@ def run(args) -> int:
         playback_duration=args.playback_duration, playback_until=args.playback_until, loop=args.loop,
         no_clock=args.no_clock, start_paused=args.start_paused, wait_subscribers=args.wait_subscribers,
         progress=args.progress, foxglove=args.foxglove, ros_args=list(args.ros_args or [])),
-        warn=lambda line: print(f"magtune replay: warning: {line}", file=sys.stderr, flush=True))
+        warn=lambda line: print(f"magtune replay: warning: {line}", file=sys.stderr, flush=True),
+        dds_interfaces=args.dds_interfaces)

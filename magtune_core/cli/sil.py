@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from ..base import jsonout
 from ..ros import sil
+from ..ros.process import DDS_INTERFACES
 from ..ros.scenario import SilScenario, normalize_namespace
 from .common import CommandError, add_environment_arguments, environment_options, plain_summary
 
@@ -37,6 +38,9 @@ def register(sub) -> None:
                         "pace with --rtf to watch it")
     p.add_argument("--results", default=None, help="keep the trajectory .npz here")
     p.add_argument("--log-dir", default=None, help="node logs and generated parameters (default: temp dir)")
+    p.add_argument("--dds-interfaces", choices=DDS_INTERFACES, default="loopback",
+                   help="DDS network scope of the nodes: loopback (default: every DDS socket on 127.0.0.1) or all "
+                        "(nodes or viewers on other hosts; docs/reliability.md)")
     p.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: a free one)")
     p.add_argument("--timeout", type=float, default=None, help="abort after this many wall seconds")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -64,7 +68,8 @@ def run(args) -> int:
                                  results=args.results, log_dir=args.log_dir, domain_id=args.domain_id,
                                  timeout=args.timeout, environment=args.environment,
                                  env_options=environment_options(args), field=args.field, epoch_time=args.epoch_time,
-                                 foxglove=args.foxglove, bag_topics=args.bag_topics, bag_exclude=args.bag_exclude)
+                                 foxglove=args.foxglove, bag_topics=args.bag_topics, bag_exclude=args.bag_exclude,
+                                 dds_interfaces=args.dds_interfaces)
     if not args.quiet:
         print("magtune sil: starting the nodes (discovery takes a few seconds)", file=sys.stderr, flush=True)
         if args.foxglove is not None:

@@ -21,10 +21,10 @@ Conventions (docs/numerics.md, tested in tests/design/test_objective.py):
 from __future__ import annotations
 
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
+from ..base.workers import worker_pool
 from ..ltp import DEFAULT_STEPS, hinfnorm, spectral_radius
 from .model import AttitudeLTP
 from .problem import attitude_system, performance_system
@@ -33,7 +33,8 @@ from .problem import attitude_system, performance_system
 def one_thread_per_worker() -> None:
     """Worker initializer: BLAS/OpenMP pools and numba's threads (the compiled gamma-test) use one
     thread per worker process (the workers are the parallelism), and Ctrl-C is left to the parent (a
-    tuner keeps its best gain on an interrupt; the workers end when the parent shuts the pool down)."""
+    tuner keeps its best gain on an interrupt; the workers end when the parent shuts the pool down,
+    or with the parent whatever kills it: :func:`magtune_core.base.workers.worker_pool`)."""
     import signal
 
     import numba
@@ -165,7 +166,7 @@ class HinfObjective:
 
     def _get_pool(self):
         if self._pool is None:
-            self._pool = ProcessPoolExecutor(self.workers, initializer=one_thread_per_worker)
+            self._pool = worker_pool(self.workers, initializer=one_thread_per_worker)
         return self._pool
 
     def per_model(self, Ks, guess=None, spread: float | None = None, rtol: float | None = None) -> np.ndarray:

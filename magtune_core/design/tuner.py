@@ -22,11 +22,11 @@ Decisions where the paper is silent (docs/decisions.md, "The paper's tuner kept 
 from __future__ import annotations
 
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ..base.workers import worker_pool
 from ..ltp import DEFAULT_STEPS, gamma_test, hinfnorm, spectral_radius
 from .lq import lq_gain
 from .model import AttitudeLTP
@@ -89,7 +89,7 @@ class CandidateEvaluator:
 
     def __init__(self, model: AttitudeLTP, sigma: float, steps: int, workers: int = 1):
         self.model, self.sigma, self.steps, self.workers = model, sigma, steps, workers
-        self._pool = ProcessPoolExecutor(workers, initializer=one_thread_per_worker) if workers > 1 else None
+        self._pool = worker_pool(workers, initializer=one_thread_per_worker) if workers > 1 else None
 
     def close(self):
         """Shut the worker pool down (pending evaluations cancelled)."""

@@ -14,6 +14,7 @@ import ctypes
 import fcntl
 import os
 import signal
+import stat
 import subprocess
 import tempfile
 import time
@@ -45,25 +46,91 @@ def resolve_executable(exe: str, package: str = PACKAGE) -> Path:
         raise SilError(str(exc)) from None
 
 
-def child_env(domain_id: int, prefix: Path, *more: Path) -> dict:
-    """Environment of the node processes: isolated domain, localhost discovery, package paths."""
+#: ``--dds-interfaces`` choices: loopback (default) or all (a multi-host setup).
+DDS_INTERFACES = ("loopback", "all")
+#: The Fast DDS profile of loopback mode: UDPv4 on 127.0.0.1 only + shared memory, no builtin transports.
+LOOPBACK_PROFILE = ament.ROOT / "config" / "dds" / "fastdds_loopback.xml"
+#: The environment variables Fast DDS reads its default XML profile from (2.x and 3.x names).
+PROFILE_VARS = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
+
+
+def dds_env(env: dict, interfaces: str = "loopback") -> dict:
+    """Set the DDS network scope of node processes in ``env`` (in place; returned).
+
+    ``loopback``: Fast DDS loads :data:`LOOPBACK_PROFILE` (every DDS socket on 127.0.0.1,
+    discovery by multicast on the loopback interface only; the discovery range is SUBNET, confined
+    to loopback by the profile, because rmw_fastrtps's LOCALHOST range adds an unrestricted UDP
+    transport with sockets on 0.0.0.0 and the host's address). Another RMW ignores the profile:
+    then the range stays LOCALHOST. ``all``: Fast DDS's defaults (or the user's own profile) and
+    the SUBNET range, for nodes on several hosts. Raises SilError if the profile is missing.
+    """
+    if interfaces not in DDS_INTERFACES:
+        raise SilError(f"--dds-interfaces: expected one of {', '.join(DDS_INTERFACES)}, got {interfaces!r}")
+    if interfaces == "all":
+        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SUBNET"
+        return env
+    if not LOOPBACK_PROFILE.is_file():
+        raise SilError(f"the DDS loopback profile {LOOPBACK_PROFILE} is missing (a broken checkout?)")
+    fast = env.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp") in ("", "rmw_fastrtps_cpp")
+    for var in PROFILE_VARS:
+        env[var] = str(LOOPBACK_PROFILE)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SUBNET" if fast else "LOCALHOST"
+    return env
+
+
+def child_env(domain_id: int, prefix: Path, *more: Path, interfaces: str = "loopback") -> dict:
+    """Environment of the node processes: isolated domain, DDS on loopback unless ``interfaces``
+    is ``all`` (:func:`dds_env`), package paths."""
     env = ament.child_env(prefix, *more)
     env["ROS_DOMAIN_ID"] = str(domain_id)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    dds_env(env, interfaces)
     env.pop("ROS_STATIC_PEERS", None)
     env.setdefault("RCUTILS_LOGGING_BUFFERED_STREAM", "1")
     return env
 
 
+#: How a domain lock file is opened: never through a symlink (ELOOP), never truncated, not
+#: inherited by exec'd programs unless passed on purpose (``pass_fds``).
+LOCK_OPEN_FLAGS = os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC
+
+
+def lock_path(domain_id: int) -> Path:
+    """The machine-wide lock file of a ROS_DOMAIN_ID (the domain is shared by every user)."""
+    return Path(tempfile.gettempdir()) / f"magtune_ros_domain_{domain_id}.lock"
+
+
+def open_lock_file(path: Path) -> int | None:
+    """Descriptor of the lock file ``path``, or None when it must be treated as taken.
+
+    Opened with :data:`LOCK_OPEN_FLAGS` (mode 0644): a symlink planted at the path is never
+    followed (ELOOP) and an existing file is never truncated or written (the lock is the flock,
+    not the content). A file owned by another user, a symlink or anything that is not a regular
+    file is "taken": the caller moves on to the next domain id.
+    """
+    try:
+        fd = os.open(path, LOCK_OPEN_FLAGS, 0o644)
+    except OSError:  # ELOOP (symlink), EACCES (another user's 0644 file), ...
+        return None
+    st = os.fstat(fd)
+    if st.st_uid != os.geteuid() or not stat.S_ISREG(st.st_mode):
+        os.close(fd)
+        return None
+    return fd
+
+
 class DomainLock:
-    """Reserve a ROS_DOMAIN_ID for this run with an exclusive lock file in the temp directory."""
+    """Reserve a ROS_DOMAIN_ID for this run with an exclusive flock on a lock file in the temp
+    directory (:func:`open_lock_file`: symlinks and other users' files count as taken)."""
 
     def __init__(self, domain_id: int | None = None):
         self.fh = None
         ids = [domain_id] if domain_id is not None else list(DOMAIN_RANGE)
         start = os.getpid() % len(ids)
         for did in ids[start:] + ids[:start]:
-            fh = open(Path(tempfile.gettempdir()) / f"magtune_ros_domain_{did}.lock", "w")
+            fd = open_lock_file(lock_path(did))
+            if fd is None:
+                continue
+            fh = os.fdopen(fd, "rb", buffering=0)
             try:
                 fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError:

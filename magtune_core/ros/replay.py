@@ -31,7 +31,7 @@ import subprocess
 
 from ..bags.playback import ReplayOptions, validate
 from ..base import ament
-from .process import STOP_SIGNALS, die_with_parent
+from .process import STOP_SIGNALS, dds_env, die_with_parent
 
 PACKAGE = "magtune_ros"
 
@@ -63,16 +63,18 @@ def player_command(bag, opts: ReplayOptions) -> list[str]:
     return cmd
 
 
-def run_player(bag, opts: ReplayOptions, warn=None) -> int:
+def run_player(bag, opts: ReplayOptions, warn=None, dds_interfaces: str = "loopback") -> int:
     """Validate, run the player on ``bag`` until it ends; forward SIGINT/SIGTERM; return its exit status.
 
     ``warn``: called with each integrity problem of the bag (a damaged or missing file of a
-    split bag, metadata.yaml counts that disagree) before the player starts."""
+    split bag, metadata.yaml counts that disagree) before the player starts. ``dds_interfaces``:
+    loopback (default: DDS on 127.0.0.1 only) or all (:func:`.process.dds_env`)."""
     sel = validate(bag, opts)
     for line in sel.warnings if warn is not None else ():
         warn(line)
     cmd = player_command(bag, opts)
-    proc = subprocess.Popen(cmd, env=ament.child_env(ament.package_prefix(PACKAGE)), start_new_session=True,
+    env = dds_env(ament.child_env(ament.package_prefix(PACKAGE)), dds_interfaces)
+    proc = subprocess.Popen(cmd, env=env, start_new_session=True,
                             preexec_fn=die_with_parent())
 
     def forward(signum, frame):  # noqa: ARG001

@@ -159,6 +159,8 @@ class SilScenario:
     domain_id: int | None = None
     log_dir: Path | None = None
     results: Path | None = None
+    #: DDS network scope of the nodes: loopback (default) or all (process.dds_env)
+    dds_interfaces: str = "loopback"
     #: extra ROS parameters per node name (every satellite): simulator, attitude_sensors, controller
     node_params: dict = _field(default_factory=dict)
 
@@ -167,6 +169,7 @@ class SilScenario:
               spacecraft=DEFAULT_SPACECRAFT, substeps: int = 2, bag=None, real_time_factor: float = 0.0,
               lockstep: bool = True, lockstep_timeout: float = 2.0, startup_timeout: float = 30.0,
               timeout: float | None = None, domain_id: int | None = None, log_dir=None, results=None,
+              dds_interfaces: str = "loopback",
               simulator_params: dict | None = None, sensor_params: dict | None = None,
               controller_params: dict | None = None, environment: str = "paper", env_options=None, field=None,
               epoch_time: bool = False, foxglove: int | None = None, bag_topics=None,
@@ -240,7 +243,7 @@ class SilScenario:
                    bag_topics=tuple(bag_topics) if bag_topics else None, bag_exclude=bag_exclude,
                    time_origin_ns=int(time_origin_ns), foxglove=None if foxglove is None else int(foxglove),
                    domain_id=domain_id, log_dir=Path(log_dir) if log_dir else None,
-                   results=Path(results) if results else None,
+                   results=Path(results) if results else None, dds_interfaces=dds_interfaces,
                    node_params={"simulator": dict(simulator_params or {}), "attitude_sensors": dict(sensor_params or {}),
                                 "controller": dict(controller_params or {})})
 

@@ -275,7 +275,8 @@ def run_fleet(scenario: SilScenario, *, on_start=None, progress=None) -> dict[st
     t0 = time.perf_counter()
     stops = StopSignals().__enter__()
     try:
-        env = child_env(lock.domain_id, prefix, *([exes["recorder"].parents[2]] if "recorder" in exes else []))
+        env = child_env(lock.domain_id, prefix, *([exes["recorder"].parents[2]] if "recorder" in exes else []),
+                        interfaces=scenario.dds_interfaces)
         sims = _launch(scenario, exes, pfiles, env, log_dir, (lock.fh.fileno(),), procs)
         if on_start:
             on_start(lock.domain_id, procs)

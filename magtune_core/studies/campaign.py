@@ -10,7 +10,12 @@ when its spread is zero, so changing one spread never reshuffles the others) and
 noise from ``default_rng([seed, i, 1])``. Runs are grouped in batches of ``batch_size``
 consecutive indices, each batch one Dask task that advances all its runs together
 (:func:`magtune_core.sim.batch.simulate_batch`). A run's result therefore depends on the spec,
-the seed and its index only: the same on 1 worker, 2 workers or a cluster.
+the seed and its index only: the same on 1 worker, 2 workers or a cluster, and the same when a
+worker dies during the campaign: every task carries the spec by value, the scheduler re-runs
+the tasks of a dead worker elsewhere, and a task that still fails is resubmitted a bounded
+number of times (:data:`TASK_RETRIES`, :data:`RESUBMITS`); runs that never completed are
+``failed`` with the reason (``campaign.json`` ``failed_runs``) and the command exits 1. The
+cluster is closed to other users by default (:mod:`.cluster`).
 
 Dispersions (all optional; zero spread = nominal):
 
@@ -65,6 +70,7 @@ from ..sim.batch import BatchRuns, SensorNoise, simulate_batch
 from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions, nominal_orbit_period, substeps_for
 from ..sim.metrics import settling_time
 from ..sim.simulate import DW0
+from . import cluster
 
 #: Section ``campaign``: what is run.
 CAMPAIGN_FIELDS = (
@@ -430,10 +436,12 @@ def run_batch(spec: CampaignSpec, jobs: list, steps: int, record_every: int) -> 
 
 
 # --- execution -----------------------------------------------------------------------------------
-#: Environment of every LocalCluster worker: one BLAS/OpenMP thread per worker process (the
-#: batched simulator is elementwise numpy; threads would only fight over the cores).
-WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
-
+#: Dask's ``retries=`` of every task: a task that raised (not a run: run_batch keeps a run's own
+#: exception in its row) is re-run by the scheduler up to this many more times.
+TASK_RETRIES = 2
+#: How often the client resubmits a batch whose task was lost (KilledWorker after its workers
+#: died, cancelled): after that its runs are reported failed with the last error.
+RESUBMITS = 2
 
 def plan(spec: CampaignSpec, runs: int) -> list:
     """Batches of jobs [(gains index, run index)]: consecutive run indices, one gains file each."""
@@ -446,12 +454,16 @@ def plan(spec: CampaignSpec, runs: int) -> list:
 
 
 def run_campaign(spec: CampaignSpec, runs: int, out, *, scheduler: str | None = None, workers: int | None = None,
-                 progress: bool = True) -> dict:
+                 progress: bool = True, dashboard: bool = False, tls: cluster.TlsFiles | None = None) -> dict:
     """Run the campaign and write DIR (module docstring); returns the ``campaign.json`` content.
 
-    ``scheduler``: None (a LocalCluster of ``workers`` processes, default one per core, one
-    thread each), ``"tcp://HOST:PORT"`` (an existing Dask cluster) or ``"synchronous"`` (in this
-    process, no Dask: debugging and the reference of the tests).
+    ``scheduler``: None (a closed LocalCluster of ``workers`` processes, default one per core,
+    one thread each, :func:`.cluster.local_cluster`; ``dashboard``: serve its dashboard on
+    127.0.0.1:8787), ``"tls://HOST:PORT"`` (an existing cluster, with ``tls`` or the Dask
+    configuration's TLS credentials), ``"tcp://HOST:PORT"`` (an existing unauthenticated
+    cluster) or ``"synchronous"`` (in this process, no Dask: debugging and the reference of
+    the tests). Every batch task carries the spec by value (nothing a worker's death can lose);
+    lost tasks are retried (:data:`TASK_RETRIES`, :data:`RESUBMITS`).
     """
     out = Path(out)  # created only when there are results to write (a failed connection leaves nothing)
     steps, every = spec.steps(), spec.record_every()
@@ -467,7 +479,12 @@ def run_campaign(spec: CampaignSpec, runs: int, out, *, scheduler: str | None = 
                 results.append((j, run_batch(spec, jobs, steps, every)))
                 bar.update(len(jobs))
         else:
-            results, info = _run_dask(spec, batches, steps, every, scheduler, workers, bar)
+            workers = int(workers or os.cpu_count() or 1)
+            with cluster.connect(scheduler, workers, dashboard=dashboard, tls=tls) as (client, info):
+                if info.get("dashboard"):
+                    bar.write(f"campaign: dashboard at {info['dashboard']}")
+                results, more = _run_dask(client, spec, batches, steps, every, bar)
+                info.update(more)
     finally:
         bar.close()
     wall = time.perf_counter() - t0
@@ -480,41 +497,52 @@ def _progress(total: int, enabled: bool):
     return tqdm(total=total, unit="run", desc="campaign", disable=not enabled, smoothing=0.1)
 
 
-def _run_dask(spec, batches, steps, every, scheduler, workers, bar):
-    """Submit one task per batch; collect as they complete (progress bar on the client)."""
-    import logging
+def _lost_batch(spec: CampaignSpec, jobs: list, exc: BaseException) -> dict:
+    """The result of a batch whose task never completed: every run failed with the task's error."""
+    rows = [_failed_row(spec, g, i, exc) for g, i in jobs]
+    for row in rows:
+        row["passed"], row["fail_reasons"] = False, "failed"
+    return dict(rows=rows, hist=None, jobs=[], wall=math.nan, cpu=math.nan)
 
-    from distributed import Client, LocalCluster, as_completed
 
-    cluster = None
-    if scheduler:
-        client = Client(scheduler, timeout="20s")
-    else:
-        workers = int(workers or os.cpu_count() or 1)
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                               silence_logs=logging.ERROR, env=dict(WORKER_ENV))
-        client = Client(cluster)
-    try:
-        nworkers = len(client.scheduler_info(n_workers=-1)["workers"]) if hasattr(client, "scheduler_info") else 0
-        spec_f = client.scatter(spec, broadcast=True)
-        futures = {client.submit(run_batch, spec_f, jobs, steps, every, pure=False): j for j, jobs in enumerate(batches)}
-        results = []
-        for fut in as_completed(futures):
-            j = futures[fut]
-            try:
-                res = fut.result()
-            except Exception as exc:  # noqa: BLE001 - a lost task: every run of the batch is reported failed
-                res = dict(rows=[_failed_row(spec, g, i, exc) for g, i in batches[j]], hist=None, jobs=[], wall=math.nan,
-                           cpu=math.nan)
-                for row in res["rows"]:
-                    row["passed"], row["fail_reasons"] = False, "failed"
-            results.append((j, res))
-            bar.update(len(batches[j]))
-        return results, dict(scheduler=scheduler or "LocalCluster", workers=nworkers)
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+def _run_dask(client, spec, batches, steps, every, bar):
+    """Submit one task per batch, the spec passed by value in each (no scattered data: a dead
+    worker cannot take it with it); collect as they complete. The scheduler re-runs a task whose
+    worker died; a task that still ends in error (KilledWorker, cancelled, ...) is resubmitted up
+    to :data:`RESUBMITS` times, then its runs are reported failed with the reason.
+    Returns (results, info) with info the worker count and the number of resubmissions."""
+    from distributed import as_completed
+
+    nworkers = len(client.scheduler_info(n_workers=-1)["workers"])
+
+    def submit(j):
+        return client.submit(run_batch, spec, batches[j], steps, every, pure=False, retries=TASK_RETRIES)
+
+    futures = {submit(j): j for j in range(len(batches))}
+    attempts = dict.fromkeys(range(len(batches)), 0)
+    results, resubmitted = [], 0
+    pending = as_completed(list(futures))
+    for fut in pending:
+        j = futures.pop(fut)
+        try:
+            res = fut.result()
+        except Exception as exc:  # noqa: BLE001 - a lost task: resubmit, then report its runs failed
+            nf, err = None, exc
+            if attempts[j] < RESUBMITS:
+                attempts[j] += 1
+                resubmitted += 1
+                try:
+                    nf = submit(j)
+                except Exception as sub_exc:  # noqa: BLE001 - the client is gone: report, keep the others
+                    err = sub_exc
+            if nf is not None:
+                futures[nf] = j
+                pending.add(nf)
+                continue
+            res = _lost_batch(spec, batches[j], err)
+        results.append((j, res))
+        bar.update(len(batches[j]))
+    return results, dict(workers=nworkers, resubmitted=resubmitted)
 
 
 def write_results(spec: CampaignSpec, runs: int, out: Path, results: list, batches: list, info: dict) -> dict:
@@ -547,6 +575,8 @@ def write_results(spec: CampaignSpec, runs: int, out: Path, results: list, batch
                 counts={s: status.count(s) for s in STATUSES}, passed=int(sum(bool(r["passed"]) for r in rows)),
                 campaign=_plain(spec.campaign), dispersions=_plain(spec.dispersions), criteria=_plain(spec.criteria),
                 **info)
+    meta["failed_runs"] = [dict(run=int(r["run"]), gains=r["gains"], error=r.get("error", "")) for r in rows
+                           if r["status"] == "failed"]
     meta["runs_per_second"] = len(rows) / info["wall"] if info.get("wall") else math.nan
     # CPU time of the tasks (load-independent): per run, and what a wall-clock rate would be on idle cores
     meta["task_cpu_s"] = float(np.nansum([res.get("cpu", math.nan) for _, res in results]))

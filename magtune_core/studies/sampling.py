@@ -21,8 +21,8 @@ Figures of merit per run (``t_k = k Ts`` controller instants, T the nominal orbi
   reference threshold per sigma keeps t_s comparable across Ts (a threshold relative to each
   run's own RMS would reward a degraded steady state).
 
-Runs are distributed over ``--workers`` processes (multiprocessing); each run is a
-deterministic fixed-step integration (no noise), so the table does not depend on the number
+Runs are distributed over ``--workers`` processes (``base.workers.worker_pool``: they die with
+the command); each run is a deterministic fixed-step integration (no noise), so the table does not depend on the number
 of workers. ``--backend sil`` runs every case through ``magtune sil`` instead (the three ROS 2
 nodes over DDS, lockstep); the trajectories, hence the table, are identical. Outputs: ``docs/sampling.md`` (table + verdict on the paper's claim),
 ``docs/sampling.png`` (matplotlib, Agg) and ``docs/sampling.json`` (raw numbers).
@@ -31,13 +31,13 @@ from __future__ import annotations
 
 import contextlib
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 from ..base.ament import ROOT
 from ..base.atomic import atomic_savefig, atomic_write
+from ..base.workers import worker_pool
 from ..design.gains import load_gains
 from ..design.law import DEFAULT_DIPOLE_LIMIT
 from ..design.params import load_spacecraft
@@ -96,7 +96,7 @@ def run_study(sigmas=DEFAULT_SIGMAS, ts_list=DEFAULT_TS, orbits: float = 5.0, en
         if not Path(j["gains"]).is_file():
             raise FileNotFoundError(f"gains file not found: {j['gains']}")
     rows = []
-    with ProcessPoolExecutor(max_workers=workers) if workers > 1 else contextlib.nullcontext() as ex:
+    with worker_pool(workers) if workers > 1 else contextlib.nullcontext() as ex:
         for row in (ex.map(_run_one, jobs) if ex else map(_run_one, jobs)):
             rows.append(row)
             if progress:

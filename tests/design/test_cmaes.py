@@ -233,6 +233,73 @@ def test_interrupted_tune_keeps_the_best_gain(tmp_path, sig, workers):
             proc.wait()
 
 
+def _stat(pid) -> list[str]:
+    """Fields of /proc/PID/stat after the command name (state, ppid, ...); [] when gone."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return []
+
+
+def _alive(pid: int) -> bool:
+    f = _stat(pid)
+    return bool(f) and f[0] != "Z"
+
+
+def _children(pid: int) -> list[int]:
+    """Live (non-zombie) processes whose parent is ``pid`` (from /proc)."""
+    import os
+
+    out = []
+    for d in os.listdir("/proc"):
+        f = _stat(d) if d.isdigit() else []
+        if f and f[0] != "Z" and int(f[1]) == pid:
+            out.append(int(d))
+    return out
+
+
+def test_killed_tune_leaves_no_worker():
+    """``magtune tune --workers 2`` killed by SIGKILL (no handler, no pool shutdown runs): its two
+    pool workers die with it (parent-death signal set in the worker initializer, issue 32 item 7;
+    before, they kept running with PPID 1)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import tempfile
+    import time
+
+    from magtune_core.ros.process import die_with_parent
+
+    with tempfile.TemporaryDirectory() as tmp:
+        proc = subprocess.Popen([sys.executable, "-m", "magtune_core", "tune", "--sigma", "60", "--workers", "2",
+                                 "--out", os.path.join(tmp, "g.yaml"), "--quiet"], stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL, start_new_session=True, preexec_fn=die_with_parent())
+        workers = []
+        try:
+            deadline = time.monotonic() + 120
+            while len(workers) < 2 and proc.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.2)
+                workers = _children(proc.pid)
+            assert len(workers) == 2, f"pool workers not seen (exit {proc.poll()})"
+            os.kill(proc.pid, signal.SIGKILL)
+            proc.wait()
+            t0 = time.monotonic()
+            while any(_alive(w) for w in workers):  # the kernel's SIGKILL: at once; 3 s for a loaded machine
+                assert time.monotonic() - t0 < 3.0, "pool workers outlived the killed tune"
+                time.sleep(0.05)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+            for w in workers:
+                try:
+                    os.kill(w, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+
+
 def test_no_certificate_on_an_unresolved_grid_at_max_steps():
     """At max_steps the grid cannot be doubled, so a certificate needs J at twice the steps to agree to
     rtol_certify: the paper-method sigma = 60 gain's J is 262.68 at 16 steps and 275.52 at 32 (4.7 %

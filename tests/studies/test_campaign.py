@@ -3,10 +3,13 @@ spec validation, seeded draws, results independent of the executor (in-process, 
 a real ``dask scheduler`` + two ``dask worker`` processes), failed and diverged runs kept."""
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -110,46 +113,62 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_external_dask_cluster_equals_in_process(reference, tmp_path):
-    """A real `dask scheduler` and two `dask worker` processes on localhost (--scheduler tcp://...)."""
+def _tls_files(tmp_path) -> dict:
+    """A CA/certificate/key triple in PEM files (Dask's temporary self-signed certificate, which is
+    its own CA): the credentials of an existing secured cluster and of its clients."""
+    from distributed.security import Security
+
+    sec = Security.temporary()
+    files = dict(ca=tmp_path / "ca.pem", cert=tmp_path / "cert.pem", key=tmp_path / "key.pem")
+    files["ca"].write_text(sec.tls_ca_file)
+    files["cert"].write_text(sec.tls_scheduler_cert)
+    files["key"].write_text(sec.tls_scheduler_key)
+    return files
+
+
+@contextlib.contextmanager
+def _dask_cluster(tmp_path, tls: dict | None = None, nanny: bool = True):
+    """A real `dask scheduler` and two `dask worker` processes (w1, w2) on localhost, TLS when
+    ``tls`` files are given; yields (address, {name: worker Popen}, client security). Every process
+    dies with pytest and is stopped in the finally."""
+    from distributed import Client
+    from distributed.security import Security
+
     dask_cli = str(Path(sys.executable).parent / "dask")
     port = _free_port()
-    addr = f"tcp://127.0.0.1:{port}"
+    proto = "tls" if tls else "tcp"
+    addr = f"{proto}://127.0.0.1:{port}"
+    opts = ["--tls-ca-file", str(tls["ca"]), "--tls-cert", str(tls["cert"]), "--tls-key", str(tls["key"])] if tls else []
+    sec = Security(tls_ca_file=str(tls["ca"]), tls_client_cert=str(tls["cert"]), tls_client_key=str(tls["key"]),
+                   require_encryption=True) if tls else None
     env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
     logs = [open(tmp_path / f"{n}.log", "w") for n in ("scheduler", "worker1", "worker2")]
-    procs = []
+    procs, workers = [], {}
     try:
         procs.append(subprocess.Popen([dask_cli, "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                                       "--no-dashboard"], stdout=logs[0], stderr=subprocess.STDOUT, env=env, cwd=tmp_path,
-                                      preexec_fn=die_with_parent()))
+                                       "--protocol", proto, "--no-dashboard", *opts], stdout=logs[0],
+                                      stderr=subprocess.STDOUT, env=env, cwd=tmp_path, preexec_fn=die_with_parent()))
         for i in (1, 2):
-            procs.append(subprocess.Popen([dask_cli, "worker", addr, "--nthreads", "1", "--nworkers", "1",
-                                           "--host", "127.0.0.1", "--no-dashboard", "--name", f"w{i}"],
-                                          stdout=logs[i], stderr=subprocess.STDOUT, env=env, cwd=tmp_path,
-                                          preexec_fn=die_with_parent()))
-        from distributed import Client
-
+            workers[f"w{i}"] = subprocess.Popen(
+                [dask_cli, "worker", addr, "--nthreads", "1", "--nworkers", "1", "--host", "127.0.0.1", "--no-dashboard",
+                 "--name", f"w{i}", *opts, *([] if nanny else ["--no-nanny"])],
+                stdout=logs[i], stderr=subprocess.STDOUT, env=env, cwd=tmp_path, preexec_fn=die_with_parent())
+            procs.append(workers[f"w{i}"])
         deadline = time.monotonic() + 90
         while True:  # the scheduler takes a moment to listen; then wait for both workers
             try:
-                with Client(addr, timeout="5s") as c:
+                with Client(addr, timeout="5s", security=sec) as c:
                     c.wait_for_workers(2, timeout=max(1.0, deadline - time.monotonic()))
                 break
             except OSError:
                 if time.monotonic() > deadline or any(p.poll() is not None for p in procs):
                     raise
                 time.sleep(0.5)
-        out = tmp_path / "ext"
-        assert main(["campaign", str(_write_spec(tmp_path)), "--runs", str(RUNS), "--out", str(out), "--scheduler", addr,
-                     "--no-progress"]) == 0
-        _columns_equal(campaign.read_runs(out), campaign.read_runs(reference))
-        meta = yaml.safe_load((out / "campaign.json").read_text())
-        assert meta["workers"] == 2 and meta["scheduler"] == addr
-        # both workers took part (4 tasks on 2 single-thread workers)
-        assert all("w" in (tmp_path / f"worker{i}.log").read_text() for i in (1, 2))
+        yield addr, workers, sec
     finally:
         for p in reversed(procs):
-            p.terminate()
+            if p.poll() is None:
+                p.terminate()
         for p in procs:
             try:
                 p.wait(timeout=20)
@@ -158,6 +177,92 @@ def test_external_dask_cluster_equals_in_process(reference, tmp_path):
                 p.wait()
         for f in logs:
             f.close()
+
+
+def test_external_dask_cluster_equals_in_process(reference, tmp_path):
+    """A real `dask scheduler` and two `dask worker` processes on localhost (--scheduler tcp://...)."""
+    with _dask_cluster(tmp_path) as (addr, _, _):
+        out = tmp_path / "ext"
+        assert main(["campaign", str(_write_spec(tmp_path)), "--runs", str(RUNS), "--out", str(out), "--scheduler", addr,
+                     "--no-progress"]) == 0
+        _columns_equal(campaign.read_runs(out), campaign.read_runs(reference))
+        meta = yaml.safe_load((out / "campaign.json").read_text())
+        assert meta["workers"] == 2 and meta["scheduler"] == addr and meta["secured"] is False
+        # both workers took part (4 tasks on 2 single-thread workers)
+        assert all("w" in (tmp_path / f"worker{i}.log").read_text() for i in (1, 2))
+
+
+def _kill_when_busy(addr, sec, victim: subprocess.Popen, name: str, stop: threading.Event, seen: list):
+    """SIGKILL the worker process ``victim`` (Dask name ``name``) as soon as the scheduler shows a
+    campaign task processing on it (issue 32 item 3: a worker lost mid-campaign)."""
+    from distributed import Client
+
+    with Client(addr, timeout="10s", security=sec) as c:
+        while not stop.is_set():
+            info = c.scheduler_info(n_workers=-1)["workers"]
+            mine = [a for a, w in info.items() if w.get("name") == name]
+            busy = c.processing(workers=mine) if mine else {}
+            if any("run_batch" in str(k) for keys in busy.values() for k in keys):
+                victim.send_signal(signal.SIGKILL)
+                seen.append(list(busy.values()))
+                return
+            time.sleep(0.02)
+
+
+def test_worker_killed_mid_campaign(reference, tmp_path, capsys):
+    """A secured external cluster (tls://, --tls-* files; two `dask worker --no-nanny` processes,
+    so a killed worker stays dead): w1 is SIGKILLed while it runs a batch. Every run is present
+    with exactly the figures of the undisturbed in-process campaign (each batch is recomputed from
+    the spec, seed and indices alone, so equality is exact), and the command exits 0. Before,
+    every run came back failed (FutureCancelledError: the scattered spec was lost) with exit 0."""
+    tls = _tls_files(tmp_path)
+    with _dask_cluster(tmp_path, tls, nanny=False) as (addr, workers, sec):
+        stop, seen = threading.Event(), []
+        killer = threading.Thread(target=_kill_when_busy, args=(addr, sec, workers["w1"], "w1", stop, seen))
+        killer.start()
+        out = tmp_path / "killed"
+        try:
+            rc = main(["campaign", str(_write_spec(tmp_path)), "--runs", str(RUNS), "--out", str(out), "--scheduler", addr,
+                       "--tls-ca-file", str(tls["ca"]), "--tls-cert", str(tls["cert"]), "--tls-key", str(tls["key"]),
+                       "--no-progress"])
+        finally:
+            stop.set()
+            killer.join(timeout=20)
+        assert seen, "w1 never ran a campaign task (the kill did not happen mid-campaign)"
+        assert workers["w1"].wait(timeout=10) == -signal.SIGKILL
+        assert rc == 0, capsys.readouterr().err[-800:]
+        cols = campaign.read_runs(out)
+        assert set(cols["status"]) == {"ok"}
+        _columns_equal(cols, campaign.read_runs(reference))
+        meta = yaml.safe_load((out / "campaign.json").read_text())
+        assert meta["secured"] is True and meta["failed_runs"] == [] and meta["total_runs"] == 2 * RUNS
+
+
+def test_runs_that_never_complete_are_listed_and_exit_1(tmp_path, capsys, monkeypatch):
+    """A batch whose task can never complete (here: the one holding run 3 raises on every attempt,
+    outside run_batch's own per-run isolation): its runs are failed with the reason, listed by
+    index on stderr, and the command exits 1 (it exited 0 before); the other runs are kept."""
+    real = campaign.run_batch
+
+    def flaky(spec, jobs, steps, every):
+        if any(i == 3 for _, i in jobs):
+            raise ConnectionError("worker lost (injected)")
+        return real(spec, jobs, steps, every)
+
+    monkeypatch.setattr(campaign, "run_batch", flaky)
+    spec = yaml.safe_load(yaml.safe_dump(SPEC))
+    spec["campaign"]["gains"] = spec["campaign"]["gains"][:1]
+    out = tmp_path / "o"
+    rc = main(["campaign", str(_write_spec(tmp_path, spec)), "--runs", str(RUNS), "--out", str(out), "--workers", "1",
+               "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 1, err[-800:]
+    cols = campaign.read_runs(out)
+    assert cols["status"].tolist() == ["ok", "ok", "ok", "failed"]  # batches of 3: runs 0-2, 3
+    assert "1 of 4 runs did not complete" in err
+    assert "run 3 (config/gains/sigma_120.yaml): ConnectionError: worker lost (injected)" in err
+    meta = yaml.safe_load((out / "campaign.json").read_text())
+    assert meta["resubmitted"] == campaign.RESUBMITS and meta["failed_runs"][0]["run"] == 3
 
 
 def test_failed_and_diverged_runs_are_kept(tmp_path, monkeypatch):
@@ -237,3 +342,87 @@ def test_refuses_non_empty_out_without_force(tmp_path, capsys):
     assert (out / "notes.txt").read_text() == "mine" and (out / "runs.parquet").is_file()  # only our outputs replaced
     assert main(["campaign", str(p), "--runs", "0", "--out", str(tmp_path / "x")]) == 2
     assert main(["campaign", str(p), "--runs", "1", "--out", str(tmp_path / "x"), "--scheduler", "localhost:1"]) == 2
+
+
+#: A second client, in its own process (as an intruder would be): connects to argv[1] with no
+#: credentials, someone else's temporary certificate or plain tcp://, runs a task if it can, and
+#: prints the outcome (os._exit: a refused Client's clean-up can hang at interpreter exit).
+INTRUDER = r"""
+import operator, os, sys
+from distributed import Client
+from distributed.security import Security
+addr, mode = sys.argv[1], sys.argv[2]
+kw = dict(security=Security.temporary()) if mode == "other-cert" else {}
+if mode == "tcp":
+    addr = addr.replace("tls://", "tcp://")
+try:
+    c = Client(addr, timeout="5s", **kw)
+    print("CONNECTED", c.submit(operator.add, 1, 2).result(), flush=True)
+except BaseException as e:
+    print("REFUSED", type(e).__name__, str(e).splitlines()[0][:200], flush=True)
+os._exit(0)
+"""
+
+
+def test_local_cluster_is_closed_to_other_clients():
+    """The campaign's LocalCluster (studies.cluster.local_cluster, what run_campaign starts) speaks
+    TLS and requires its own temporary certificate: its client runs a task; a second process's
+    client without credentials, with another certificate or over plain tcp://, and a raw TLS
+    handshake without a client certificate are all refused (before: tcp:// without
+    authentication, a second process ran code on the workers). Its HTTP server serves no route
+    and is not on 8787 (before: 8787 served the scheduler's pages)."""
+    import operator
+    import ssl
+    import urllib.error
+    import urllib.request
+
+    from distributed import Client
+
+    from magtune_core.studies import cluster
+
+    with cluster.local_cluster(1) as (lc, sec):
+        addr = lc.scheduler_address
+        assert addr.startswith("tls://127.0.0.1:")
+        with Client(lc, security=sec) as own:
+            assert own.submit(operator.add, 1, 2).result() == 3
+        expect = {"no-credentials": "TLS expects a `ssl_context`", "other-cert": "TLS certificate does not match",
+                  "tcp": "Connection reset by peer"}
+        for mode, why in expect.items():
+            r = subprocess.run([sys.executable, "-c", INTRUDER, addr, mode], capture_output=True, text=True, timeout=60,
+                               preexec_fn=die_with_parent())
+            assert r.stdout.startswith("REFUSED") and why in r.stdout, (mode, r.stdout, r.stderr[-500:])
+        host, port = addr[len("tls://"):].rsplit(":", 1)
+        ctx = ssl.create_default_context()
+        ctx.check_hostname, ctx.verify_mode = False, ssl.CERT_NONE
+        got = None
+        try:  # the server's alert (CERTIFICATE_REQUIRED) or its close (EOF) wins the race: either is a refusal
+            with socket.create_connection((host, int(port)), timeout=5) as raw, ctx.wrap_socket(raw) as t:
+                t.sendall(b"\0" * 8)
+                got = t.recv(8)
+        except (ssl.SSLError, ConnectionResetError) as exc:
+            assert "CERTIFICATE_REQUIRED" in str(exc) or "EOF" in str(exc) or isinstance(exc, ConnectionResetError), exc
+        assert not got  # nothing ever comes back to a peer without the certificate
+        http = lc.scheduler.http_server.port
+        assert http != 8787
+        for route in ("/health", "/info/main/workers.html", "/metrics", "/json/identity.json"):
+            with pytest.raises(urllib.error.HTTPError, match="404"):
+                urllib.request.urlopen(f"http://127.0.0.1:{http}{route}", timeout=5)
+
+
+@pytest.mark.parametrize("extra, expect", [
+    (["--scheduler", "tls://127.0.0.1:1"], "a tls:// scheduler needs --tls-ca-file, --tls-cert and --tls-key"),
+    (["--scheduler", "tls://127.0.0.1:1", "--tls-ca-file", "nowhere.pem", "--tls-cert", "c", "--tls-key", "k"],
+     "nowhere.pem: --tls-ca-file: file not found"),
+    (["--tls-cert", "cert.pem"], "TLS files are for an existing cluster"),
+    (["--scheduler", "tcp://127.0.0.1:1", "--dashboard"], "only for the LocalCluster"),
+])
+def test_cluster_options_one_line_exit_2(tmp_path, capsys, extra, expect, monkeypatch):
+    """Security options are checked before anything starts (no connection attempt, no output dir);
+    the Dask configuration's TLS settings are cleared for the call."""
+    import dask
+
+    with dask.config.set({"distributed.comm.tls.ca-file": None, "distributed.comm.tls.client.cert": None}):
+        rc = main(["campaign", str(_write_spec(tmp_path)), "--runs", "1", "--out", str(tmp_path / "o"), *extra])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and expect in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "o").exists()
