@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .sampled import SampledLoop
+from .sampled import SampledLoop, interval_map
 
 
 @njit(cache=True)
@@ -60,12 +60,7 @@ def _peak_kernel(Ad, Gamma, G, C, Ks, steps, nominal, radius, rq):  # pragma: no
                     out[g, i] = peak
             if step == steps:
                 break
-            for i in range(6):
-                for j in range(6):
-                    acc = Ad[i, j]
-                    for c in range(3):
-                        acc += Gamma[k, i, c] * Ks[g, c, j]
-                    P[i, j] = acc
+            interval_map(Ad, Gamma[k], Ks[g], P)
             for i in range(6):
                 for j in range(9):
                     acc = 0.0

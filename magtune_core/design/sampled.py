@@ -33,6 +33,17 @@ _RESCALE_EVERY = 32  #: interval products between renormalizations (keeps unstab
 
 
 @njit(cache=True)
+def interval_map(Ad, Gk, K, P):  # pragma: no cover - compiled
+    """P = Ad + Gk K in place: the held loop's map over one interval (module docstring)."""
+    for i in range(6):
+        for j in range(6):
+            acc = Ad[i, j]
+            for c in range(3):
+                acc += Gk[i, c] * K[c, j]
+            P[i, j] = acc
+
+
+@njit(cache=True)
 def _held_products(Ad, Gamma, Ks):  # pragma: no cover - compiled; checked against numpy in the tests
     """prod_k (Ad + Gamma_k K) for each gain, renormalized every _RESCALE_EVERY intervals:
     (M (n, 6, 6), log of the scale factors (n,)). Compiled: 5,615 6x6 products per gain in numpy
@@ -46,12 +57,7 @@ def _held_products(Ad, Gamma, Ks):  # pragma: no cover - compiled; checked again
         for i in range(6):
             M[g, i, i] = 1.0
         for k in range(N):
-            for i in range(6):
-                for j in range(6):
-                    acc = Ad[i, j]
-                    for c in range(3):
-                        acc += Gamma[k, i, c] * Ks[g, c, j]
-                    P[i, j] = acc
+            interval_map(Ad, Gamma[k], Ks[g], P)
             for i in range(6):
                 for j in range(6):
                     acc = 0.0
