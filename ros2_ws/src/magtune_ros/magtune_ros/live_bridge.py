@@ -8,7 +8,8 @@ Subscribes raw (CDR bytes, nothing deserialized) to the project's topics
 (:data:`magtune_core.base.topics.PROJECT_TOPICS`, or ``--topics``) with QoS compatible with
 their publishers, and logs each message to a Foxglove WebSocket server
 (:class:`magtune_core.bags.live.LiveServer`: one ``cdr`` channel with a ``ros2msg`` schema per
-topic) at the sim time of the last ``/clock`` received. Prints ``magtune-live ws://HOST:PORT``
+topic) at the sim time of the last ``/clock`` received (messages that arrive before the first
+``/clock``, when DDS matched their topic first, have no sim time and are not streamed). Prints ``magtune-live ws://HOST:PORT``
 once the server listens. SIGINT/SIGTERM stop it.
 
 Why a node and not the simulator itself: it sees what is on the wire (a remapped or namespaced
@@ -54,7 +55,7 @@ class LiveBridge(Node):
             raise c.ParamError("port", f"cannot start the WebSocket server on port {args.port}: {exc}") from None
         print(f"magtune-live ws://{args.host}:{self.server.port}", flush=True)
         specs = args.topics or [f"{n}:{t}" for n, (t, _) in PROJECT_TOPICS.items()]
-        self.sim_ns = 0
+        self.sim_ns = None  # no /clock yet
         self.subs = []
         for spec in specs:
             name, _, typ = spec.partition(":")
@@ -88,7 +89,10 @@ class LiveBridge(Node):
                 self.sim_ns = sec * 1_000_000_000 + nsec
                 server.log(name, data, self.sim_ns)
             return on_clock
-        return lambda data: server.log(name, data, self.sim_ns)
+        def on_message(data: bytes):
+            if self.sim_ns is not None:
+                server.log(name, data, self.sim_ns)
+        return on_message
 
 
 def main(argv=None):
