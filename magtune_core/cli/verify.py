@@ -9,7 +9,7 @@ from pathlib import Path
 from ..base.atomic import atomic_write
 from ..base.errors import ConfigError
 from ..studies import verify
-from .common import CommandError, add_spec_argument, load_design_spec, plain_summary, repo_path
+from .common import CommandError, add_spec_argument, load_design_spec, load_model, plain_summary, repo_path
 
 OUTPUTS = ("verify.md", "verify.json")
 
@@ -55,7 +55,6 @@ def run(args) -> int:
     verify.load_spec(campaign)  # validated before any worker starts
     tightest = gains.provenance.get("hold_tightest_ts")
     if tightest is None and req.gain_margin:
-        from ..cli.common import load_model
         from ..design.pipeline import requirement_provenance
 
         tightest = requirement_provenance(load_model(args), gains.K, req)["hold_tightest_ts"]
