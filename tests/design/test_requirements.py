@@ -90,3 +90,12 @@ def test_infeasible_hold_range_is_named(model):
     with pytest.raises(InfeasibleStart) as exc:
         tune_gains(model, 120.0, requirements=req)
     assert "binding: hold gain margin at Ts = 1" in str(exc.value) and "unstable at every scaling" in str(exc.value)
+
+
+def test_example_12u_spec_overrides_only_the_residual_dipole():
+    """config/examples/cubesat12u/design.yaml: the paper spec's hold requirement, the 12U's own
+    residual dipole (0.05 A m^2, its simulator section) and torquers (0.2 A m^2 -> budget 0.16)."""
+    ex = REPO / "config/examples/cubesat12u"
+    req = load_requirements(ex / "design.yaml", spacecraft_dipole_limit(ex / "spacecraft.yaml"))
+    assert req.sampling == Requirements.from_mapping({}, 0.2).sampling
+    assert np.allclose(req.dipole["residual_nominal"], 0.05) and req.dipole_budget == pytest.approx(0.16)
