@@ -3,6 +3,7 @@ a complete MCAP, metadata.yaml lists them with their own stats, and the readers 
 mcap) see one bag."""
 from __future__ import annotations
 
+import contextlib
 import struct
 
 import pytest
@@ -68,6 +69,23 @@ def _truncate(path, fraction=0.5):
     data = path.read_bytes()
     path.write_bytes(data[: int(len(data) * fraction)])
     return path.read_bytes()
+
+
+@contextlib.contextmanager
+def _damaged_split_bag_on_full_disk(tmp_path):
+    """A split bag with its second file half cut, copied onto a small tmpfs that is then filled:
+    (mount point, bag, the bag's files' bytes before filling, the filler file to free the disk)."""
+    import shutil
+
+    from smallfs import fill, small_tmpfs
+
+    src = _split(tmp_path)
+    _truncate(src / "run_1.mcap")
+    with small_tmpfs(tmp_path / "small", "96k") as mnt:
+        bag = mnt / "run"
+        shutil.copytree(src, bag)
+        before = {p.name: p.read_bytes() for p in bag.iterdir()}
+        yield mnt, bag, before, fill(mnt)
 
 
 def _cli(capsys, *argv):
@@ -161,16 +179,7 @@ def test_unreadable_later_file_does_not_stop_the_others(tmp_path):
 
 def test_recover_on_full_disk_is_one_line_and_retry_works(tmp_path, capsys):
     """Why: a full disk during recovery was a traceback and left a 0-byte .tmp that blocked the retry."""
-    import shutil
-
-    from smallfs import fill, small_tmpfs
-
-    src = _split(tmp_path)
-    _truncate(src / "run_1.mcap")
-    with small_tmpfs(tmp_path / "small", "96k") as mnt:
-        bag = mnt / "run"
-        shutil.copytree(src, bag)
-        filler = fill(mnt)
+    with _damaged_split_bag_on_full_disk(tmp_path) as (mnt, bag, _, filler):
         code, _, err = _cli(capsys, "bag", "recover", str(bag))
         assert code == 1 and len(err.strip().splitlines()) == 1 and "No space left on device" in err, err
         assert sorted(p.name for p in mnt.iterdir()) == ["filler", "run"]     # no output dir, no .tmp
@@ -206,17 +215,7 @@ def test_metadata_not_utf8_is_ignored_not_a_traceback(tmp_path, capsys):
 
 
 def test_recover_in_place_on_full_disk_changes_nothing(tmp_path, capsys):
-    import shutil
-
-    from smallfs import fill, small_tmpfs
-
-    src = _split(tmp_path)
-    _truncate(src / "run_1.mcap")
-    with small_tmpfs(tmp_path / "small", "96k") as mnt:
-        bag = mnt / "run"
-        shutil.copytree(src, bag)
-        before = {p.name: p.read_bytes() for p in bag.iterdir()}
-        filler = fill(mnt)
+    with _damaged_split_bag_on_full_disk(tmp_path) as (_, bag, before, filler):
         code, _, err = _cli(capsys, "bag", "recover", "--in-place", str(bag))
         assert code == 1 and len(err.strip().splitlines()) == 1, err
         assert {p.name: p.read_bytes() for p in bag.iterdir()} == before      # nothing replaced, nothing left
