@@ -1,4 +1,6 @@
-"""``magtune front``: the J-optimal gain per sigma, its J, c1, c2, rho, table and plot (:mod:`..studies.front`)."""
+"""``magtune front``: the J-optimal gain per sigma (:mod:`..studies.front`), or per level of one
+requirement of the design spec (``--over ts_max|dipole_limit``, :mod:`..studies.requirement_front`):
+J, c1, c2, table and plot."""
 from __future__ import annotations
 
 import os
@@ -12,14 +14,17 @@ from ..base.errors import ConfigError
 from ..design.cmaes import CmaSettings
 from ..design.gains import load_gains
 from ..studies import front
+from ..studies import requirement_front as rfront
 from .common import (
     GAIN_MARGIN_HELP,
     START_SCALE_HELP,
     START_SCALES,
     add_force_argument,
+    add_spec_argument,
     check_outputs,
     field_model_argument,
     hold_constraint,
+    load_design_spec,
     load_model,
     plain_summary,
     positive_floats,
@@ -27,27 +32,51 @@ from .common import (
 )
 
 OUTPUTS = ("front.md", "front.png", "front.json")
+#: What ``--over`` may sweep: sigma (the paper's trade-off) or a requirement of the design spec.
+OVER = ("sigma",) + tuple(rfront.AXES)
+#: Reference gains of a requirement front: the paper-method gains (docs/table1.md).
+REFERENCE_GLOB = "config/gains/paper_method/sigma_*.yaml"
+
+
+def outputs(over: str) -> tuple:
+    """The files a front over ``over`` writes (front.* for sigma, front_<axis>.* for a requirement)."""
+    return OUTPUTS if over == "sigma" else tuple(n.replace("front.", f"front_{over}.") for n in OUTPUTS)
 
 
 def register(sub) -> None:
     p = sub.add_parser("front", help="trade-off front: the J-optimal gain for each sigma, table and plot",
                        description=plain_summary(front.__doc__))
-    p.add_argument("--sigmas", type=positive_floats, default=list(front.DEFAULT_SIGMAS),
-                   help="comma-separated sigmas (default " + ",".join(str(s) for s in front.DEFAULT_SIGMAS) + ")")
+    p.add_argument("--over", choices=OVER, default="sigma",
+                   help="what the front sweeps: sigma (the paper's trade-off, default), or one requirement of the "
+                        "design spec (--spec) at --levels: ts_max (longest sample period of the hold margin [s]) "
+                        "or dipole_limit (torquer limit per axis [A m^2]), for each of --sigmas")
+    p.add_argument("--levels", type=positive_floats, default=None,
+                   help="comma-separated levels of --over (default ts_max " +
+                        ",".join(f"{v:g}" for v in rfront.DEFAULT_LEVELS["ts_max"]) + "; dipole_limit " +
+                        ",".join(f"{v:g}" for v in rfront.DEFAULT_LEVELS["dipole_limit"]) + ")")
+    p.add_argument("--sigmas", type=positive_floats, default=None,
+                   help="comma-separated sigmas (default " + ",".join(str(s) for s in front.DEFAULT_SIGMAS) +
+                        "; with --over a requirement: " + ",".join(str(s) for s in rfront.DEFAULT_SIGMAS) + ")")
     p.add_argument("--seed", type=int, default=0, help="random seed of every run (default 0)")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="processes evaluating each population (default: all cores)")
     p.add_argument("--max-evals", type=int, default=30000, help="evaluation budget per sigma (default 30000)")
     p.add_argument("--popsize", type=int, default=8, help="candidates per generation (default 8)")
-    p.add_argument("--ts", type=float, default=1.0, help="controller sample period of the hold constraint [s] (default 1)")
-    p.add_argument("--gain-margin", type=float, default=2.0, help=GAIN_MARGIN_HELP)
+    p.add_argument("--ts", type=float, default=None,
+                   help="controller sample period of the hold constraint of a sigma front [s] (default 1)")
+    p.add_argument("--gain-margin", type=float, default=None, help=GAIN_MARGIN_HELP + " (sigma front; default 2)")
     p.add_argument("--start-scale", choices=START_SCALES, default="feasible", help=START_SCALE_HELP)
     p.add_argument("--start", nargs="+", default=[], metavar="GAINS",
                    help="gains files tried as the start of every sigma besides the LQ gain and the previous sigma's "
-                        "optimum (the lowest J at that sigma wins), e.g. config/gains/sigma_*.yaml")
+                        "optimum (the lowest J at that sigma wins), e.g. config/gains/sigma_*.yaml; with --over a "
+                        "requirement: the first start of the gains file's own sigma")
+    p.add_argument("--reference", nargs="*", default=None, metavar="GAINS",
+                   help="with --over a requirement: gains evaluated at every level beside the tuned ones (default "
+                        + REFERENCE_GLOB + ", the paper-method gains)")
+    add_spec_argument(p)
     p.add_argument("--out-dir", default=repo_path("docs"),
-                   help="writes front.md/.png/.json here (default: docs/ of the repository; existing files are "
-                        "kept unless --force)")
+                   help="writes front.md/.png/.json (front_<over>.* with --over a requirement) here (default: "
+                        "docs/ of the repository; existing files are kept unless --force)")
     add_force_argument(p)
     field_model_argument(p)
     p.set_defaults(func=run)
@@ -57,6 +86,12 @@ def run(args) -> int:
     for name in ("workers", "max_evals", "popsize"):
         if getattr(args, name) < 1:
             raise ConfigError("--" + name.replace("_", "-"), None, f"must be a positive integer, got {getattr(args, name)}")
+    if args.over != "sigma":
+        return run_requirement_front(args)
+    if args.levels is not None or args.reference is not None or args.spec is not None:
+        opt = "--levels" if args.levels is not None else ("--reference" if args.reference is not None else "--spec")
+        raise ConfigError(opt, None, "applies to a requirement front only; add --over ts_max or --over dipole_limit")
+    args.sigmas = args.sigmas or list(front.DEFAULT_SIGMAS)
     hold = hold_constraint(args)
     out = Path(args.out_dir)
     check_outputs(out, OUTPUTS, force=args.force, option="--out-dir")
@@ -97,4 +132,73 @@ def run(args) -> int:
                                                 "points": [p.as_dict() for p in points]}, indent=1) + "\n")
     print(table)
     print(f"wrote {out / 'front.md'}, {out / 'front.png'}, {out / 'front.json'} ({wall:.0f} s)")
+    return 0
+
+
+def run_requirement_front(args) -> int:
+    """``--over ts_max|dipole_limit``: the front over one requirement's levels (studies.requirement_front)."""
+    for opt, val in (("--ts", args.ts), ("--gain-margin", args.gain_margin)):
+        if val is not None:
+            raise ConfigError(opt, None, "a requirement front takes the hold requirement from --spec, not " + opt)
+    for name in ("workers", "max_evals", "popsize"):
+        if getattr(args, name) < 1:
+            raise ConfigError("--" + name.replace("_", "-"), None, f"must be a positive integer, got {getattr(args, name)}")
+    axis = args.over
+    levels = args.levels or list(rfront.DEFAULT_LEVELS[axis])
+    sigmas = args.sigmas or list(rfront.DEFAULT_SIGMAS)
+    out = Path(args.out_dir)
+    names = outputs(axis)
+    check_outputs(out, names, force=args.force, option="--out-dir")
+    model = load_model(args)
+    req = load_design_spec(args, model)
+    if axis == "ts_max" and min(levels) < req.ts:
+        raise ConfigError("--levels", None, f"ts_max levels must be >= the spec's ts_min ({req.ts:g} s)")
+    starts = {}
+    for f in args.start:  # bad files: one line, exit 2, before any work
+        g = load_gains(f)
+        starts[float(g.sigma)] = g.K
+    ref_files = args.reference if args.reference is not None else sorted(Path(repo_path(".")).glob(REFERENCE_GLOB))
+    references = {}
+    for f in ref_files:
+        g = load_gains(f)
+        references[float(g.sigma)] = (f"{Path(f).parent.name}/{Path(f).name}", g.K)
+    settings = CmaSettings(popsize=args.popsize, max_evals=args.max_evals, start_scale=args.start_scale)
+    t0, load0 = time.perf_counter(), os.getloadavg()[0]
+
+    def progress(pt):
+        what = f"infeasible ({pt.note})" if pt.K is None else (
+            f"J={pt.J:.3f} c1={pt.c1:.2f} c2={pt.c2:.0f} margin={pt.hold_margin_min:.2f} "
+            f"dipole={pt.dipole_peak:.1f} {'met' if pt.met else 'NOT met'}")
+        extra = f" in {pt.evaluations} evaluations, {pt.seconds:.0f} s" if pt.label == "tuned" else ""
+        print(f"magtune front: sigma={pt.sigma:g} {axis}={pt.level:g} [{pt.label}] {what}{extra}",
+              file=sys.stderr, flush=True)
+
+    points = rfront.run_level_front(model, req, axis, levels, sigmas, settings=settings, seed=args.seed,
+                                    workers=args.workers, starts=starts, references=references, progress=progress)
+    wall = time.perf_counter() - t0
+    out.mkdir(parents=True, exist_ok=True)
+    table = rfront.level_table(points, axis)
+    rfront.plot_level_front(points, axis, out / names[1])
+    cmd = (f"magtune front --over {axis} --levels " + ",".join(f"{v:g}" for v in levels) + " --sigmas "
+           + ",".join(f"{s:g}" for s in sigmas) + f" --seed {args.seed} --workers {args.workers} --max-evals "
+           f"{args.max_evals} --popsize {args.popsize}" + (f" --spec {args.spec}" if args.spec else "")
+           + (" --start " + " ".join(args.start) if args.start else ""))
+    load = f"load average {load0:.1f} at the start, {os.getloadavg()[0]:.1f} at the end (2-core machine)"
+    unit = rfront.AXES[axis]
+    atomic_write(
+        out / names[0],
+        f"# Requirement front: J against {axis}\n\n"
+        f"Generated by `{cmd}` (field model {model.field.name}) in {wall:.0f} s, {load}.\n\n"
+        f"Design spec: {req.source} ({req.describe()}); each row moves {axis} to the level [{unit}] and keeps the "
+        "rest. 'tuned' = the certified optimum of J under that level's hard requirements (`magtune tune --spec`, "
+        "continuation from the hardest level); the reference rows are the paper-method gains evaluated at that "
+        "level (their J does not depend on it; 'met' says whether they meet the level's requirements). "
+        "'hold margin (min)' is the smallest hold gain margin of the dense scan over the level's sample-period "
+        "range, 'peak dipole' the linear worst case of the budget (docs/requirements.md).\n\n"
+        f"{table}\n\n![front]({names[1]})\n")
+    atomic_write(out / names[2], jsonout.dumps({"command": cmd, "seconds": wall, "field_model": model.field.name,
+                                               "axis": axis, "spec": req.describe(),
+                                               "points": [p.as_dict() for p in points]}, indent=1) + "\n")
+    print(table)
+    print(f"wrote {', '.join(str(out / n) for n in names)} ({wall:.0f} s)")
     return 0

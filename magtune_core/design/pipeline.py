@@ -30,7 +30,7 @@ import numpy as np
 from .cmaes import CmaSettings
 from .gains import Gains
 from .problem import Figures, cost_gradient, figures
-from .requirements import Requirements, scan_hold
+from .requirements import Requirements, held_margin_ok, scan_hold
 from .resolution import resolved_steps, start_gain
 from .sampled import HoldConstraint, SampledLoop, feasible_start, hold_gain_margin, hold_provenance
 from .tuner import TunerSettings
@@ -230,8 +230,7 @@ def requirement_provenance(model, K, req: Requirements) -> dict:
     peak = max((c.value for c in checks), default=float("nan"))
     # met as the tuner decides it (the held loop with the gain times the margin is stable at every
     # scanned period): hold_gain_margin's first crossing is +-1e-3 (its docstring), not the criterion
-    held_ok = not req.gain_margin or bool(all(loop.spectral_radius(req.gain_margin * np.asarray(K).reshape(1, 3, 6))[0] < 1
-                                             for loop in loops))
+    held_ok = not req.gain_margin or all(held_margin_ok(loop, K, req.gain_margin) for loop in loops)
     met = bool(held_ok and (not req.dipole_budget or peak <= req.dipole_budget))
     return {"requirements": req.describe(), "requirements_source": req.source, "requirements_met": met,
             "hold_margin_min": round(float(margins[i]), 3), "hold_tightest_ts": round(float(loops[i].ts), 4),

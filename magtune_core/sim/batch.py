@@ -143,10 +143,12 @@ class BatchResult:
     steps: int = 0
     info: dict = field(default_factory=dict)
     #: with ``full_series``: true pointing error 2 asin(|q_vec|) [deg] (metrics.pointing_error_deg) and |m| [A m^2] at
-    #: every controller instant, (B, N+1); ``record_index`` the instants kept in the histories
+    #: every controller instant, (B, N+1); ``record_index`` the instants kept in the histories;
+    #: ``saturated`` (B, N+1) bool: the command of that instant saturated an axis
     pointing_deg: np.ndarray | None = None
     m_norm: np.ndarray | None = None
     record_index: np.ndarray | None = None
+    saturated: np.ndarray | None = None
 
 
 def _as3x3(I: np.ndarray, n: int) -> np.ndarray:
@@ -409,11 +411,13 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
     min_b2 = runs.min_field**2
     ang_all = np.empty((B, n + 1) if full_series else (B, 1))
     mn_all = np.empty_like(ang_all)
+    sat_all = np.zeros(ang_all.shape, dtype=np.bool_)
     index = np.ascontiguousarray(tables.index, dtype=np.int64)
     plant = Plant(I, J, hw, mres, gg, drag, srp, A, cp, cd, es, ed)
     ctrl = Controller(K, lim, W0, min_b2)
     sens = Sensors(noisy, noise, 0, mag_bias, mag_std, float(sensors.mag_quantum or 0.0), att_std, gyro_bias, gyro_std)
-    out = Outputs(sat, weak, diverged, DIVERGED_RATE, bool(full_series), ang_all, mn_all, rec_slot, Q, W, X, M, Bb)
+    out = Outputs(sat, weak, diverged, DIVERGED_RATE, bool(full_series), ang_all, mn_all, rec_slot, Q, W, X, M, Bb,
+                  sat_all)
     # controller steps in chunks of ENV_CHUNK (a divisor of NOISE_CHUNK): one environment table and one
     # compiled call per chunk (batch_kernels.closed_loop: sensors, controller, S RK4 steps per period)
     for kc in range(0, n + 1, ENV_CHUNK):
@@ -425,7 +429,7 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
     return BatchResult(np.asarray(rec, dtype=float) * ts, Q, W, X, M, Bb, T, sat, weak, diverged, n,
                        dict(ts=ts, substeps=S, environment=runs.environment, record_every=int(record_every)),
                        pointing_error_deg(ang_all) if full_series else None, mn_all if full_series else None,
-                       np.asarray(rec))
+                       np.asarray(rec), sat_all if full_series else None)
 
 
 def _geometry(runs: BatchRuns):

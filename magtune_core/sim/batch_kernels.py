@@ -479,7 +479,7 @@ class Outputs(NamedTuple):
     weak: np.ndarray  #: (B,) int64 weak-field steps
     diverged: np.ndarray  #: (B,) bool
     diverged_rate: float  #: a body rate above this [rad/s] (or a non-finite state) marks the run diverged
-    full: bool  #: write the per-step series ang_all, mn_all
+    full: bool  #: write the per-step series ang_all, mn_all, sat_all
     ang_all: np.ndarray  #: (B, n + 1) |q_vec| per step (with ``full``)
     mn_all: np.ndarray  #: (B, n + 1) |m| per step (with ``full``)
     rec_slot: np.ndarray  #: (n + 1,) int64 history slot of step k (-1: not recorded)
@@ -488,6 +488,7 @@ class Outputs(NamedTuple):
     X: np.ndarray  #: (B, R, 6) recorded controller state
     M: np.ndarray  #: (B, R, 3) recorded dipole
     Bb: np.ndarray  #: (B, R, 3) recorded true body field
+    sat_all: np.ndarray  #: (B, n + 1) bool: step k saturated an axis (with ``full``)
 
 
 @njit(cache=True, error_model="numpy")
@@ -511,7 +512,7 @@ def closed_loop(y, chunk, plant, ctrl, sens, out):
     I, J, hw, mres, gg, drag, srp, A, cp, cd, es, ed = plant
     K, lim, W0, min_b2 = ctrl
     noisy, noise, noise_k0, mag_bias, mag_std, quantum, att_std, gyro_bias, gyro_std = sens
-    sat, weak, diverged, diverged_rate, full, ang_all, mn_all, rec_slot, Q, Wr, X, M, Bb = out
+    sat, weak, diverged, diverged_rate, full, ang_all, mn_all, rec_slot, Q, Wr, X, M, Bb, sat_all = out
     B = y.shape[1]
     hh, h6 = 0.5 * h, h / 6.0
     ys = np.empty(7)
@@ -578,6 +579,8 @@ def closed_loop(y, chunk, plant, ctrl, sens, out):
             if ok:
                 if s0 != m0 or s1 != m1 or s2 != m2:
                     sat[b] += 1
+                    if full:
+                        sat_all[b, k] = True
             else:
                 weak[b] += 1
                 s0 = s1 = s2 = 0.0

@@ -129,8 +129,10 @@ CRITERIA_FIELDS = (
           None, positive=True),
     Field("max_rms_pointing_deg", "float", "limit of the RMS pointing error in steady state [deg]", None, positive=True),
     Field("max_peak_dipole", "float", "limit of the peak |m| [A m^2]", None, positive=True),
-    Field("max_saturation_fraction", "float", "limit of the fraction of saturated controller steps", None,
-          nonnegative=True),
+    Field("max_saturation_fraction", "float", "limit of the fraction of saturated controller steps (whole run)",
+          None, nonnegative=True),
+    Field("max_steady_saturation_fraction", "float", "limit of the fraction of saturated controller steps in "
+          "steady state (t >= max_settling_orbits T)", None, nonnegative=True),
 )
 
 SECTIONS = {"campaign": CAMPAIGN_FIELDS, "dispersions": DISPERSION_FIELDS, "criteria": CRITERIA_FIELDS}
@@ -138,7 +140,7 @@ STATUSES = ("ok", "diverged", "failed")
 #: Figures of merit (columns of runs.parquet) and their units, in report order.
 FIGURES = (("settling_time", "s"), ("max_pointing_deg", "deg"), ("rms_pointing_deg", "deg"),
            ("final_pointing_deg", "deg"), ("peak_dipole", "A m^2"), ("rms_dipole", "A m^2"),
-           ("saturation_fraction", "-"), ("weak_field_fraction", "-"))
+           ("saturation_fraction", "-"), ("steady_saturation_fraction", "-"), ("weak_field_fraction", "-"))
 
 
 @dataclass
@@ -320,7 +322,7 @@ def _batch_runs(spec: CampaignSpec, draws: list, gains_index: list) -> BatchRuns
                      sensors=sensors, min_field=c["min_field"])
 
 
-def run_figures(t, err_deg, m_norm, orbit_period: float, criteria: dict) -> dict:
+def run_figures(t, err_deg, m_norm, orbit_period: float, criteria: dict, saturated=None) -> dict:
     """Figures of merit of one run from its pointing error and |m| at every controller instant.
 
     The steady-state window is ``t >= max_settling_orbits * T`` (the instant by which the
@@ -333,12 +335,15 @@ def run_figures(t, err_deg, m_norm, orbit_period: float, criteria: dict) -> dict
         settling_time [s] (first instant after which the error stays below
         ``settle_threshold_deg``; nan: never), max and RMS pointing error in the steady-state
         window [deg] (nan if the run is shorter), final pointing error [deg], peak and RMS |m|
-        over the run [A m^2].
+        over the run [A m^2]; with ``saturated`` (bool per instant), steady_saturation_fraction:
+        the fraction of saturated instants in the steady-state window (nan if the run is shorter).
     """
     t, err, mn = np.asarray(t), np.asarray(err_deg), np.asarray(m_norm)
     ts_ = settling_time(t, err, criteria["settle_threshold_deg"])
     after = t >= criteria["max_settling_orbits"] * orbit_period
-    return dict(settling_time=ts_, max_pointing_deg=float(err[after].max()) if after.any() else math.nan,
+    steady = dict() if saturated is None else dict(
+        steady_saturation_fraction=float(np.mean(np.asarray(saturated)[after])) if after.any() else math.nan)
+    return dict(steady, settling_time=ts_, max_pointing_deg=float(err[after].max()) if after.any() else math.nan,
                 rms_pointing_deg=float(np.sqrt(np.mean(err[after] ** 2))) if after.any() else math.nan,
                 final_pointing_deg=float(err[-1]), peak_dipole=float(mn.max()),
                 rms_dipole=float(np.sqrt(np.mean(mn**2))))
@@ -354,7 +359,8 @@ def verdict(row: dict, criteria: dict, orbit_period: float) -> tuple[bool, str]:
     elif row["settling_time"] > criteria["max_settling_orbits"] * orbit_period:
         why.append(f"settling {row['settling_time']:.0f} s > {criteria['max_settling_orbits']:g} orbits")
     for key, lim in (("max_pointing_deg", "max_pointing_deg"), ("rms_pointing_deg", "max_rms_pointing_deg"),
-                     ("peak_dipole", "max_peak_dipole"), ("saturation_fraction", "max_saturation_fraction")):
+                     ("peak_dipole", "max_peak_dipole"), ("saturation_fraction", "max_saturation_fraction"),
+                     ("steady_saturation_fraction", "max_steady_saturation_fraction")):
         if criteria[lim] is not None and np.isfinite(row[key]) and row[key] > criteria[lim]:
             why.append(f"{key} {row[key]:.4g} > {criteria[lim]:g}")
     return not why, "; ".join(why)
@@ -380,7 +386,8 @@ def _simulate_rows(spec: CampaignSpec, jobs: list, steps: int, record_every: int
     rows = []
     for b, ((g, i), r) in enumerate(zip(jobs, draws)):
         row = dict(_param_columns(r), gains=spec.gains_files[g], gains_index=g, orbit_period=float(res.orbit_period[b]))
-        row.update(run_figures(t_all, res.pointing_deg[b], res.m_norm[b], res.orbit_period[b], spec.criteria))
+        row.update(run_figures(t_all, res.pointing_deg[b], res.m_norm[b], res.orbit_period[b], spec.criteria,
+                               res.saturated[b]))
         row.update(saturation_fraction=res.saturated_steps[b] / (steps + 1),
                    weak_field_fraction=res.weak_field_steps[b] / (steps + 1),
                    status="diverged" if res.diverged[b] else "ok", error="")

@@ -23,7 +23,7 @@ def test_a_gain_that_meets_the_requirements_passes(tmp_path, capsys):
     before = PASSING.read_bytes()
     assert cli_main(["verify", str(PASSING), "--out", str(tmp_path / "v"), *FAST]) == 0
     out = capsys.readouterr().out
-    assert "| 1 | settling time | 2 orbits |" in out and "| 20 | saturation fraction | 0.01 |" in out
+    assert "| 1 | settling time | 2 orbits |" in out and "| 20 | saturation fraction after settling | 0.01 |" in out
     assert "FAIL" not in out and "PASS" in out
     rec = json.loads((tmp_path / "v" / "verify.json").read_text())
     assert rec["passed"] and rec["periods"] == [1.0, 20.0] and rec["runs"] == 6
