@@ -16,14 +16,18 @@ from .common import (
     GAIN_MARGIN_HELP,
     START_SCALE_HELP,
     START_SCALES,
+    TUNER_SCHEDULER_HELP,
     add_force_argument,
+    add_scheduler_arguments,
     check_outputs,
+    cluster_executor,
     field_model_argument,
     hold_constraint,
     load_model,
     plain_summary,
     positive_floats,
     repo_path,
+    scheduler_options,
 )
 
 OUTPUTS = ("front.md", "front.png", "front.json")
@@ -48,6 +52,7 @@ def register(sub) -> None:
     p.add_argument("--out-dir", default=repo_path("docs"),
                    help="writes front.md/.png/.json here (default: docs/ of the repository; existing files are "
                         "kept unless --force)")
+    add_scheduler_arguments(p, TUNER_SCHEDULER_HELP)
     add_force_argument(p)
     field_model_argument(p)
     p.set_defaults(func=run)
@@ -58,6 +63,7 @@ def run(args) -> int:
         if getattr(args, name) < 1:
             raise ConfigError("--" + name.replace("_", "-"), None, f"must be a positive integer, got {getattr(args, name)}")
     hold = hold_constraint(args)
+    sched, tls = scheduler_options(args, "front")
     out = Path(args.out_dir)
     check_outputs(out, OUTPUTS, force=args.force, option="--out-dir")
     starts = [(f"{Path(f).name}", load_gains(f).K) for f in args.start]  # bad files: one line, exit 2, before any work
@@ -71,8 +77,9 @@ def run(args) -> int:
         print(f"magtune front: sigma={pt.sigma:g} ({i}/{n}) J={pt.J:.3f} c1={pt.c1:.2f} c2={pt.c2:.1f} "
               f"in {pt.evaluations} evaluations, {pt.seconds:.0f} s", file=sys.stderr, flush=True)
 
-    points = front.run_front(model, args.sigmas, settings, seed=args.seed, progress=progress, starts=starts,
-                             hold=hold)
+    with cluster_executor(sched, tls) as executor:
+        points = front.run_front(model, args.sigmas, settings, seed=args.seed, progress=progress, starts=starts,
+                                 hold=hold, executor=executor)
     wall = time.perf_counter() - t0
     out.mkdir(parents=True, exist_ok=True)
     table = front.front_table(points)
