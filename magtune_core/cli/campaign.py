@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..base.errors import ConfigError
 from ..studies import campaign, campaign_report, cluster
-from .common import CommandError, plain_summary
+from .common import CAMPAIGN_SCHEDULER_HELP, CommandError, add_scheduler_arguments, plain_summary, scheduler_options
 
 #: What ``--force`` removes from an existing output directory (our own outputs only).
 OUTPUTS = ("runs.parquet", "campaign.json", "spec.yaml", "summary.md", "envelopes.png", "histograms.png")
@@ -21,18 +21,11 @@ def register(sub) -> None:
     p.add_argument("--runs", type=int, required=True, help="number of dispersed runs (per gains file)")
     p.add_argument("--out", required=True, help="output directory (must be empty or new, unless --force)")
     p.add_argument("--force", action="store_true", help="write into a non-empty --out (replaces earlier campaign outputs)")
-    p.add_argument("--scheduler", default=None,
-                   help="tls://HOST:PORT (or tcp://, unauthenticated) of an existing Dask scheduler (default: a "
-                        "LocalCluster on this machine, TLS with a temporary certificate: no other client can connect); "
-                        "'synchronous' runs in this process without Dask")
     p.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: one per core)")
     p.add_argument("--dashboard", action="store_true",
                    help=f"serve the LocalCluster's Dask dashboard on {cluster.DASHBOARD_ADDRESS} (read-only, "
                         "unauthenticated; default: none)")
-    p.add_argument("--tls-ca-file", default=None, help="tls:// scheduler: CA certificate (PEM) the cluster's "
-                                                       "certificates are signed with")
-    p.add_argument("--tls-cert", default=None, help="tls:// scheduler: this client's certificate (PEM)")
-    p.add_argument("--tls-key", default=None, help="tls:// scheduler: this client's private key (PEM)")
+    add_scheduler_arguments(p, CAMPAIGN_SCHEDULER_HELP)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     r = sub.add_parser("campaign-report", help="report of a campaign directory: envelopes, histograms, summary.md",
@@ -55,20 +48,9 @@ def _check_out(out: Path, force: bool) -> None:
 
 def _cluster_options(args):
     """(scheduler, TlsFiles or None) of the command line, checked before anything starts."""
-    sched = args.scheduler
-    if sched is not None and sched != "synchronous" and not sched.startswith(("tls://", "tcp://")):
-        raise ConfigError("--scheduler", None, f"expected tls://HOST:PORT, tcp://HOST:PORT or synchronous, got {sched!r}")
-    tls = cluster.TlsFiles(args.tls_ca_file, args.tls_cert, args.tls_key)
-    if args.dashboard and sched is not None:
+    if args.dashboard and args.scheduler is not None:
         raise ConfigError("--dashboard", None, "only for the LocalCluster (an existing cluster serves its own)")
-    if tls.given() and (sched is None or sched == "synchronous"):
-        raise ConfigError("--tls-ca-file", None, "TLS files are for an existing cluster: add --scheduler tls://HOST:PORT")
-    if sched and sched != "synchronous":
-        cluster.scheduler_security(sched, tls)  # ConfigError for a missing file or an incomplete set
-        if sched.startswith("tcp://"):
-            print(f"campaign: warning: {sched} is unauthenticated; anyone who can reach it can run code on its "
-                  "workers (use tls://, docs/campaigns.md)", file=sys.stderr)
-    return sched, tls if tls.given() else None
+    return scheduler_options(args, "campaign", synchronous=True)
 
 
 def run(args) -> int:

@@ -7,6 +7,7 @@ import os
 import re
 import sys
 import tempfile
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ from ..base.errors import ConfigError, SilError
 from ..base.paramfile import check_path
 from ..design.field import FIELD_MODELS
 from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions
+from ..studies.cluster import TlsFiles
 
 
 def repo_path(relative: str) -> str:
@@ -287,3 +289,63 @@ def check_outputs(directory, names, *, force: bool = False, option: str = "--out
         raise ConfigError(d, None, f"already holds {', '.join(existing)}; pass --force to overwrite, "
                                    f"or {option} to write elsewhere")
     return [check_output(d / n, force=force, option=option) for n in names]
+
+
+#: ``--scheduler`` of the commands that run Monte Carlo campaigns (campaign, verify).
+CAMPAIGN_SCHEDULER_HELP = ("tls://HOST:PORT (or tcp://, unauthenticated) of an existing Dask scheduler (default: a "
+                           "LocalCluster on this machine, TLS with a temporary certificate: no other client can "
+                           "connect); 'synchronous' runs in this process without Dask")
+#: ``--scheduler`` of the tuners (tune, front).
+TUNER_SCHEDULER_HELP = ("tls://HOST:PORT (or tcp://, unauthenticated) of an existing Dask scheduler: each population's "
+                        "candidates are evaluated as tasks on its workers instead of --workers local processes, "
+                        "split in one part per worker thread (the same gain as a local run with --workers equal to "
+                        "the cluster's threads; docs/tuning.md)")
+
+
+def add_scheduler_arguments(p, scheduler_help: str) -> None:
+    """``--scheduler`` and the ``--tls-*`` files of an existing (secured) Dask cluster."""
+    p.add_argument("--scheduler", default=None, help=scheduler_help)
+    p.add_argument("--tls-ca-file", default=None, help="tls:// scheduler: CA certificate (PEM) the cluster's "
+                                                       "certificates are signed with")
+    p.add_argument("--tls-cert", default=None, help="tls:// scheduler: this client's certificate (PEM)")
+    p.add_argument("--tls-key", default=None, help="tls:// scheduler: this client's private key (PEM)")
+
+
+def scheduler_options(args, command: str, synchronous: bool = False):
+    """(scheduler, TlsFiles or None) of the command line, checked before anything starts: one line
+    naming the option and the fix, exit 2; a tcp:// scheduler is accepted with a warning (anyone who
+    reaches it can run code on its workers). ``synchronous``: the command also takes 'synchronous'."""
+    sched = args.scheduler
+    forms = "tls://HOST:PORT, tcp://HOST:PORT or synchronous" if synchronous else "tls://HOST:PORT or tcp://HOST:PORT"
+    if sched is not None and not (sched.startswith(("tls://", "tcp://")) or (synchronous and sched == "synchronous")):
+        raise ConfigError("--scheduler", None, f"expected {forms}, got {sched!r}")
+    tls = TlsFiles(args.tls_ca_file, args.tls_cert, args.tls_key)
+    if tls.given() and (sched is None or sched == "synchronous"):
+        raise ConfigError("--tls-ca-file", None, "TLS files are for an existing cluster: add --scheduler tls://HOST:PORT")
+    if sched and sched != "synchronous":
+        from ..studies.cluster import scheduler_security
+
+        scheduler_security(sched, tls)  # ConfigError for a missing file or an incomplete set
+        if sched.startswith("tcp://"):
+            print(f"{command}: warning: {sched} is unauthenticated; anyone who can reach it can run code on its "
+                  "workers (use tls://, docs/campaigns.md)", file=sys.stderr)
+    return sched, tls if tls.given() else None
+
+
+@contextmanager
+def cluster_executor(scheduler: str | None, tls=None):
+    """The tuner's executor on the cluster at ``scheduler`` (:func:`magtune_core.studies.cluster.executor`),
+    or None (the local pool) without one; an unreachable scheduler or unusable workers: one line, exit 1."""
+    if scheduler is None:
+        yield None
+        return
+    from ..studies import cluster
+
+    with ExitStack() as stack:
+        try:
+            ex = stack.enter_context(cluster.executor(scheduler, tls))
+        except OSError as exc:  # distributed raises OSError subclasses on connect timeouts
+            raise CommandError(f"cannot reach the Dask scheduler {scheduler}: {exc}") from None
+        except cluster.ClusterError as exc:
+            raise CommandError(str(exc)) from None
+        yield ex

@@ -19,9 +19,12 @@ from .common import (
     GAIN_MARGIN_HELP,
     START_SCALE_HELP,
     START_SCALES,
+    TUNER_SCHEDULER_HELP,
     add_force_argument,
+    add_scheduler_arguments,
     add_spec_argument,
     check_outputs,
+    cluster_executor,
     field_model_argument,
     hold_constraint,
     load_design_spec,
@@ -29,6 +32,7 @@ from .common import (
     plain_summary,
     positive_floats,
     repo_path,
+    scheduler_options,
 )
 
 OUTPUTS = ("front.md", "front.png", "front.json")
@@ -77,6 +81,7 @@ def register(sub) -> None:
     p.add_argument("--out-dir", default=repo_path("docs"),
                    help="writes front.md/.png/.json (front_<over>.* with --over a requirement) here (default: "
                         "docs/ of the repository; existing files are kept unless --force)")
+    add_scheduler_arguments(p, TUNER_SCHEDULER_HELP)
     add_force_argument(p)
     field_model_argument(p)
     p.set_defaults(func=run)
@@ -93,6 +98,7 @@ def run(args) -> int:
         raise ConfigError(opt, None, "applies to a requirement front only; add --over ts_max or --over dipole_limit")
     args.sigmas = args.sigmas or list(front.DEFAULT_SIGMAS)
     hold = hold_constraint(args)
+    sched, tls = scheduler_options(args, "front")
     out = Path(args.out_dir)
     check_outputs(out, OUTPUTS, force=args.force, option="--out-dir")
     starts = [(f"{Path(f).name}", load_gains(f).K) for f in args.start]  # bad files: one line, exit 2, before any work
@@ -106,8 +112,9 @@ def run(args) -> int:
         print(f"magtune front: sigma={pt.sigma:g} ({i}/{n}) J={pt.J:.3f} c1={pt.c1:.2f} c2={pt.c2:.1f} "
               f"in {pt.evaluations} evaluations, {pt.seconds:.0f} s", file=sys.stderr, flush=True)
 
-    points = front.run_front(model, args.sigmas, settings, seed=args.seed, progress=progress, starts=starts,
-                             hold=hold)
+    with cluster_executor(sched, tls) as executor:
+        points = front.run_front(model, args.sigmas, settings, seed=args.seed, progress=progress, starts=starts,
+                                 hold=hold, executor=executor)
     wall = time.perf_counter() - t0
     out.mkdir(parents=True, exist_ok=True)
     table = front.front_table(points)
@@ -144,6 +151,7 @@ def run_requirement_front(args) -> int:
         if getattr(args, name) < 1:
             raise ConfigError("--" + name.replace("_", "-"), None, f"must be a positive integer, got {getattr(args, name)}")
     axis = args.over
+    sched, tls = scheduler_options(args, "front")
     levels = args.levels or list(rfront.DEFAULT_LEVELS[axis])
     sigmas = args.sigmas or list(rfront.DEFAULT_SIGMAS)
     out = Path(args.out_dir)
@@ -173,8 +181,10 @@ def run_requirement_front(args) -> int:
         print(f"magtune front: sigma={pt.sigma:g} {axis}={pt.level:g} [{pt.label}] {what}{extra}",
               file=sys.stderr, flush=True)
 
-    points = rfront.run_level_front(model, req, axis, levels, sigmas, settings=settings, seed=args.seed,
-                                    workers=args.workers, starts=starts, references=references, progress=progress)
+    with cluster_executor(sched, tls) as executor:
+        points = rfront.run_level_front(model, req, axis, levels, sigmas, settings=settings, seed=args.seed,
+                                        workers=args.workers, starts=starts, references=references,
+                                        progress=progress, executor=executor)
     wall = time.perf_counter() - t0
     out.mkdir(parents=True, exist_ok=True)
     table = rfront.level_table(points, axis)

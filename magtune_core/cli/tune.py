@@ -15,15 +15,19 @@ from .common import (
     GAIN_MARGIN_HELP,
     START_SCALE_HELP,
     START_SCALES,
+    TUNER_SCHEDULER_HELP,
     CommandError,
     add_force_argument,
+    add_scheduler_arguments,
     add_spec_argument,
     check_output,
+    cluster_executor,
     field_model_argument,
     hold_constraint,
     load_design_spec,
     load_model,
     repo_path,
+    scheduler_options,
 )
 
 
@@ -46,6 +50,7 @@ def register(sub) -> None:
     add_spec_argument(c)
     c.add_argument("--gain-margin", type=float, default=None, help=GAIN_MARGIN_HELP)
     c.add_argument("--start-scale", choices=START_SCALES, default="feasible", help=START_SCALE_HELP)
+    add_scheduler_arguments(c, TUNER_SCHEDULER_HELP)
     p = t.add_argument_group("paper method")
     p.add_argument("--samples", type=int, default=540, help="candidates per iteration N (paper: 540)")
     p.add_argument("--r-max", type=float, default=0.995, help="stop when the rejection ratio reaches this")
@@ -73,11 +78,13 @@ def register(sub) -> None:
 #: Options that only one method reads, with their defaults: given to the other method they would be
 #: silently ignored (a paper-style ``--samples 200 --max-iter 6`` does not shorten a CMA-ES run).
 METHOD_ONLY = {"cma": {"popsize": 8, "max_evals": 30000, "restarts": 2, "gain_margin": None, "start_scale": "feasible",
-                       "spec": None},
+                       "spec": None, "scheduler": None, "tls_ca_file": None, "tls_cert": None, "tls_key": None},
                "paper": {"samples": 540, "r_max": 0.995, "mu": 1e-3, "max_iter": 300, "patience": 1}}
 
 
-def _check_args(args) -> None:
+def _check_args(args):
+    """Every option checked before any work (one line naming it, exit 2); returns the cluster's
+    (scheduler, TlsFiles or None) of ``--scheduler``."""
     for method, options in METHOD_ONLY.items():
         if args.method != method:
             for name, default in options.items():
@@ -92,6 +99,7 @@ def _check_args(args) -> None:
     if not args.sigma > 0:
         raise ConfigError("--sigma", None, f"must be positive, got {args.sigma:g}")
     hold_constraint(args)
+    return scheduler_options(args, "tune")
 
 
 def requirements_of(args):
@@ -105,15 +113,21 @@ def requirements_of(args):
 
 
 def run(args) -> int:
-    from tqdm import tqdm
-
-    _check_args(args)
+    sched, tls = _check_args(args)
     out = check_output(args.out or repo_path(f"config/gains/sigma_{args.sigma:g}.yaml"), force=args.force)
     model = load_model(args)
     req = requirements_of(args)
-    if args.robust:
-        return _run_robust(args, model, out)
-    start_K = load_gains(args.start).K if args.start else None
+    start_K = load_gains(args.start).K if args.start else None  # a bad file: one line, exit 2, before any work
+    with cluster_executor(sched, tls) as executor:  # on --scheduler: connected, workers checked
+        if args.robust:
+            return _run_robust(args, model, out, start_K, executor)
+        return _tune(args, model, out, req, start_K, executor)
+
+
+def _tune(args, model, out, req, start_K, executor) -> int:
+    """``tune`` without --robust: the search, its closing verification, the file, the summary lines."""
+    from tqdm import tqdm
+
     bar = tqdm(desc=f"tune sigma={args.sigma:g} ({args.method})", unit="gen" if args.method == "cma" else "it",
                disable=args.quiet, file=sys.stderr)
     stop = _StopRequest()
@@ -134,7 +148,7 @@ def run(args) -> int:
             res = tune_gains(model, args.sigma, method=args.method, seed=args.seed, start_K=start_K,
                              start_name=args.start, workers=args.workers, ts=1.0 if args.ts is None else args.ts,
                              gain_margin=2.0 if args.gain_margin is None else args.gain_margin,
-                             cma=_cma_settings(args), requirements=req,
+                             cma=_cma_settings(args), requirements=req, executor=executor,
                              paper=TunerSettings(samples=args.samples, r_max=args.r_max, mu=args.mu,
                                                  max_iter=args.max_iter, patience=args.patience),
                              progress=progress)
@@ -236,7 +250,7 @@ class _StopRequest:
             signal.signal(sig, h)
 
 
-def _run_robust(args, model, out) -> int:
+def _run_robust(args, model, out, start_K=None, executor=None) -> int:
     """``tune --robust SPEC``: worst-case J over the spec's model set (design.pipeline.tune_robust_gains)."""
     from ..design.robust import load_robust_spec, model_set
 
@@ -245,10 +259,11 @@ def _run_robust(args, model, out) -> int:
     hold_constraint(args)
     try:
         res = tune_robust_gains(model, models, args.sigma, seed=args.seed,
-                                start_K=load_gains(args.start).K if args.start else None, start_name=args.start,
+                                start_K=start_K, start_name=args.start,
                                 workers=args.workers, ts=1.0 if args.ts is None else args.ts,
                                 gain_margin=2.0 if args.gain_margin is None else args.gain_margin,
-                                cma=_cma_settings(args), spec_name=args.robust, requirements=requirements_of(args))
+                                cma=_cma_settings(args), spec_name=args.robust, requirements=requirements_of(args),
+                                executor=executor)
     except ImportError:
         raise CommandError("--robust needs the CMA-ES tuner (magtune_core.design.cmaes), not installed here") from None
     except ValueError as exc:

@@ -9,7 +9,17 @@ from pathlib import Path
 from ..base.atomic import atomic_write
 from ..base.errors import ConfigError
 from ..studies import verify
-from .common import CommandError, add_spec_argument, load_design_spec, load_model, plain_summary, repo_path
+from .common import (
+    CAMPAIGN_SCHEDULER_HELP,
+    CommandError,
+    add_scheduler_arguments,
+    add_spec_argument,
+    load_design_spec,
+    load_model,
+    plain_summary,
+    repo_path,
+    scheduler_options,
+)
 
 OUTPUTS = ("verify.md", "verify.json")
 
@@ -27,13 +37,14 @@ def register(sub) -> None:
     p.add_argument("--force", action="store_true", help="write into a non-empty --out")
     p.add_argument("--record", action="store_true",
                    help="also write the verdict into GAINS' provenance (key 'verification'; atomic)")
-    p.add_argument("--scheduler", default=None, help="tcp://HOST:PORT of an existing Dask scheduler (as campaign)")
     p.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: one per core)")
+    add_scheduler_arguments(p, CAMPAIGN_SCHEDULER_HELP)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
-def _check(args) -> None:
+def _check(args):
+    """Every option checked before any run (one line naming it, exit 2); returns (scheduler, TlsFiles or None)."""
     if args.runs < 1:
         raise ConfigError("--runs", None, f"expected a positive number of runs, got {args.runs}")
     if args.workers is not None and args.workers < 1:
@@ -41,13 +52,14 @@ def _check(args) -> None:
     out = Path(args.out)
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not args.force)):
         raise ConfigError(out, None, "--out exists and is not an empty directory; choose a new one or add --force")
+    return scheduler_options(args, "verify", synchronous=True)
 
 
 def run(args) -> int:
     from ..design.gains import load_gains
     from ..design.params import load_spacecraft
 
-    _check(args)
+    sched, tls = _check(args)
     gains = load_gains(args.gains)  # ConfigError -> one line, exit 2, before any run
     req = load_design_spec(args)
     p = load_spacecraft(args.config)
@@ -65,7 +77,7 @@ def run(args) -> int:
           f"({req.dipole_budget or req.dipole_limit:g}-{req.dipole_limit:g} A m^2)", flush=True)
     try:
         res = verify.run_verify(args.gains, req, campaign, args.runs, args.out, tightest=tightest, p=p,
-                                scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress)
+                                scheduler=sched, workers=args.workers, progress=not args.no_progress, tls=tls)
     except OSError as exc:
         raise CommandError(f"cannot reach the Dask scheduler {args.scheduler}: {exc}") from None
     md = verify.table(res)

@@ -17,6 +17,11 @@ Conventions (docs/numerics.md, tested in tests/design/test_objective.py):
 * J is computed to relative accuracy ``rtol`` (bracket of the bisection) with ``steps`` Magnus
   intervals per period; ``evaluations`` counts gains evaluated (one gain against every model
   counts once), the unit of the benchmarks.
+
+The parts of a population go to the local worker pool or, given an ``executor`` (e.g. a Dask
+cluster's, built by ``studies.cluster``), to it; the split is the same for the same number of
+parts, and each gain's J does not depend on where it is computed, so a tune on a cluster of N
+workers gives the gain of a local ``workers=N`` tune with the same seed.
 """
 from __future__ import annotations
 
@@ -96,17 +101,20 @@ def model_norms(model: AttitudeLTP, sigma: float, Ks: np.ndarray, steps: int, rt
     return out
 
 
-def _norms_job(models, sigma, Ks, steps, rtol, guess, spread, holds=None):
-    """Worker body: the (n, n_models) matrix of norms of one slice of the population."""
+def _norms_job(shared, sigma, Ks, steps, rtol, guess, spread):
+    """Worker body: the (n, n_models) matrix of norms of one slice of the population; ``shared`` =
+    (models, their screens or None), the objective's constants."""
+    models, holds = shared
     cols = [model_norms(m, sigma, Ks, steps, rtol, None if guess is None else guess[:, i], spread,
                         None if holds is None else holds[i])
             for i, m in enumerate(models)]
     return np.stack(cols, axis=-1)
 
 
-def _feasible_job(models, Ks, steps, holds=None):
+def _feasible_job(shared, Ks, steps):
     """Worker body of :meth:`HinfObjective.feasible`: every model's screen, in turn, on the gains
     still feasible (n,)."""
+    models, holds = shared
     ok = np.ones(len(Ks), dtype=bool)
     for i, m in enumerate(models):
         if ok.any():
@@ -135,22 +143,31 @@ class HinfObjective:
         loop fails the gain margin (at ``hold.ts``, or at every checked period of a Requirements)
         or, for Requirements, exceeds the dipole budget on any model is infeasible (J = inf), like
         a continuous-time unstable one. None: the paper's problem.
+    executor : object, optional
+        Where the parts of a population run instead of the local pool: anything with
+        ``submit(fn, *args)`` returning a future with ``.result()``, an int ``workers`` (the number
+        of parts, replacing ``workers``) and optionally ``share(obj)``, a handle to ``obj`` sent
+        once and passed in its place (the models and screens; ``studies.cluster.ClusterExecutor``
+        for a Dask cluster). The caller owns it; :meth:`close` leaves it open.
 
     Calling the objective with ``Ks`` (n, 3, 6) returns J (n,); :meth:`per_model` returns the
     (n, n_models) matrix and :meth:`worst` the index of the model attaining the max.
     """
 
     def __init__(self, models: AttitudeLTP | Sequence[AttitudeLTP], sigma: float, steps: int = DEFAULT_STEPS,
-                 rtol: float = 1e-4, workers: int = 1, hold=None):
+                 rtol: float = 1e-4, workers: int = 1, hold=None, executor=None):
         self.models = (models,) if isinstance(models, AttitudeLTP) else tuple(models)
         if not self.models:
             raise ValueError("HinfObjective: at least one model is needed")
         self.sigma, self.steps, self.rtol = float(sigma), int(steps), float(rtol)
-        self.workers = max(1, int(workers))
+        self.executor = executor
+        self.workers = max(1, int(executor.workers if executor is not None else workers))
         self.evaluations = 0
         self._pool = None
         self.hold = hold
         self._holds = None if hold is None else [hold.screen(m) for m in self.models]
+        self._shared = (self.models, self._holds)
+        self._remote = None  # the executor's handle of _shared, made on first use
 
     def __enter__(self):
         return self
@@ -163,11 +180,25 @@ class HinfObjective:
         if self._pool is not None:
             self._pool.shutdown(cancel_futures=True)
             self._pool = None
+        self._remote = None
 
     def _get_pool(self):
+        """The executor given, else the local pool of ``workers`` processes (started on first use)."""
+        if self.executor is not None:
+            return self.executor
         if self._pool is None:
             self._pool = worker_pool(self.workers, initializer=one_thread_per_worker)
         return self._pool
+
+    def _shared_handle(self):
+        """(models, screens) as the pool's jobs take them: as is for the local pool, the executor's
+        handle (sent once) when it shares."""
+        share = getattr(self.executor, "share", None)
+        if share is None:
+            return self._shared
+        if self._remote is None:
+            self._remote = share(self._shared)
+        return self._remote
 
     def per_model(self, Ks, guess=None, spread: float | None = None, rtol: float | None = None) -> np.ndarray:
         """||G_zTd||_inf of each gain on each model.
@@ -189,8 +220,8 @@ class HinfObjective:
             guess = np.broadcast_to(np.asarray(guess, dtype=float).reshape((-1, nm) if np.ndim(guess) == 2 else (-1, 1)),
                                     (n, nm))
         rtol = self.rtol if rtol is None else float(rtol)
-        return self._split(n, lambda p: (_norms_job, self.models, self.sigma, Ks[p], self.steps, rtol,
-                                         None if guess is None else np.ascontiguousarray(guess[p]), spread, self._holds))
+        return self._split(n, lambda p, shared: (_norms_job, shared, self.sigma, Ks[p], self.steps, rtol,
+                                                 None if guess is None else np.ascontiguousarray(guess[p]), spread))
 
     def __call__(self, Ks, guess=None, spread: float | None = None, rtol: float | None = None) -> np.ndarray:
         """J per gain: the max over models of the norm (n,); inf where any closed loop is unstable.
@@ -213,16 +244,17 @@ class HinfObjective:
             True where every model's loop is stable and meets the hold constraint.
         """
         Ks = np.asarray(Ks, dtype=float).reshape(-1, 3, 6)
-        return self._split(len(Ks), lambda p: (_feasible_job, self.models, Ks[p], self.steps, self._holds))
+        return self._split(len(Ks), lambda p, shared: (_feasible_job, shared, Ks[p], self.steps))
 
     def _split(self, n: int, call) -> np.ndarray:
-        """``call(p)`` = (job, *args) for the gains at indices p: run in this process for one worker or
-        a small batch, else one part per worker in the pool; the parts' results concatenated (n, ...)."""
+        """``call(p, shared)`` = (job, *args) for the gains at indices p: run in this process for one
+        worker or a small batch, else one part per worker of the pool (or executor); the parts'
+        results concatenated (n, ...)."""
         if self.workers == 1 or n < 2 * self.workers:
-            job, *args = call(np.arange(n))
+            job, *args = call(np.arange(n), self._shared)
             return job(*args)
-        pool = self._get_pool()
-        futs = [pool.submit(*call(p)) for p in np.array_split(np.arange(n), self.workers)]
+        pool, shared = self._get_pool(), self._shared_handle()
+        futs = [pool.submit(*call(p, shared)) for p in np.array_split(np.arange(n), self.workers)]
         return np.concatenate([f.result() for f in futs], axis=0)
 
     def worst(self, Ks) -> np.ndarray:

@@ -93,12 +93,13 @@ def _run_paper(model, sigma, K0, steps, *, seed, workers, paper: TunerSettings, 
     return tune(model, sigma, seed=seed, settings=settings, K0=K0, progress=progress)
 
 
-def _run_cma(model, sigma, K0, steps, *, seed, workers, cma: CmaSettings, hold, progress, notes):
+def _run_cma(model, sigma, K0, steps, *, seed, workers, cma: CmaSettings, hold, progress, notes, executor=None):
     from .cmaes import tune_cma
     from .objective import HinfObjective
 
     settings = replace(cma or CmaSettings(), workers=workers, steps=steps)
-    with HinfObjective(model, sigma, steps=settings.steps, rtol=settings.rtol, workers=workers, hold=hold) as obj:
+    with HinfObjective(model, sigma, steps=settings.steps, rtol=settings.rtol, workers=workers, hold=hold,
+                       executor=executor) as obj:
         res = tune_cma(obj, K0, sigma, seed=seed, settings=settings, progress=progress)
     if obj.steps != steps:
         notes.append(f"the gains stiffened beyond {steps} Magnus steps; tuned on {obj.steps} (resolution watch)")
@@ -107,7 +108,8 @@ def _run_cma(model, sigma, K0, steps, *, seed, workers, cma: CmaSettings, hold, 
 
 def tune_gains(model, sigma: float, *, method: str = "cma", seed: int = 0, start_K=None, start_name: str | None = None,
                workers: int = 1, ts: float = 1.0, gain_margin: float = 2.0, cma: CmaSettings | None = None,
-               paper: TunerSettings | None = None, progress=None, requirements: Requirements | None = None) -> TuneOutcome:
+               paper: TunerSettings | None = None, progress=None, requirements: Requirements | None = None,
+               executor=None) -> TuneOutcome:
     """H-infinity tuning of K for one sigma on ``model`` (an ``AttitudeLTP``).
 
     ``method`` "cma" (CMA-ES to a certified optimum under hard requirements) or "paper" (the
@@ -116,7 +118,9 @@ def tune_gains(model, sigma: float, *, method: str = "cma", seed: int = 0, start
     the gains' Ts is its ts_min) or, without one, the hold constraint of ``ts`` / ``gain_margin``
     (``gain_margin`` 0: none, the paper's unconstrained problem). ``start_K``: start from this
     gain instead of the LQ gain of the averaged model; ``progress``: the optimizer's callback
-    (raise KeyboardInterrupt in it to stop with the best gain so far).
+    (raise KeyboardInterrupt in it to stop with the best gain so far). ``executor``: where the
+    CMA-ES candidates are evaluated instead of ``workers`` local processes (e.g. a Dask cluster's,
+    :class:`.objective.HinfObjective`); the same gain as ``workers`` = its number of parts.
 
     Returns
     -------
@@ -128,6 +132,8 @@ def tune_gains(model, sigma: float, *, method: str = "cma", seed: int = 0, start
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if executor is not None and method != "cma":
+        raise ValueError("an executor evaluates CMA-ES candidates only (method 'cma')")
     if requirements is not None:
         ts, gain_margin = requirements.ts, requirements.gain_margin
     K0, label, steps = _start(model, sigma, start_K, start_name)
@@ -138,7 +144,7 @@ def tune_gains(model, sigma: float, *, method: str = "cma", seed: int = 0, start
         hold = requirements if requirements is not None and requirements.constrained else (
             HoldConstraint(ts, gain_margin) if gain_margin and requirements is None else None)
         res, steps = _constrained_search(model, sigma, K0, label, steps, hold, seed=seed, workers=workers, cma=cma,
-                                         progress=progress, notes=notes)
+                                         progress=progress, notes=notes, executor=executor)
         label = notes.pop(0)
     analysis_steps, _ = resolved_steps(model, res.K, sigma, ANALYSIS_STEPS)
     fig = figures(model, res.K, sigma, steps=analysis_steps)
@@ -151,7 +157,7 @@ def tune_gains(model, sigma: float, *, method: str = "cma", seed: int = 0, start
     return TuneOutcome(Gains(res.K, sigma, ts, prov), res, label, steps, analysis_steps, notes)
 
 
-def _constrained_search(model, sigma, K0, label, steps, hold, *, seed, workers, cma, progress, notes):
+def _constrained_search(model, sigma, K0, label, steps, hold, *, seed, workers, cma, progress, notes, executor=None):
     """CMA-ES under ``hold``; with a design spec, the final gain's dense sample-period scan adds
     any failing period to the checked set and resumes from the gain (at most SCAN_ROUNDS times).
     The start's label goes first in ``notes``."""
@@ -168,7 +174,7 @@ def _constrained_search(model, sigma, K0, label, steps, hold, *, seed, workers, 
                 notes.append(f"start gain {note} to meet " + (hold.describe() if hasattr(hold, "describe") else
                              f"--gain-margin {hold.gain_margin:g} at --ts {hold.ts:g}"))
         res = _run_cma(model, sigma, K0, steps, seed=seed + round_, workers=workers, cma=cma, hold=hold,
-                       progress=progress, notes=notes)
+                       progress=progress, notes=notes, executor=executor)
         seconds, evaluations = seconds + res.seconds, evaluations + res.evaluations
         J0 = res.J0 if J0 is None else J0
         if not isinstance(hold, Requirements) or not hold.gain_margin or res.stop == "interrupted":
@@ -240,9 +246,10 @@ def requirement_provenance(model, K, req: Requirements) -> dict:
 
 def tune_robust_gains(model, models, sigma: float, *, seed: int = 0, start_K=None, start_name: str | None = None,
                       workers: int = 1, ts: float = 1.0, gain_margin: float = 2.0, cma: CmaSettings | None = None,
-                      spec_name: str = "", requirements: Requirements | None = None) -> TuneOutcome:
+                      spec_name: str = "", requirements: Requirements | None = None, executor=None) -> TuneOutcome:
     """Robust tuning: minimize the worst J over ``models`` (``design.robust.model_set`` of a
-    robust spec; ``model``: the nominal one) with the CMA-ES tuner (:func:`magtune_core.design.robust.tune_robust`).
+    robust spec; ``model``: the nominal one) with the CMA-ES tuner (:func:`magtune_core.design.robust.tune_robust`);
+    ``executor`` as in :func:`tune_gains`.
 
     Returns
     -------
@@ -258,7 +265,7 @@ def tune_robust_gains(model, models, sigma: float, *, seed: int = 0, start_K=Non
     if requirements is not None:  # every model of the set meets the spec's checked periods and budget
         ts, gain_margin = requirements.ts, requirements.gain_margin
         hold = requirements if requirements.constrained else None
-    res, sigma0, steps = tune_robust(models, sigma, seed=seed, settings=settings, K0=K0, hold=hold)
+    res, sigma0, steps = tune_robust(models, sigma, seed=seed, settings=settings, K0=K0, hold=hold, executor=executor)
     analysis_steps, _ = resolved_steps([m.model for m in models], res.K, sigma, ANALYSIS_STEPS)
     rf = robust_figures(models, res.K, sigma, steps=analysis_steps)
     nom, worst = rf.nominal(), rf.worst()

@@ -216,14 +216,15 @@ def robust_figures(models, K, sigma: float, steps: int = DEFAULT_STEPS) -> Robus
     return RobustFigures([m.name for m in models], [figures(m.model, K, sigma, steps=steps) for m in models])
 
 
-def tune_robust(models, sigma: float, seed: int = 0, settings=None, progress=None, K0=None, hold=None):
+def tune_robust(models, sigma: float, seed: int = 0, settings=None, progress=None, K0=None, hold=None, executor=None):
     """Minimize the worst J over ``models`` (a model set of :func:`model_set`) with the CMA-ES tuner.
 
     The objective is :class:`magtune_core.design.objective.HinfObjective` over every model of the set
     (batched over candidates and models), the optimizer :func:`magtune_core.design.cmaes.tune_cma`;
     the start gain (``K0``, default :func:`magtune_core.design.resolution.start_gain`) and the
     Magnus steps are resolved on the whole set. ``hold`` (design.sampled.HoldConstraint) makes
-    the sample-and-hold gain margin a constraint on every model of the set.
+    the sample-and-hold gain margin a constraint on every model of the set. ``executor``: where the
+    candidates are evaluated instead of ``settings.workers`` local processes (:class:`~.objective.HinfObjective`).
 
     Returns
     -------
@@ -249,6 +250,6 @@ def tune_robust(models, sigma: float, seed: int = 0, settings=None, progress=Non
 
         K0, _ = feasible_start(lt, K0, hold)  # scaled down until every model's held loop meets the margin
     s = replace(settings or CmaSettings(), steps=steps)
-    with HinfObjective(lt, sigma, steps=steps, rtol=s.rtol, workers=s.workers, hold=hold) as objective:
+    with HinfObjective(lt, sigma, steps=steps, rtol=s.rtol, workers=s.workers, hold=hold, executor=executor) as objective:
         res = tune_cma(objective, K0, sigma, seed=seed, settings=s, progress=progress)
     return res, sigma0, steps

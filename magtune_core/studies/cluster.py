@@ -16,7 +16,10 @@ may connect is who may run code as the campaign's user. Hence:
   ``DASK_CONFIG``); ``tcp://`` is accepted for a cluster the user secured otherwise (a private
   network), with a warning.
 
-Used by :mod:`.campaign` (the only Dask user of the project).
+Used by :mod:`.campaign` and :mod:`.verify` (Monte Carlo runs as tasks) and, through
+:func:`executor` / :class:`ClusterExecutor`, by ``magtune tune`` and ``magtune front
+--scheduler`` (the tuner's candidate evaluations as tasks on an existing cluster). The project's
+only Dask users are here and in :mod:`.campaign`.
 """
 from __future__ import annotations
 
@@ -127,3 +130,60 @@ def connect(scheduler: str | None, workers: int, *, dashboard: bool = False, tls
                                dashboard=cluster.dashboard_link if dashboard else None)
         finally:
             client.close()
+
+
+def _one_thread(fn, *args):
+    """Task body of :class:`ClusterExecutor`: ``fn(*args)`` with BLAS/OpenMP and numba on one thread
+    (the cluster's worker threads are the parallelism, as in the tuner's local pool:
+    ``design.objective.one_thread_per_worker``; numba's setting is per thread, BLAS's per process)."""
+    import numba
+    from threadpoolctl import threadpool_limits
+
+    numba.set_num_threads(1)
+    with threadpool_limits(limits=1):
+        return fn(*args)
+
+
+class ClusterExecutor:
+    """The tuner's executor on a Dask cluster (``design.objective.HinfObjective(executor=...)``):
+    ``submit`` runs a population's part as a task (``pure=False``: every call is computed),
+    ``share`` sends the objective's models once to every worker (``Client.scatter(broadcast=True)``),
+    ``workers`` is the number of parts: the cluster's worker threads when it was connected (fixed,
+    so a run's split, hence its result, does not depend on workers joining or leaving later)."""
+
+    def __init__(self, client):
+        self.client = client
+        info = client.scheduler_info(n_workers=-1)["workers"]
+        self.workers = max(1, sum(int(w.get("nthreads", 1)) for w in info.values()))
+
+    def submit(self, fn, *args):
+        """A future of ``fn(*args)`` computed on the cluster (one thread, :func:`_one_thread`)."""
+        return self.client.submit(_one_thread, fn, *args, pure=False)
+
+    def share(self, obj):
+        """A future holding ``obj`` on every worker, passed to :meth:`submit` in its place."""
+        return self.client.scatter([obj], broadcast=True, hash=False)[0]
+
+
+class ClusterError(RuntimeError):
+    """The cluster cannot run the tuner's tasks (no worker, or workers without magtune_core)."""
+
+
+@contextmanager
+def executor(scheduler: str, tls: TlsFiles | None = None, wait: float = 30.0):
+    """A :class:`ClusterExecutor` on the existing cluster at ``scheduler`` (tcp:// or tls://, with
+    ``tls`` as in :func:`connect`), once at least one worker is there (``wait`` s) and every worker
+    imports magtune_core (the tasks are its functions); the client is closed on exit.
+
+    Raises OSError when the scheduler cannot be reached, :class:`ClusterError` as above."""
+    with connect(scheduler, 0, tls=tls) as (client, _):
+        try:
+            client.wait_for_workers(1, timeout=wait)
+        except TimeoutError:
+            raise ClusterError(f"{scheduler} has no worker after {wait:g} s; start `dask worker {scheduler}`") from None
+        try:
+            client.run(exec, "import magtune_core")
+        except ImportError as exc:
+            raise ClusterError(f"the workers of {scheduler} cannot import magtune_core ({exc}); install the project "
+                               "there or put it on their PYTHONPATH") from None
+        yield ClusterExecutor(client)

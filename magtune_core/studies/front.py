@@ -58,7 +58,7 @@ class FrontPoint:
 
 
 def run_front(model: AttitudeLTP, sigmas, settings: CmaSettings, seed: int = 0, analysis_steps: int = 128,
-              progress=None, starts=(), hold: HoldConstraint | None = None) -> list[FrontPoint]:
+              progress=None, starts=(), hold: HoldConstraint | None = None, executor=None) -> list[FrontPoint]:
     """Tune each sigma (increasing, warm-started) and compute its figures of merit.
 
     ``starts`` is a sequence of (label, K) candidate start gains tried at every sigma besides the
@@ -66,6 +66,8 @@ def run_front(model: AttitudeLTP, sigmas, settings: CmaSettings, seed: int = 0, 
     until resolved (:func:`~magtune_core.design.resolution.resolved_steps`).
     ``progress(i, n, point)`` is called after each sigma. ``hold``: the digital-implementation
     constraint of every tuning (design/sampled.py); candidate starts that fail it are scaled down.
+    ``executor``: where each population is evaluated instead of ``settings.workers`` local
+    processes (e.g. :class:`.cluster.ClusterExecutor`; :class:`~magtune_core.design.objective.HinfObjective`).
 
     Returns
     -------
@@ -85,7 +87,8 @@ def run_front(model: AttitudeLTP, sigmas, settings: CmaSettings, seed: int = 0, 
         Js = [resolved_steps(model, K, sigma, settings.steps) for _, K in cands]
         best = int(np.argmin([J for _, J in Js]))
         (start, K0), steps = cands[best], max(Js[best][0], settings.steps)
-        with HinfObjective(model, sigma, steps=steps, rtol=settings.rtol, workers=settings.workers, hold=hold) as obj:
+        with HinfObjective(model, sigma, steps=steps, rtol=settings.rtol, workers=settings.workers, hold=hold,
+                           executor=executor) as obj:
             res = tune_cma(obj, K0, sigma, seed=seed, settings=settings)
         f = figures(model, res.K, sigma, steps=resolved_steps(model, res.K, sigma, analysis_steps)[0])
         pt = FrontPoint(sigma, res.K, f.J, f.c1, f.c2, f.rho, res.evaluations, time.perf_counter() - t0,

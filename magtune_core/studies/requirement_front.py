@@ -121,12 +121,13 @@ def best_start(model, sigma: float, req: Requirements, candidates) -> tuple:
 
 def run_level_front(model, req: Requirements, axis: str, levels, sigmas=DEFAULT_SIGMAS, *,
                     settings: CmaSettings = CmaSettings(), seed: int = 0, workers: int = 1, starts=None,
-                    references=None, progress=None) -> list[LevelPoint]:
+                    references=None, progress=None, executor=None) -> list[LevelPoint]:
     """Tune every (sigma, level) under ``req`` moved along ``axis`` (module docstring).
 
     ``starts``: {sigma: K} first start of each sigma (e.g. the shipped gains; else the LQ gain);
     ``references``: {sigma: (label, K)} gains evaluated at every level (the paper-method gains);
-    ``progress(point)`` after each point.
+    ``progress(point)`` after each point; ``executor``: the tuner's evaluations on a cluster
+    (:class:`magtune_core.design.objective.HinfObjective`), None for local ``workers``.
 
     Returns
     -------
@@ -146,7 +147,7 @@ def run_level_front(model, req: Requirements, axis: str, levels, sigmas=DEFAULT_
             name, K0 = best_start(model, sigma, r, cands)
             try:
                 res = tune_gains(model, sigma, seed=seed, start_K=K0, start_name=name, workers=workers, cma=settings,
-                                 requirements=r)
+                                 requirements=r, executor=executor)
             except InfeasibleStart as exc:
                 pt = LevelPoint(sigma, level, "tuned", None, seconds=time.perf_counter() - t0, note=str(exc))
             else:

@@ -117,9 +117,12 @@ def _rows(ts: float, cols: dict, req: Requirements, period: np.ndarray) -> list:
 
 
 def run_verify(gains_path, req: Requirements, campaign_path, runs: int, out, *, tightest: float | None = None,
-               p=None, scheduler: str | None = None, workers: int | None = None, progress: bool = False) -> dict:
+               p=None, scheduler: str | None = None, workers: int | None = None, progress: bool = False,
+               tls=None) -> dict:
     """Fly ``gains_path`` on spacecraft ``p`` (:func:`campaign_for`) at :func:`verify_periods` on
     ``runs`` dispersed runs each; write each period's campaign under ``out/ts_<Ts>/``.
+    ``scheduler``, ``workers`` and ``tls`` (a :class:`.cluster.TlsFiles` of a tls:// scheduler)
+    are :func:`.campaign.run_campaign`'s.
 
     Returns
     -------
@@ -137,7 +140,7 @@ def run_verify(gains_path, req: Requirements, campaign_path, runs: int, out, *, 
     for ts in verify_periods(req, tightest):
         spec = campaign_for(base, gains_path, ts, req, p)
         d = out / f"ts_{ts:g}"
-        run_campaign(spec, runs, d, scheduler=scheduler, workers=workers, progress=progress)
+        run_campaign(spec, runs, d, scheduler=scheduler, workers=workers, progress=progress, tls=tls)
         cols = read_runs(d)
         failed += int(np.sum(cols["status"] == "failed"))
         rows += _rows(ts, cols, req, np.asarray(cols["orbit_period"], dtype=float))

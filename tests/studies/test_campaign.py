@@ -3,8 +3,6 @@ spec validation, seeded draws, results independent of the executor (in-process, 
 a real ``dask scheduler`` + two ``dask worker`` processes), failed and diverged runs kept."""
 from __future__ import annotations
 
-import contextlib
-import os
 import signal
 import socket
 import subprocess
@@ -16,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from dask_cluster import dask_cluster, tls_files  # tests/support
 
 from magtune_core.base.errors import ConfigError
 from magtune_core.cli import main
@@ -107,81 +106,9 @@ def test_local_cluster_equals_in_process(reference, tmp_path):
     assert meta["workers"] == 2 and meta["scheduler"] == "LocalCluster" and meta["batches"] == 4
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _tls_files(tmp_path) -> dict:
-    """A CA/certificate/key triple in PEM files (Dask's temporary self-signed certificate, which is
-    its own CA): the credentials of an existing secured cluster and of its clients."""
-    from distributed.security import Security
-
-    sec = Security.temporary()
-    files = dict(ca=tmp_path / "ca.pem", cert=tmp_path / "cert.pem", key=tmp_path / "key.pem")
-    files["ca"].write_text(sec.tls_ca_file)
-    files["cert"].write_text(sec.tls_scheduler_cert)
-    files["key"].write_text(sec.tls_scheduler_key)
-    return files
-
-
-@contextlib.contextmanager
-def _dask_cluster(tmp_path, tls: dict | None = None, nanny: bool = True):
-    """A real `dask scheduler` and two `dask worker` processes (w1, w2) on localhost, TLS when
-    ``tls`` files are given; yields (address, {name: worker Popen}, client security). Every process
-    dies with pytest and is stopped in the finally."""
-    from distributed import Client
-    from distributed.security import Security
-
-    dask_cli = str(Path(sys.executable).parent / "dask")
-    port = _free_port()
-    proto = "tls" if tls else "tcp"
-    addr = f"{proto}://127.0.0.1:{port}"
-    opts = ["--tls-ca-file", str(tls["ca"]), "--tls-cert", str(tls["cert"]), "--tls-key", str(tls["key"])] if tls else []
-    sec = Security(tls_ca_file=str(tls["ca"]), tls_client_cert=str(tls["cert"]), tls_client_key=str(tls["key"]),
-                   require_encryption=True) if tls else None
-    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    logs = [open(tmp_path / f"{n}.log", "w") for n in ("scheduler", "worker1", "worker2")]
-    procs, workers = [], {}
-    try:
-        procs.append(subprocess.Popen([dask_cli, "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                                       "--protocol", proto, "--no-dashboard", *opts], stdout=logs[0],
-                                      stderr=subprocess.STDOUT, env=env, cwd=tmp_path, preexec_fn=die_with_parent()))
-        for i in (1, 2):
-            workers[f"w{i}"] = subprocess.Popen(
-                [dask_cli, "worker", addr, "--nthreads", "1", "--nworkers", "1", "--host", "127.0.0.1", "--no-dashboard",
-                 "--name", f"w{i}", *opts, *([] if nanny else ["--no-nanny"])],
-                stdout=logs[i], stderr=subprocess.STDOUT, env=env, cwd=tmp_path, preexec_fn=die_with_parent())
-            procs.append(workers[f"w{i}"])
-        deadline = time.monotonic() + 90
-        while True:  # the scheduler takes a moment to listen; then wait for both workers
-            try:
-                with Client(addr, timeout="5s", security=sec) as c:
-                    c.wait_for_workers(2, timeout=max(1.0, deadline - time.monotonic()))
-                break
-            except OSError:
-                if time.monotonic() > deadline or any(p.poll() is not None for p in procs):
-                    raise
-                time.sleep(0.5)
-        yield addr, workers, sec
-    finally:
-        for p in reversed(procs):
-            if p.poll() is None:
-                p.terminate()
-        for p in procs:
-            try:
-                p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
-        for f in logs:
-            f.close()
-
-
 def test_external_dask_cluster_equals_in_process(reference, tmp_path):
     """A real `dask scheduler` and two `dask worker` processes on localhost (--scheduler tcp://...)."""
-    with _dask_cluster(tmp_path) as (addr, _, _):
+    with dask_cluster(tmp_path) as (addr, _, _):
         out = tmp_path / "ext"
         assert main(["campaign", str(_write_spec(tmp_path)), "--runs", str(RUNS), "--out", str(out), "--scheduler", addr,
                      "--no-progress"]) == 0
@@ -215,8 +142,8 @@ def test_worker_killed_mid_campaign(reference, tmp_path, capsys):
     with exactly the figures of the undisturbed in-process campaign (each batch is recomputed from
     the spec, seed and indices alone, so equality is exact), and the command exits 0. Before,
     every run came back failed (FutureCancelledError: the scattered spec was lost) with exit 0."""
-    tls = _tls_files(tmp_path)
-    with _dask_cluster(tmp_path, tls, nanny=False) as (addr, workers, sec):
+    tls = tls_files(tmp_path)
+    with dask_cluster(tmp_path, tls, nanny=False) as (addr, workers, sec):
         stop, seen = threading.Event(), []
         killer = threading.Thread(target=_kill_when_busy, args=(addr, sec, workers["w1"], "w1", stop, seen))
         killer.start()
