@@ -35,7 +35,7 @@ def test_a_saturating_gain_fails_with_status_3(tmp_path, capsys):
     assert cli_main(["verify", str(SATURATING), "--out", str(tmp_path / "v"), *FAST]) == 3
     out = capsys.readouterr().out
     rows = {tuple(c.strip() for c in line.split("|")[1:3]): line for line in out.splitlines() if line.startswith("| ")}
-    assert "FAIL" in rows[("1", "saturation fraction")]  # held at 1 s it saturates
+    assert "FAIL" in rows[("1", "saturation fraction after settling")]  # held at 1 s it saturates
     assert "FAIL" in rows[("20", "settling time")] and "never" in rows[("20", "settling time")]  # diverges at 20 s
 
 
