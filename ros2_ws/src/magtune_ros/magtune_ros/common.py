@@ -52,12 +52,17 @@ from magtune_core.base.topics import (  # noqa: E402,F401
     TOPIC_DIAGNOSTICS,
     TOPIC_DIPOLE,
     TOPIC_DIST_TORQUE,
+    TOPIC_IMU,
     TOPIC_INERTIAL_RATE,
     TOPIC_MAG,
     TOPIC_MAG_TORQUE,
     TOPIC_MARKERS,
+    TOPIC_ORBIT,
+    TOPIC_POSITION,
+    TOPIC_SUN,
     TOPIC_TF,
     TOPIC_TRUE_FIELD,
+    TOPIC_TRUE_SUN,
     TOPIC_TRUTH,
 )
 
