@@ -117,16 +117,29 @@ def gyro(model: Gyro, w, dt: float, beta0, n_v, n_u) -> tuple[np.ndarray, np.nda
         beta_0 .. beta_N [rad/s] (the last one is beta_0 of the next call).
     """
     w = np.asarray(w, dtype=float)
-    b0 = np.broadcast_to(np.asarray(beta0, dtype=float), w.shape[:-2] + (3,))
-    if model.rrw > 0:
-        inc = model.rrw * math.sqrt(dt) * np.asarray(n_u, dtype=float)
-        beta = np.cumsum(np.concatenate([b0[..., None, :], inc], axis=-2), axis=-2)  # sequential sums
-    else:
-        beta = np.repeat(b0[..., None, :], w.shape[-2] + 1, axis=-2)
+    beta = gyro_bias_walk(model, dt, np.broadcast_to(np.asarray(beta0, dtype=float), w.shape[:-2] + (3,)), n_u)
     s = model.white_std(dt)
     if s > 0 or np.any(beta):
         w = w + 0.5 * (beta[..., 1:, :] + beta[..., :-1, :]) + s * np.asarray(n_v, dtype=float)
     return w, beta
+
+
+def gyro_bias_walk(model: Gyro, dt: float, beta0, n_u) -> np.ndarray:
+    """beta_0 .. beta_N (..., N + 1, 3) [rad/s]: beta_{k+1} = beta_k + sigma_u sqrt(dt) N_u,k
+    (``n_u`` (..., N, 3)), summed in sequence so that N calls of one step give the same numbers."""
+    n_u = np.asarray(n_u, dtype=float)
+    b0 = np.broadcast_to(np.asarray(beta0, dtype=float), n_u.shape[:-2] + (3,))
+    if model.rrw > 0:
+        inc = model.rrw * math.sqrt(dt) * n_u
+        return np.cumsum(np.concatenate([b0[..., None, :], inc], axis=-2), axis=-2)  # add.accumulate: in order
+    return np.repeat(b0[..., None, :], n_u.shape[-2] + 1, axis=-2)
+
+
+def gyro_from(noise_std: float, arw: float, rrw: float, bias, ts: float) -> Gyro:
+    """The :class:`Gyro` of the node parameters: a white rate noise ``noise_std`` [rad/s] per
+    sample of ``ts`` is the angle random walk sigma_v = noise_std sqrt(ts); it adds to ``arw``
+    in variance."""
+    return Gyro(math.sqrt(float(arw) ** 2 + float(noise_std) ** 2 * float(ts)), float(rrw), _t(bias))
 
 
 # ---------------------------------------------------------------- attitude (truth + noise)
@@ -247,13 +260,12 @@ class SensorSuite:
 
     @classmethod
     def from_values(cls, v: dict) -> "SensorSuite":
-        """From the parsed node parameters. ``gyro_noise_std`` [rad/s] (white noise per sample)
-        is the angle random walk sigma_v = std sqrt(ts); it adds to ``gyro_arw`` in variance."""
+        """From the parsed node parameters (the gyro: :func:`gyro_from`)."""
         ts = float(v["ts"])
-        arw = math.sqrt(float(v["gyro_arw"]) ** 2 + float(v["gyro_noise_std"]) ** 2 * ts)
         return cls(ts, Magnetometer(float(v["mag_noise_std"]), _t(v["mag_bias"]), _t(v["mag_matrix"]),
                                     float(v["mag_quantum"])),
-                   Gyro(arw, float(v["gyro_rrw"]), _t(v["gyro_bias"])), float(v["attitude_noise_std"]),
+                   gyro_from(v["gyro_noise_std"], v["gyro_arw"], v["gyro_rrw"], v["gyro_bias"], ts),
+                   float(v["attitude_noise_std"]),
                    SunSensor(float(v["sun_noise_std"]), float(v["sun_fov_half_angle"]), _t(v["sun_boresight"])),
                    PositionFix(float(v["position_noise_std"]), float(v["velocity_noise_std"])))
 
