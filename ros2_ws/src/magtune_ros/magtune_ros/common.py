@@ -184,6 +184,10 @@ def declare_overrides(node: Node, exclude=()):
 
 
 # ---------------------------------------------------------------- diagnostics
+#: Counters that report normal operation (the others raise the status to WARN): the sun sensor's
+#: eclipse and field-of-view dropouts are what the sensor does, not faults.
+INFO_COUNTERS = ("steps", "commands", "samples", "published", "sun_samples", "sun_eclipse", "sun_out_of_fov")
+
 class Diagnostics:
     """Counters published on /diagnostics (diagnostic_msgs/DiagnosticArray) every ``period`` wall s."""
 
@@ -205,7 +209,7 @@ class Diagnostics:
                 self.node.get_logger().warning(f"{key} (#{c}): {reason}")
 
     def publish(self):
-        warn = any(v for k, v in self.counts.items() if k not in ("steps", "commands", "samples", "published"))
+        warn = any(v for k, v in self.counts.items() if k not in INFO_COUNTERS)
         st = DiagnosticStatus(level=DiagnosticStatus.WARN if warn else DiagnosticStatus.OK, name=self.name,
                               hardware_id="magtune_sil", message="counters")
         st.values = [KeyValue(key=k, value=str(v)) for k, v in {**self.counts, **self.extra}.items()]
