@@ -12,8 +12,13 @@ TOPIC_INERTIAL_RATE = "sim/inertial_rate"     # geometry_msgs/Vector3Stamped: in
 TOPIC_TRUE_FIELD = "sim/magnetic_field"       # sensor_msgs/MagneticField: true b [T], body axes
 TOPIC_MAG_TORQUE = "sim/magnetic_torque"      # geometry_msgs/WrenchStamped
 TOPIC_DIST_TORQUE = "sim/disturbance_torque"  # geometry_msgs/WrenchStamped
+TOPIC_ORBIT = "sim/orbit"                     # nav_msgs/Odometry: true r [m], v [m/s] in ECI (full environment)
+TOPIC_TRUE_SUN = "sim/sun"                    # geometry_msgs/Vector3Stamped: geocentric Sun position [m], ECI (full env.)
 TOPIC_MAG = "sensors/magnetic_field"          # sensor_msgs/MagneticField: measured b
 TOPIC_ATTITUDE = "sensors/attitude"           # sensor_msgs/Imu: measured attitude + rate (controller input)
+TOPIC_IMU = "sensors/imu"                     # sensor_msgs/Imu: gyro rate only (orientation_covariance[0] = -1)
+TOPIC_SUN = "sensors/sun"                     # geometry_msgs/Vector3Stamped: measured unit Sun vector, body (when valid)
+TOPIC_POSITION = "sensors/position"           # nav_msgs/Odometry: position fix r, v in ECI with covariance
 TOPIC_DIPOLE = "controller/dipole_command"    # geometry_msgs/Vector3Stamped: m [A m^2]
 TOPIC_CLOCK = "/clock"                        # rosgraph_msgs/Clock (absolute, as ROS requires)
 TOPIC_DIAGNOSTICS = "/diagnostics"            # diagnostic_msgs/DiagnosticArray (absolute, by convention)
@@ -38,6 +43,11 @@ INERTIAL_RATE = "/" + TOPIC_INERTIAL_RATE
 TRUE_FIELD = "/" + TOPIC_TRUE_FIELD
 MAG = "/" + TOPIC_MAG
 ATTITUDE = "/" + TOPIC_ATTITUDE
+ORBIT = "/" + TOPIC_ORBIT
+TRUE_SUN = "/" + TOPIC_TRUE_SUN
+IMU = "/" + TOPIC_IMU
+SUN = "/" + TOPIC_SUN
+POSITION = "/" + TOPIC_POSITION
 DIPOLE = "/" + TOPIC_DIPOLE
 TF = "/" + TOPIC_TF
 MARKERS = "/" + TOPIC_MARKERS
@@ -53,6 +63,11 @@ PROJECT_TOPICS: dict[str, tuple[str, str]] = {
     "/" + TOPIC_DIST_TORQUE: ("geometry_msgs/msg/WrenchStamped", "transient_local"),
     MAG: ("sensor_msgs/msg/MagneticField", "transient_local"),
     ATTITUDE: ("sensor_msgs/msg/Imu", "transient_local"),
+    ORBIT: ("nav_msgs/msg/Odometry", "transient_local"),
+    TRUE_SUN: ("geometry_msgs/msg/Vector3Stamped", "transient_local"),
+    IMU: ("sensor_msgs/msg/Imu", "transient_local"),
+    SUN: ("geometry_msgs/msg/Vector3Stamped", "transient_local"),
+    POSITION: ("nav_msgs/msg/Odometry", "transient_local"),
     DIPOLE: ("geometry_msgs/msg/Vector3Stamped", "transient_local"),
     TOPIC_DIAGNOSTICS: ("diagnostic_msgs/msg/DiagnosticArray", "volatile"),
     TF: ("tf2_msgs/msg/TFMessage", "transient_local"),

@@ -9,6 +9,8 @@ besides the spacecraft fields.
 """
 from __future__ import annotations
 
+import math
+
 from ..base.errors import ConfigError
 from ..base.schema import Field
 from .field import FIELD_MODELS
@@ -46,6 +48,23 @@ SENSOR_FIELDS = (
     Field("gyro_noise_std", "float", "rate noise std [rad/s]", 0.0, nonnegative=True, unit="rad/s"),
     Field("gyro_bias", "float[]", "rate bias [rad/s]", (0.0, 0.0, 0.0), size=3, unit="rad/s"),
     Field("seed", "int", "random seed of the noise generators", 0, nonnegative=True),
+    # docs/sensors.md: scale/misalignment, Farrenkopf gyro, sun sensor, position fix
+    Field("mag_matrix", "float[]", "magnetometer scale factor and misalignment M (b_m = M b + ...), row-major",
+          (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0), size=9, bounds=(-2.0, 2.0)),
+    Field("gyro_arw", "float", "gyro angle random walk sigma_v [rad/s^0.5] (adds to gyro_noise_std^2 ts)", 0.0,
+          nonnegative=True, bounds=(0.0, 0.1), unit="rad/s^0.5"),
+    Field("gyro_rrw", "float", "gyro rate (bias) random walk sigma_u [rad/s^1.5]", 0.0, nonnegative=True,
+          bounds=(0.0, 1e-3), unit="rad/s^1.5"),
+    Field("sun_noise_std", "float", "sun sensor angle error std per axis [rad]", 0.0, nonnegative=True,
+          bounds=(0.0, 0.5), unit="rad"),
+    Field("sun_fov_half_angle", "float", "sun sensor field-of-view half-angle [rad] (pi: whole sphere)", math.pi,
+          positive=True, bounds=(1e-3, math.pi), unit="rad"),
+    Field("sun_boresight", "float[]", "sun sensor field-of-view axis, body axes", (1.0, 0.0, 0.0), size=3,
+          bounds=(-1e3, 1e3)),
+    Field("position_noise_std", "float", "position fix error std per axis [m] (ECI)", 0.0, nonnegative=True,
+          bounds=(0.0, 1e5), unit="m"),
+    Field("velocity_noise_std", "float", "position fix velocity error std per axis [m/s] (ECI)", 0.0,
+          nonnegative=True, bounds=(0.0, 1e3), unit="m/s"),
 )
 
 #: simulator: run length, lockstep, initial state, plant options, environment, outputs.
@@ -109,3 +128,9 @@ def check_simulator(v: dict, where: str) -> None:
         raise ConfigError(where, "field_plugin", "not available with environment 'full' (use env_field)")
     if v["field_file"] and (v["field_plugin"] or v["environment"] == "full"):
         raise ConfigError(where, "field_file", "only with environment 'paper' and without field_plugin")
+
+
+def check_sensors(v: dict, where: str) -> None:
+    """The sensors' rules across elements (``v``: parsed SENSOR_FIELDS); ConfigError naming the field."""
+    if sum(x * x for x in v["sun_boresight"]) < 1e-18:
+        raise ConfigError(where, "sun_boresight", "expected a nonzero vector")

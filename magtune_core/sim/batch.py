@@ -30,11 +30,13 @@ Where the time goes (cProfile, 200 runs x 1 orbit, full environment, one process
 compiled loops 61 s (IGRF 27 %, rest of the environment 30 %, plant right-hand side ~40 %);
 now ~8 s (environment ~55 %, closed loop ~30 %, orbit propagation + dense output ~15 %).
 
-Sensors (the model of the ``attitude_sensors`` ROS node): magnetometer
-``b_meas = b + bias + N(0, std^2)`` (optionally quantized), attitude
-``q_meas = q (x) exp(dtheta/2)`` with ``dtheta ~ N(0, std^2 I)`` in body axes, gyro
-``w_meas = w + bias + N(0, std^2)``. The controller's linear state (eq. 14) is built from
-``q_meas, w_meas`` and its dipole from ``b_meas``; the plant feels the true field.
+Sensors: the models of :mod:`magtune_core.design.sensors`, the ``attitude_sensors`` node's:
+magnetometer ``b_meas = M b + bias + N(0, std^2)`` (optionally quantized), attitude
+``q_meas = q (x) exp(dtheta/2)`` with ``dtheta ~ N(0, std^2 I)`` in body axes, the Farrenkopf
+gyro (white noise, angle and rate random walk; its bias walk computed per noise block by
+:func:`magtune_core.design.sensors.gyro_bias_walk`, the formula the node runs), from the same
+rows of normals as the node for the same seed. The controller's linear state (eq. 14) is built
+from ``q_meas, w_meas`` and its dipole from ``b_meas``; the plant feels the true field.
 """
 from __future__ import annotations
 
@@ -46,6 +48,7 @@ from scipy.integrate import solve_ivp
 
 from ..design.law import DEFAULT_MIN_FIELD
 from ..design.params import SpacecraftParams
+from ..design.sensors import GYRO_U, NORMALS_PER_STEP, Gyro, draw, gyro_bias_walk, gyro_from
 from ..env.environment import Environment
 from ..env.igrf import IGRF
 from ..env.orbit import initial_state, orbital_rate
@@ -53,8 +56,8 @@ from .batch_kernels import Chunk, Controller, Outputs, Plant, Sensors, closed_lo
 from .fullenv import FullEnvironmentOptions, _environment, environment_table, nominal_orbit_period
 from .metrics import pointing_error_deg
 
-#: Sensor noise is drawn per run in blocks of this many controller steps (9 normals per step:
-#: magnetometer, attitude, gyro), so the stream a run sees does not depend on its batch.
+#: Sensor noise is drawn per run in blocks of this many controller steps (design.sensors.NORMALS_PER_STEP
+#: normals per step: magnetometer, attitude, gyro), so the stream a run sees does not depend on its batch.
 NOISE_CHUNK = 1024
 #: Controller steps whose environment is computed at once (bounded memory: ~15 x 8 B x
 #: (2 substeps x CHUNK + 1) per run).
@@ -75,6 +78,9 @@ class SensorNoise:
     attitude_std: np.ndarray  #: (B,) attitude-determination error std per axis [rad]
     seeds: Sequence  #: per-run seeds (anything ``numpy.random.default_rng`` takes)
     mag_quantum: float = 0.0  #: magnetometer quantization step [T] (0: none)
+    gyro_arw: np.ndarray | None = None  #: (B,) angle random walk sigma_v [rad/s^0.5] (adds to gyro_std^2 Ts)
+    gyro_rrw: np.ndarray | None = None  #: (B,) rate random walk sigma_u [rad/s^1.5]
+    mag_matrix: np.ndarray | None = None  #: (B, 3, 3) magnetometer scale factor and misalignment (None: I)
 
     @classmethod
     def none(cls, n: int) -> "SensorNoise":
@@ -86,7 +92,17 @@ class SensorNoise:
     def any(self) -> bool:
         """True if any run has noise, a bias or quantization (else the compiled loop skips the sensors)."""
         return bool(np.any(self.mag_std) or np.any(self.mag_bias) or np.any(self.gyro_std) or np.any(self.gyro_bias)
-                    or np.any(self.attitude_std) or self.mag_quantum)
+                    or np.any(self.attitude_std) or self.mag_quantum or np.any(self._per_run(self.gyro_arw))
+                    or np.any(self._per_run(self.gyro_rrw)) or self.mag_matrix is not None)
+
+    def _per_run(self, v) -> np.ndarray:
+        return np.broadcast_to(np.asarray(0.0 if v is None else v, float), (len(self.seeds),))
+
+    def gyros(self, ts: float) -> list[Gyro]:
+        """Each run's :class:`~magtune_core.design.sensors.Gyro` (:func:`~magtune_core.design.sensors.gyro_from`)."""
+        std, arw, rrw = (self._per_run(v) for v in (self.gyro_std, self.gyro_arw, self.gyro_rrw))
+        bias = np.asarray(self.gyro_bias, float).reshape(-1, 3)
+        return [gyro_from(std[i], arw[i], rrw[i], bias[i], ts) for i in range(len(self.seeds))]
 
 
 @dataclass
@@ -334,11 +350,21 @@ def run_orbit_periods(runs: BatchRuns) -> np.ndarray:
     return np.full(runs.size, float(runs.p.orbit_period))
 
 
-def _noise_blocks(sensors: SensorNoise, n: int):
+def _noise_blocks(sensors: SensorNoise, ts: float):
+    """Generator of the per-run blocks: (normals (B, CHUNK, 12), gyro (beta_k + beta_k+1)/2 (B, CHUNK, 3)),
+    the Farrenkopf bias walk carried from block to block (design.sensors.gyro_bias_walk)."""
     gens = [np.random.default_rng(s) for s in sensors.seeds]
+    gyros = sensors.gyros(ts)
+    beta = [np.asarray(g.bias, dtype=float) for g in gyros]
 
     def block():
-        return np.stack([g.standard_normal((NOISE_CHUNK, 9)) for g in gens])  # (B, CHUNK, 9)
+        normals = np.stack([draw(g, NOISE_CHUNK) for g in gens])  # (B, CHUNK, NORMALS_PER_STEP)
+        avg = np.empty((len(gens), NOISE_CHUNK, 3))
+        for i, g in enumerate(gyros):
+            walk = gyro_bias_walk(g, ts, beta[i], normals[i, :, GYRO_U])
+            avg[i] = 0.5 * (walk[1:] + walk[:-1])
+            beta[i] = walk[-1]
+        return normals, avg
 
     return block
 
@@ -392,12 +418,15 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
                                         + np.asarray(runs.dw0, float).T]))
     sensors = runs.sensors if runs.sensors is not None else SensorNoise.none(B)
     noisy = sensors.any
-    mag_bias, gyro_bias = (np.ascontiguousarray(np.asarray(v, float).reshape(B, 3).T)
-                           for v in (sensors.mag_bias, sensors.gyro_bias))
-    mag_std, gyro_std, att_std = (np.ascontiguousarray(np.broadcast_to(np.asarray(v, float), (B,)))
-                                  for v in (sensors.mag_std, sensors.gyro_std, sensors.attitude_std))
-    block = _noise_blocks(sensors, n) if noisy else None
-    noise = np.zeros((B, 1, 9))
+    mag_bias = np.ascontiguousarray(np.asarray(sensors.mag_bias, float).reshape(B, 3).T)
+    mag_std, att_std = (np.ascontiguousarray(np.broadcast_to(np.asarray(v, float), (B,)))
+                        for v in (sensors.mag_std, sensors.attitude_std))
+    mag_on = sensors.mag_matrix is not None
+    mag_M = np.ascontiguousarray(np.broadcast_to(np.asarray(sensors.mag_matrix if mag_on else np.eye(3), float),
+                                                 (B, 3, 3)))
+    gyro_white = np.array([g.white_std(ts) for g in sensors.gyros(ts)])
+    block = _noise_blocks(sensors, ts) if noisy else None
+    noise, gyro_avg = np.zeros((B, 1, NORMALS_PER_STEP)), np.zeros((B, 1, 3))
     rec = list(range(0, n + 1, max(1, int(record_every))))
     if rec[-1] != n:
         rec.append(n)
@@ -415,7 +444,8 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
     index = np.ascontiguousarray(tables.index, dtype=np.int64)
     plant = Plant(I, J, hw, mres, gg, drag, srp, A, cp, cd, es, ed)
     ctrl = Controller(K, lim, W0, min_b2)
-    sens = Sensors(noisy, noise, 0, mag_bias, mag_std, float(sensors.mag_quantum or 0.0), att_std, gyro_bias, gyro_std)
+    sens = Sensors(noisy, noise, 0, mag_bias, mag_std, float(sensors.mag_quantum or 0.0), mag_on, mag_M, att_std,
+                   gyro_avg, gyro_white)
     out = Outputs(sat, weak, diverged, DIVERGED_RATE, bool(full_series), ang_all, mn_all, rec_slot, Q, W, X, M, Bb,
                   sat_all)
     # controller steps in chunks of ENV_CHUNK (a divisor of NOISE_CHUNK): one environment table and one
@@ -424,7 +454,8 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
         k1 = min(kc + ENV_CHUNK, n + 1)
         table = tables.chunk(kc, k1)
         if noisy and kc % NOISE_CHUNK == 0:
-            sens = sens._replace(noise=block(), noise_k0=kc)
+            noise, gyro_avg = block()
+            sens = sens._replace(noise=noise, gyro_avg=gyro_avg, noise_k0=kc)
         closed_loop(y, Chunk(table, index, kc, kc, k1, n, per, S, h), plant, ctrl, sens, out)
     return BatchResult(np.asarray(rec, dtype=float) * ts, Q, W, X, M, Bb, T, sat, weak, diverged, n,
                        dict(ts=ts, substeps=S, environment=runs.environment, record_every=int(record_every)),

@@ -462,14 +462,16 @@ class Sensors(NamedTuple):
     """Per-run sensor model (``batch.SensorNoise``) and the chunk of normals it reads."""
 
     noisy: bool  #: any noise or bias at all (else the true state is measured)
-    noise: np.ndarray  #: (B, CHUNK, 9) normals; step k reads row k - noise_k0
+    noise: np.ndarray  #: (B, CHUNK, 12) normals (layout of design.sensors); step k reads row k - noise_k0
     noise_k0: int  #: controller step of noise row 0
     mag_bias: np.ndarray  #: (3, B) magnetometer bias [T]
     mag_std: np.ndarray  #: (B,) magnetometer white-noise std [T]
     quantum: float  #: magnetometer quantization step [T] (0: none)
+    mag_on: bool  #: apply the scale/misalignment matrices
+    mag_M: np.ndarray  #: (B, 3, 3) magnetometer scale factor and misalignment
     att_std: np.ndarray  #: (B,) attitude-determination error std [rad]
-    gyro_bias: np.ndarray  #: (3, B) gyro bias [rad/s]
-    gyro_std: np.ndarray  #: (B,) gyro white-noise std [rad/s]
+    gyro_avg: np.ndarray  #: (B, CHUNK, 3) (beta_k + beta_k+1)/2 of the Farrenkopf bias walk [rad/s]
+    gyro_white: np.ndarray  #: (B,) std of the gyro's white part sqrt(sigma_v^2/Ts + sigma_u^2 Ts/12) [rad/s]
 
 
 class Outputs(NamedTuple):
@@ -511,7 +513,7 @@ def closed_loop(y, chunk, plant, ctrl, sens, out):
     table, idx, kc, ka, kb, n, per, S, h = chunk
     I, J, hw, mres, gg, drag, srp, A, cp, cd, es, ed = plant
     K, lim, W0, min_b2 = ctrl
-    noisy, noise, noise_k0, mag_bias, mag_std, quantum, att_std, gyro_bias, gyro_std = sens
+    noisy, noise, noise_k0, mag_bias, mag_std, quantum, mag_on, mag_M, att_std, gyro_avg, gyro_white = sens
     sat, weak, diverged, diverged_rate, full, ang_all, mn_all, rec_slot, Q, Wr, X, M, Bb, sat_all = out
     B = y.shape[1]
     hh, h6 = 0.5 * h, h / 6.0
@@ -543,9 +545,14 @@ def closed_loop(y, chunk, plant, ctrl, sens, out):
             bm0, bm1, bm2 = bt0, bt1, bt2
             if noisy:
                 nz = noise[b, k - noise_k0]
-                bm0 = bt0 + mag_bias[0, b] + mag_std[b] * nz[0]
-                bm1 = bt1 + mag_bias[1, b] + mag_std[b] * nz[1]
-                bm2 = bt2 + mag_bias[2, b] + mag_std[b] * nz[2]
+                if mag_on:  # b_m = M b + bias + std n (design.sensors.magnetometer)
+                    Mb = mag_M[b]
+                    bm0 = Mb[0, 0] * bt0 + Mb[0, 1] * bt1 + Mb[0, 2] * bt2
+                    bm1 = Mb[1, 0] * bt0 + Mb[1, 1] * bt1 + Mb[1, 2] * bt2
+                    bm2 = Mb[2, 0] * bt0 + Mb[2, 1] * bt1 + Mb[2, 2] * bt2
+                bm0 = bm0 + mag_bias[0, b] + mag_std[b] * nz[0]
+                bm1 = bm1 + mag_bias[1, b] + mag_std[b] * nz[1]
+                bm2 = bm2 + mag_bias[2, b] + mag_std[b] * nz[2]
                 if quantum != 0.0:
                     bm0 = np.rint(bm0 / quantum) * quantum
                     bm1 = np.rint(bm1 / quantum) * quantum
@@ -558,9 +565,10 @@ def closed_loop(y, chunk, plant, ctrl, sens, out):
                 qm1 = q0 * p1 + q1 * p0 + q2 * p3 - q3 * p2
                 qm2 = q0 * p2 - q1 * p3 + q2 * p0 + q3 * p1
                 qm3 = q0 * p3 + q1 * p2 - q2 * p1 + q3 * p0
-                wm0 = ys[4] + gyro_bias[0, b] + gyro_std[b] * nz[6]
-                wm1 = ys[5] + gyro_bias[1, b] + gyro_std[b] * nz[7]
-                wm2 = ys[6] + gyro_bias[2, b] + gyro_std[b] * nz[8]
+                ga = gyro_avg[b, k - noise_k0]  # Farrenkopf gyro (design.sensors.gyro)
+                wm0 = ys[4] + ga[0] + gyro_white[b] * nz[6]
+                wm1 = ys[5] + ga[1] + gyro_white[b] * nz[7]
+                wm2 = ys[6] + ga[2] + gyro_white[b] * nz[8]
             sg = -1.0 if qm0 < 0.0 else 1.0
             x0, x1, x2, x3, x4, x5 = sg * qm1, sg * qm2, sg * qm3, wm0, wm1, wm2 + W0[b]
             # projection controller m = sat(S(b)^T K x / |b|^2) (paper eq. 17), weak-field guard

@@ -177,3 +177,36 @@ def test_half_orbit_full_environment_equals_simulate(setup):
                      dipole_limit=s["lim"][i], residual_dipole=s["mres"][i], environment="full", env_options=opts[i])
         _assert_close(res.x[i], r.x)
         _assert_close(res.m[i], r.m, scale=50.0)
+
+
+def test_batch_sensors_are_the_node_models_for_the_same_seed(setup):
+    """The batch's measurements are design.sensors' for the seed's rows of normals (what the
+    attitude_sensors node computes): Farrenkopf gyro over two noise blocks, magnetometer with a
+    misalignment matrix, attitude. Gyro and attitude read back from the controller state x."""
+    from magtune_core.design import sensors as sm
+    from magtune_core.sim.batch import NOISE_CHUNK
+
+    s = setup
+    n = NOISE_CHUNK + 100  # the bias walk is carried across a block boundary
+    M = np.eye(3) + 0.01 * np.arange(9.0).reshape(3, 3)
+    sens = SensorNoise(np.full(1, 1e-7), np.array([[2e-7, 0.0, -1e-7]]), np.full(1, 1e-5),
+                       np.array([[1e-4, -5e-5, 2e-5]]), np.full(1, 1e-3), [[3, 1]], gyro_arw=np.full(1, 2e-5),
+                       gyro_rrw=np.full(1, 1e-6), mag_matrix=M[None])
+    one = _runs(s, "paper", sensors=sens, inertia=s["inertia"][:1], residual_dipole=s["mres"][:1],
+                dipole_limit=s["lim"][:1], q0=s["q0"][:1], dw0=s["dw0"][:1])
+    res = simulate_batch(one, ts=1.0, steps=n)
+    rows = sm.draw(np.random.default_rng([3, 1]), n + 1)
+    gyro = sens.gyros(1.0)[0]
+    wm, beta = sm.gyro(gyro, res.w[0], 1.0, gyro.bias, rows[:, sm.GYRO_V], rows[:, sm.GYRO_U])
+    W0 = 2 * np.pi / res.orbit_period[0]
+    meas = res.x[0, :, 3:] - np.array([0.0, 0.0, W0])
+    np.testing.assert_array_equal(meas[:, :2], wm[:, :2])  # same operations in the same order
+    np.testing.assert_allclose(meas[:, 2], wm[:, 2], rtol=0, atol=1e-17)  # + W0 - W0 rounding
+    assert np.max(np.abs(beta[-1] - np.asarray(gyro.bias))) > 1e-6  # the bias did walk (sigma_u sqrt(t) ~ 3e-5)
+    q = sm.noisy_attitude(res.q[0], 1e-3, rows[:, sm.ATT])
+    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
+    np.testing.assert_allclose(res.x[0, :, :3], q[:, 1:], rtol=0, atol=1e-15)  # numpy vs libm sin/cos
+    # magnetometer at t = 0 through the flight law (b_meas enters only the dipole)
+    b = sm.magnetometer(sm.Magnetometer(1e-7, (2e-7, 0.0, -1e-7), tuple(M.ravel())), res.b[0, 0], rows[0, sm.MAG])
+    out = ProjectionController(s["K"], s["lim"][0])(res.x[0, 0], b)
+    np.testing.assert_allclose(res.m[0, 0], out.m, rtol=1e-12, atol=1e-12)

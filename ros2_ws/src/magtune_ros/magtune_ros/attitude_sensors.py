@@ -1,21 +1,31 @@
-"""Magnetometer and attitude-state publisher node (truth + sensor models; noise-free by default).
+"""Sensors node: truth in, raw and controller measurements out (models: magtune_core.design.sensors).
 
 Subscribes:
   sim/truth              nav_msgs/Odometry          attitude q (see simulator.py)
   sim/inertial_rate      geometry_msgs/Vector3Stamped inertial body rate [rad/s], body axes (the gyro's input)
   sim/magnetic_field     sensor_msgs/MagneticField  true body-frame field [T]
+  sim/orbit, sim/sun     nav_msgs/Odometry, geometry_msgs/Vector3Stamped: r, v and the Sun in ECI
+                         (environment 'full' only; without them no sun sensor and no position fix)
   /clock                 rosgraph_msgs/Clock        (use_sim_time)
-Publishes (stamp = truth stamp, frame 'body'):
-  sensors/magnetic_field sensor_msgs/MagneticField  b_meas = quantize(b + bias + noise) [T];
+Publishes (stamp = truth stamp):
+  sensors/magnetic_field sensor_msgs/MagneticField, frame 'body': b_m = quantize(M b + bias + noise) [T];
                          covariance diag(noise_std^2 + quantum^2/12) [T^2]
-  sensors/attitude       sensor_msgs/Imu            orientation = attitude of the body w.r.t. the
-                         *orbital* (LVLH) axes, perturbed by a small random rotation;
-                         angular_velocity = inertial body rate [rad/s] + bias + noise;
-                         linear_acceleration not provided (covariance[0] = -1)
-  /diagnostics           counters: samples, rejected_nonfinite, rejected_quaternion,
-                         rejected_stamp, stale_inputs, unpaired
-QoS: magtune_ros.common.LOCKSTEP_QOS. Noise draws use numpy default_rng(seed), only for nonzero
-standard deviations, so zero-noise runs pass the truth through bit-for-bit.
+  sensors/imu            sensor_msgs/Imu, frame 'body': the Farrenkopf gyro's rate [rad/s] and the
+                         covariance of its white part; orientation_covariance[0] = -1 (no
+                         orientation), linear_acceleration_covariance[0] = -1
+  sensors/attitude       sensor_msgs/Imu, frame 'body': what the controller reads; orientation = attitude
+                         of the body w.r.t. the *orbital* (LVLH) axes, perturbed by a small random
+                         rotation (attitude_noise_std); angular_velocity = the gyro of sensors/imu
+  sensors/sun            geometry_msgs/Vector3Stamped, frame 'body': measured unit satellite->Sun vector;
+                         not published in eclipse or outside the field of view (counters sun_eclipse,
+                         sun_out_of_fov); covariance sun_noise_std^2 (I - s s^T), not carried
+  sensors/position       nav_msgs/Odometry, frame and child 'eci': position fix r [m] and v [m/s] with
+                         pose/twist covariance diag(std^2) (rotational entries -1: not measured)
+  /diagnostics           counters: samples, rejected_nonfinite, rejected_quaternion, rejected_stamp,
+                         stale_inputs, sun_samples, sun_eclipse, sun_out_of_fov
+QoS: magtune_ros.common.LOCKSTEP_QOS. Noise: one row of design.sensors.NORMALS_PER_STEP standard
+normals per sample from numpy default_rng(seed), drawn only when some noise or bias is set (so
+zero-noise runs pass the truth through bit for bit); sun and position from sensors.aux_rng(seed).
 """
 from __future__ import annotations
 
@@ -28,10 +38,14 @@ from rclpy.node import Node
 from rclpy.task import Future
 from sensor_msgs.msg import Imu, MagneticField
 
-from magtune_core.base.rotations import quat_mul
-from magtune_core.design.node_params import SENSOR_FIELDS
+from magtune_core.design import sensors as s
+from magtune_core.design.node_params import SENSOR_FIELDS, check_sensors
 
 from . import common as c
+
+
+def _cov3(var: float) -> list:
+    return [var, 0.0, 0.0, 0.0, var, 0.0, 0.0, 0.0, var]
 
 
 class AttitudeSensors(Node):
@@ -41,92 +55,146 @@ class AttitudeSensors(Node):
         super().__init__(self.NODE_NAME)
         self.done = Future()
         v = c.parse_fields(self, SENSOR_FIELDS)
-        ts, seed = v["ts"], v["seed"]
-        self.mag_std, self.mag_bias, self.mag_q = v["mag_noise_std"], v["mag_bias"], v["mag_quantum"]
-        self.att_std, self.gyro_std, self.gyro_bias = v["attitude_noise_std"], v["gyro_noise_std"], v["gyro_bias"]
-        self.rng = np.random.default_rng(seed)
+        c.check(check_sensors, v, self)
+        self.suite = s.SensorSuite.from_values(v)
+        self.rng, self.aux = np.random.default_rng(v["seed"]), s.aux_rng(v["seed"])
+        self.beta = np.asarray(self.suite.gyro.bias, dtype=float)  # gyro bias before the next sample
         self.diag = c.Diagnostics(self, ["samples", "rejected_nonfinite", "rejected_quaternion", "rejected_stamp",
-                                         "stale_inputs"])
-        self.gate = c.StampGate(self, 2 * c.sec_to_ns(ts), n=3)
+                                         "stale_inputs", "sun_samples", "sun_eclipse", "sun_out_of_fov"])
+        self.gate = c.StampGate(self, 2 * c.sec_to_ns(self.suite.ts), n=5)
         self.sync = c.PairSync(3)  # field, truth (attitude), inertial rate: same stamp t_k
+        self.sync_orbit = c.PairSync(3)  # truth, orbit, Sun (full environment)
         self.pub_mag = self.create_publisher(MagneticField, c.TOPIC_MAG, c.LOCKSTEP_QOS)
+        self.pub_imu = self.create_publisher(Imu, c.TOPIC_IMU, c.LOCKSTEP_QOS)
         self.pub_att = self.create_publisher(Imu, c.TOPIC_ATTITUDE, c.LOCKSTEP_QOS)
+        self.pub_sun = self.create_publisher(Vector3Stamped, c.TOPIC_SUN, c.LOCKSTEP_QOS)
+        self.pub_pos = self.create_publisher(Odometry, c.TOPIC_POSITION, c.LOCKSTEP_QOS)
         self.create_subscription(Odometry, c.TOPIC_TRUTH, self.on_truth, c.LOCKSTEP_QOS)
         self.create_subscription(MagneticField, c.TOPIC_TRUE_FIELD, self.on_field, c.LOCKSTEP_QOS)
         self.create_subscription(Vector3Stamped, c.TOPIC_INERTIAL_RATE, self.on_rate, c.LOCKSTEP_QOS)
+        self.create_subscription(Odometry, c.TOPIC_ORBIT, self.on_orbit, c.LOCKSTEP_QOS)
+        self.create_subscription(Vector3Stamped, c.TOPIC_TRUE_SUN, self.on_sun, c.LOCKSTEP_QOS)
+        self.make_messages()
+
+    def make_messages(self):
+        """Preallocated messages with their frames and (constant) covariances."""
+        su = self.suite
         self.msg_mag = MagneticField()
         self.msg_mag.header.frame_id = c.FRAME_BODY
-        cov = self.mag_std**2 + self.mag_q**2 / 12.0
-        self.msg_mag.magnetic_field_covariance = [cov, 0.0, 0.0, 0.0, cov, 0.0, 0.0, 0.0, cov]
-        self.msg_att = Imu()
-        self.msg_att.header.frame_id = c.FRAME_BODY
-        a2, g2 = self.att_std**2, self.gyro_std**2
-        self.msg_att.orientation_covariance = [a2, 0.0, 0.0, 0.0, a2, 0.0, 0.0, 0.0, a2]
-        self.msg_att.angular_velocity_covariance = [g2, 0.0, 0.0, 0.0, g2, 0.0, 0.0, 0.0, g2]
-        self.msg_att.linear_acceleration_covariance[0] = -1.0
+        self.msg_mag.magnetic_field_covariance = su.magnetometer.covariance.ravel().tolist()
+        g2 = su.gyro.white_std(su.ts) ** 2
+        self.msg_imu, self.msg_att = Imu(), Imu()
+        for m in (self.msg_imu, self.msg_att):
+            m.header.frame_id = c.FRAME_BODY
+            m.angular_velocity_covariance = _cov3(g2)
+            m.linear_acceleration_covariance[0] = -1.0
+        self.msg_imu.orientation_covariance[0] = -1.0
+        self.msg_att.orientation_covariance = _cov3(su.attitude_std**2)
+        self.msg_sun = Vector3Stamped()
+        self.msg_sun.header.frame_id = c.FRAME_BODY
+        self.msg_pos = Odometry()
+        self.msg_pos.header.frame_id = self.msg_pos.child_frame_id = c.FRAME_ECI
+        p2, v2 = su.position.noise_std**2, su.position.velocity_noise_std**2
+        self.msg_pos.pose.covariance = np.diag([p2, p2, p2, -1.0, -1.0, -1.0]).ravel().tolist()
+        self.msg_pos.twist.covariance = np.diag([v2, v2, v2, -1.0, -1.0, -1.0]).ravel().tolist()
 
+    # ---------------------------------------------------------------- inputs
     def on_truth(self, msg: Odometry):
         o, w = msg.pose.pose.orientation, msg.twist.twist.angular
         if not c.finite(o.w, o.x, o.y, o.z, w.x, w.y, w.z):
             return self.diag.count("rejected_nonfinite", "non-finite truth state")
         if abs(math.sqrt(o.w * o.w + o.x * o.x + o.y * o.y + o.z * o.z) - 1.0) > 1e-6:
             return self.diag.count("rejected_quaternion", "truth quaternion not unit")
-        self._input(1, msg)
+        if self._accept(1, msg):
+            self._pair(self.sync, 1, msg, self.publish)
+            self._pair(self.sync_orbit, 0, msg, self.publish_orbit)
 
     def on_rate(self, msg: Vector3Stamped):
         w = msg.vector
         if not c.finite(w.x, w.y, w.z):
             return self.diag.count("rejected_nonfinite", "non-finite inertial rate")
-        self._input(2, msg)
+        if self._accept(2, msg):
+            self._pair(self.sync, 2, msg, self.publish)
 
     def on_field(self, msg: MagneticField):
         b = msg.magnetic_field
         if not c.finite(b.x, b.y, b.z):
             return self.diag.count("rejected_nonfinite", "non-finite true field")
-        self._input(0, msg)
+        if self._accept(0, msg):
+            self._pair(self.sync, 0, msg, self.publish)
 
-    def _input(self, slot, msg):
-        ns = c.stamp_to_ns(msg.header.stamp)
-        bad = self.gate.check(slot, ns)
+    def on_orbit(self, msg: Odometry):
+        p, v = msg.pose.pose.position, msg.twist.twist.linear
+        if not c.finite(p.x, p.y, p.z, v.x, v.y, v.z):
+            return self.diag.count("rejected_nonfinite", "non-finite orbit state")
+        if self._accept(3, msg):
+            self._pair(self.sync_orbit, 1, msg, self.publish_orbit)
+
+    def on_sun(self, msg: Vector3Stamped):
+        u = msg.vector
+        if not c.finite(u.x, u.y, u.z) or u.x == u.y == u.z == 0.0:
+            return self.diag.count("rejected_nonfinite", "non-finite or zero Sun position")
+        if self._accept(4, msg):
+            self._pair(self.sync_orbit, 2, msg, self.publish_orbit)
+
+    def _accept(self, slot, msg) -> bool:
+        bad = self.gate.check(slot, c.stamp_to_ns(msg.header.stamp))
         if bad:
-            return self.diag.count(*bad)
-        pair = self.sync.add(slot, ns, msg)
-        if pair:
-            self.publish(*pair)
+            self.diag.count(*bad)
+        return not bad
 
+    @staticmethod
+    def _pair(sync, slot, msg, then):
+        pair = sync.add(slot, c.stamp_to_ns(msg.header.stamp), msg)
+        if pair:
+            then(*pair)
+
+    # ---------------------------------------------------------------- outputs
     def publish(self, field: MagneticField, truth: Odometry, rate: Vector3Stamped):
-        stamp = truth.header.stamp
-        b = field.magnetic_field
-        bx, by, bz = b.x, b.y, b.z
-        if self.mag_std > 0 or np.any(self.mag_bias):
-            n = self.rng.normal(0.0, self.mag_std, 3) if self.mag_std > 0 else np.zeros(3)
-            bx, by, bz = (float(v) for v in np.array([bx, by, bz]) + self.mag_bias + n)
-        if self.mag_q > 0:
-            qz = self.mag_q
-            bx, by, bz = (round(v / qz) * qz for v in (bx, by, bz))
-        m = self.msg_mag
-        m.header.stamp = stamp
-        m.magnetic_field.x, m.magnetic_field.y, m.magnetic_field.z = bx, by, bz
-        o, w = truth.pose.pose.orientation, rate.vector  # the gyro measures the inertial rate
-        a = self.msg_att
-        a.header.stamp = stamp
-        if self.att_std > 0:  # q_meas = q (x) exp(dtheta / 2), dtheta ~ N(0, std^2 I) in body axes
-            th = self.rng.normal(0.0, self.att_std, 3)
-            ang = float(np.linalg.norm(th))
-            s = math.sin(ang / 2) / ang if ang > 0 else 0.5
-            qm = quat_mul([o.w, o.x, o.y, o.z], [math.cos(ang / 2), *(s * th)])
-            a.orientation.w, a.orientation.x, a.orientation.y, a.orientation.z = (float(v) for v in qm)
-        else:
-            a.orientation = o
-        if self.gyro_std > 0 or np.any(self.gyro_bias):
-            n = self.rng.normal(0.0, self.gyro_std, 3) if self.gyro_std > 0 else np.zeros(3)
-            a.angular_velocity.x, a.angular_velocity.y, a.angular_velocity.z = (
-                float(v) for v in np.array([w.x, w.y, w.z]) + self.gyro_bias + n)
-        else:
-            a.angular_velocity = w
+        """Magnetometer, gyro and attitude of t_k (one row of normals when anything is noisy)."""
+        su, stamp = self.suite, truth.header.stamp
+        f, o, w = field.magnetic_field, truth.pose.pose.orientation, rate.vector
+        n = s.draw(self.rng) if su.noisy else np.zeros(s.NORMALS_PER_STEP)
+        b = s.magnetometer(su.magnetometer, [f.x, f.y, f.z], n[s.MAG])
+        wm, beta = s.gyro(su.gyro, [[w.x, w.y, w.z]], su.ts, self.beta, n[None, s.GYRO_V], n[None, s.GYRO_U])
+        self.beta = beta[-1]
+        q = s.noisy_attitude([o.w, o.x, o.y, o.z], su.attitude_std, n[s.ATT])
+        m, imu, att = self.msg_mag, self.msg_imu, self.msg_att
+        m.header.stamp = imu.header.stamp = att.header.stamp = stamp
+        m.magnetic_field.x, m.magnetic_field.y, m.magnetic_field.z = (float(x) for x in b)
+        r = imu.angular_velocity
+        r.x, r.y, r.z = (float(x) for x in wm[0])
+        att.angular_velocity = r
+        a = att.orientation
+        a.w, a.x, a.y, a.z = (float(x) for x in q)
         self.diag.count("samples")
         self.pub_mag.publish(m)
-        self.pub_att.publish(a)
+        self.pub_att.publish(att)
+        self.pub_imu.publish(imu)
+
+    def publish_orbit(self, truth: Odometry, orbit: Odometry, sun: Vector3Stamped):
+        """Sun sensor (when lit and in view) and position fix of t_k."""
+        su, stamp = self.suite, truth.header.stamp
+        o, p, v, u = truth.pose.pose.orientation, orbit.pose.pose.position, orbit.twist.twist.linear, sun.vector
+        r, vel, sun_eci = np.array([p.x, p.y, p.z]), np.array([v.x, v.y, v.z]), np.array([u.x, u.y, u.z])
+        n = s.draw(self.aux, width=s.AUX_NORMALS)
+        s_true = s.sun_direction_body([o.w, o.x, o.y, o.z], r, vel, sun_eci)
+        lit = s.illuminated(r, sun_eci)
+        s_m, valid, _ = s.sun_sensor(su.sun, s_true, lit, n[s.SUN])
+        rm, vm = s.position_fix(su.position, r, vel, n[s.FIX])
+        pos = self.msg_pos
+        pos.header.stamp = stamp
+        pp, pv = pos.pose.pose.position, pos.twist.twist.linear
+        pp.x, pp.y, pp.z = (float(x) for x in rm)
+        pv.x, pv.y, pv.z = (float(x) for x in vm)
+        self.pub_pos.publish(pos)
+        if not valid:
+            return self.diag.count("sun_out_of_fov" if lit else "sun_eclipse")
+        m = self.msg_sun
+        m.header.stamp = stamp
+        m.vector.x, m.vector.y, m.vector.z = (float(x) for x in s_m)
+        self.diag.count("sun_samples")
+        self.pub_sun.publish(m)
 
     def finish(self):
         if self.context.ok():

@@ -52,12 +52,17 @@ from magtune_core.base.topics import (  # noqa: E402,F401
     TOPIC_DIAGNOSTICS,
     TOPIC_DIPOLE,
     TOPIC_DIST_TORQUE,
+    TOPIC_IMU,
     TOPIC_INERTIAL_RATE,
     TOPIC_MAG,
     TOPIC_MAG_TORQUE,
     TOPIC_MARKERS,
+    TOPIC_ORBIT,
+    TOPIC_POSITION,
+    TOPIC_SUN,
     TOPIC_TF,
     TOPIC_TRUE_FIELD,
+    TOPIC_TRUE_SUN,
     TOPIC_TRUTH,
 )
 
@@ -179,6 +184,10 @@ def declare_overrides(node: Node, exclude=()):
 
 
 # ---------------------------------------------------------------- diagnostics
+#: Counters that report normal operation (the others raise the status to WARN): the sun sensor's
+#: eclipse and field-of-view dropouts are what the sensor does, not faults.
+INFO_COUNTERS = ("steps", "commands", "samples", "published", "sun_samples", "sun_eclipse", "sun_out_of_fov")
+
 class Diagnostics:
     """Counters published on /diagnostics (diagnostic_msgs/DiagnosticArray) every ``period`` wall s."""
 
@@ -200,7 +209,7 @@ class Diagnostics:
                 self.node.get_logger().warning(f"{key} (#{c}): {reason}")
 
     def publish(self):
-        warn = any(v for k, v in self.counts.items() if k not in ("steps", "commands", "samples", "published"))
+        warn = any(v for k, v in self.counts.items() if k not in INFO_COUNTERS)
         st = DiagnosticStatus(level=DiagnosticStatus.WARN if warn else DiagnosticStatus.OK, name=self.name,
                               hardware_id="magtune_sil", message="counters")
         st.values = [KeyValue(key=k, value=str(v)) for k, v in {**self.counts, **self.extra}.items()]

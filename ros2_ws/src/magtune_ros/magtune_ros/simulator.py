@@ -19,6 +19,10 @@ Publishes (all stamped with simulated time t_k = k * ts):
   sim/inertial_rate            geometry_msgs/Vector3Stamped  inertial body rate w [rad/s], body axes
                                (the paper's w, what a gyro measures; the sensors' input)
   sim/magnetic_field           sensor_msgs/MagneticField  true field b = R(q)^T b_orb(t) [T], body axes
+  sim/orbit                    nav_msgs/Odometry (environment 'full' only) frame 'eci', child 'eci':
+                               pose.position = r [m], twist.linear = v [m/s] (ECI), orientation identity
+  sim/sun                      geometry_msgs/Vector3Stamped (environment 'full' only) frame 'eci':
+                               geocentric Sun position [m] (the environment's, env.sun)
   sim/magnetic_torque          geometry_msgs/WrenchStamped  m x b at t_k [N m], body axes
   sim/disturbance_torque       geometry_msgs/WrenchStamped  gravity gradient + residual dipole (+ drag, SRP) at t_k
   /diagnostics                 diagnostic_msgs/DiagnosticArray (steps, missed_steps, rejected, ...)
@@ -163,6 +167,9 @@ class Simulator(Node):
         self.pub_rate = self.create_publisher(Vector3Stamped, c.TOPIC_INERTIAL_RATE, c.LOCKSTEP_QOS)
         self.pub_field = self.create_publisher(MagneticField, c.TOPIC_TRUE_FIELD, c.LOCKSTEP_QOS)
         self.pub_tmag = self.create_publisher(WrenchStamped, c.TOPIC_MAG_TORQUE, c.LOCKSTEP_QOS)
+        full = self.environment == "full"  # orbit and Sun exist only there (the paper's model has neither)
+        self.pub_orbit = self.create_publisher(Odometry, c.TOPIC_ORBIT, c.LOCKSTEP_QOS) if full else None
+        self.pub_sun = self.create_publisher(Vector3Stamped, c.TOPIC_TRUE_SUN, c.LOCKSTEP_QOS) if full else None
         self.pub_tdist = self.create_publisher(WrenchStamped, c.TOPIC_DIST_TORQUE, c.LOCKSTEP_QOS)
         self.sub_cmd = self.create_subscription(Vector3Stamped, c.TOPIC_DIPOLE, self.on_command, c.LOCKSTEP_QOS)
         self.pub_tf = self.create_publisher(TFMessage, c.TOPIC_TF, c.LOCKSTEP_QOS) if self.pub_tf_on else None
@@ -175,6 +182,8 @@ class Simulator(Node):
         self.msg_truth = Odometry()
         self.msg_truth.header.frame_id = c.FRAME_ORBITAL
         self.msg_truth.child_frame_id = c.FRAME_BODY
+        self.msg_orbit, self.msg_sun = Odometry(), Vector3Stamped()
+        self.msg_orbit.header.frame_id = self.msg_orbit.child_frame_id = self.msg_sun.header.frame_id = c.FRAME_ECI
         self.msg_rate, self.msg_field = Vector3Stamped(), MagneticField()
         self.msg_tmag, self.msg_tdist = WrenchStamped(), WrenchStamped()
         for msg in (self.msg_rate, self.msg_field, self.msg_tmag, self.msg_tdist):
@@ -258,6 +267,8 @@ class Simulator(Node):
         self.pub_truth.publish(m)
         self.pub_rate.publish(r)
         self.pub_field.publish(f)
+        if self.pub_orbit is not None:
+            self.publish_orbit(k, stamp)
         if self.pub_tf is not None:
             self.publish_tf(k, stamp, o)
         # /clock right after the step's data: the nodes' clock callbacks then run off the
@@ -344,6 +355,20 @@ class Simulator(Node):
             orb.header.frame_id, orb.child_frame_id = c.FRAME_ECI, c.FRAME_ORBITAL
             tfs.append(orb)
         return TFMessage(transforms=tfs)
+
+    def publish_orbit(self, k, stamp):
+        """sim/orbit (r, v in ECI) and sim/sun (geocentric Sun position, ECI) at t_k: the truth the
+        sun sensor and the position fix of attitude_sensors measure."""
+        r, v = self.dyn.env.orbit.state(k * self.ts)
+        s = self.dyn.env.sun_eci(k * self.ts)
+        o, u = self.msg_orbit, self.msg_sun
+        o.header.stamp = u.header.stamp = stamp
+        p, w = o.pose.pose.position, o.twist.twist.linear
+        p.x, p.y, p.z = float(r[0]), float(r[1]), float(r[2])
+        w.x, w.y, w.z = float(v[0]), float(v[1]), float(v[2])
+        u.vector.x, u.vector.y, u.vector.z = float(s[0]), float(s[1]), float(s[2])
+        self.pub_orbit.publish(o)
+        self.pub_sun.publish(u)
 
     def publish_tf(self, k, stamp, o):
         """orbital -> body: the rotation of sim/truth (a body vector's orbital coordinates,
