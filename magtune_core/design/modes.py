@@ -33,9 +33,9 @@ class ModeParams:
     detumble_entry_rate: float = 9e-3
     detumble_entry_time: float = 60.0
     acquisition: bool = True
-    handover_angle: float = 0.35
-    handover_time: float = 300.0
-    acquisition_entry_angle: float = 0.7
+    handover_angle: float = 0.087
+    handover_time: float = 600.0
+    acquisition_entry_angle: float = 0.26
     acquisition_entry_time: float = 120.0
     safe_recovery_time: float = 10.0
 

@@ -50,13 +50,13 @@ MODE_FIELDS = (
     Field("detumble_entry_rate", "float", "back to DETUMBLE when |w_gyro| stays above this [rad/s] "
           "(above detumble_exit_rate: hysteresis)", 9e-3, positive=True, bounds=(1e-5, 1.0), unit="rad/s"),
     Field("detumble_entry_time", "float", "for this long [s]", 60.0, nonnegative=True, bounds=(0.0, 1e6), unit="s"),
-    Field("acquisition", "bool", "fly ACQUISITION between DETUMBLE and POINTING (false: straight to POINTING)", True),
+    Field("acquisition", "bool", "fly ACQUISITION (eq. 17 capturing) between DETUMBLE and POINTING "
+          "(false: straight to POINTING)", True),
     Field("handover_angle", "float", "ACQUISITION hands over to POINTING when the estimated pointing error stays "
-          "below this [rad] (inside the measured region of attraction of the pointing law)", 0.35,
-          positive=True, bounds=(1e-4, 3.1416), unit="rad"),
-    Field("handover_time", "float", "for this long [s]", 300.0, nonnegative=True, bounds=(0.0, 1e6), unit="s"),
+          "below this [rad] (captured: docs/modes.md)", 0.087, positive=True, bounds=(1e-4, 3.1416), unit="rad"),
+    Field("handover_time", "float", "for this long [s]", 600.0, nonnegative=True, bounds=(0.0, 1e6), unit="s"),
     Field("acquisition_entry_angle", "float", "POINTING falls back to ACQUISITION when the error stays above this "
-          "[rad] (above handover_angle: hysteresis)", 0.7, positive=True, bounds=(1e-4, 3.1416), unit="rad"),
+          "[rad] (above handover_angle: hysteresis)", 0.26, positive=True, bounds=(1e-4, 3.1416), unit="rad"),
     Field("acquisition_entry_time", "float", "for this long [s]", 120.0, nonnegative=True, bounds=(0.0, 1e6),
           unit="s"),
     Field("safe_recovery_time", "float", "SAFE returns to DETUMBLE when the sensors stay fresh this long [s]", 10.0,
