@@ -32,6 +32,7 @@ class ModeParams:
     detumble_exit_time: float = 600.0
     detumble_entry_rate: float = 9e-3
     detumble_entry_time: float = 60.0
+    acquisition_abort_rate: float = 0.09
     acquisition: bool = True
     handover_angle: float = 0.087
     handover_time: float = 600.0
@@ -99,7 +100,6 @@ class ModeLogic:
         """(guard name, condition holds, persistence [s], target, reason) of ``mode``, in priority order."""
         p = self.params
         fresh = not m.stale
-        rate_high = m.rate > p.detumble_entry_rate
         if mode == SAFE:
             return [("fresh", fresh, p.safe_recovery_time, DETUMBLE,
                      f"sensors fresh for {p.safe_recovery_time:g} s")]
@@ -112,8 +112,10 @@ class ModeLogic:
                         f"|w| < {p.detumble_exit_rate:g} rad/s and |db/dt| < {p.detumble_exit_bdot:g} T/s "
                         f"for {p.detumble_exit_time:g} s"))
             return out
-        out.append(("tumbling", rate_high, p.detumble_entry_time, DETUMBLE,
-                    f"|w| > {p.detumble_entry_rate:g} rad/s for {p.detumble_entry_time:g} s"))
+        # capturing from a large error spins the body up (measured up to 0.064 rad/s): a higher abort rate
+        limit = p.acquisition_abort_rate if mode == ACQUISITION else p.detumble_entry_rate
+        out.append(("tumbling", m.rate > limit, p.detumble_entry_time, DETUMBLE,
+                    f"|w| > {limit:g} rad/s for {p.detumble_entry_time:g} s"))
         err = m.pointing_error
         if mode == ACQUISITION:
             out.append(("inside", err < p.handover_angle, p.handover_time, POINTING,
@@ -128,7 +130,8 @@ class ModeLogic:
 
         A guard's timer starts at the first instant its condition holds and resets when it fails
         (a nan measurement fails every comparison: no estimate, no hand-over); the first guard (in
-        priority order) whose condition has held for its persistence time fires. Returns the new
+        priority order) whose condition has held for its persistence time fires; the new mode's
+        guards start at the next call (one sample after the transition). Returns the new
         state and the :class:`Transition` (None if the mode did not change).
         """
         pending = dict(state.pending)

@@ -50,6 +50,9 @@ MODE_FIELDS = (
     Field("detumble_entry_rate", "float", "back to DETUMBLE when |w_gyro| stays above this [rad/s] "
           "(above detumble_exit_rate: hysteresis)", 9e-3, positive=True, bounds=(1e-5, 1.0), unit="rad/s"),
     Field("detumble_entry_time", "float", "for this long [s]", 60.0, nonnegative=True, bounds=(0.0, 1e6), unit="s"),
+    Field("acquisition_abort_rate", "float", "ACQUISITION goes back to DETUMBLE above this |w_gyro| [rad/s] "
+          "(eq. 17 spins the body up to 0.064 rad/s while capturing from large errors: docs/modes.md)", 0.09,
+          positive=True, bounds=(1e-5, 1.0), unit="rad/s"),
     Field("acquisition", "bool", "fly ACQUISITION (eq. 17 capturing) between DETUMBLE and POINTING "
           "(false: straight to POINTING)", True),
     Field("handover_angle", "float", "ACQUISITION hands over to POINTING when the estimated pointing error stays "
@@ -78,6 +81,9 @@ def check_modes(v: dict, where: str) -> None:
     if not v["detumble_entry_rate"] > v["detumble_exit_rate"]:
         raise ConfigError(where, "detumble_entry_rate", f"expected more than detumble_exit_rate "
                                                         f"({v['detumble_exit_rate']:g} rad/s), got {v['detumble_entry_rate']:g}")
+    if not v["acquisition_abort_rate"] >= v["detumble_entry_rate"]:
+        raise ConfigError(where, "acquisition_abort_rate", f"expected at least detumble_entry_rate "
+                                                           f"({v['detumble_entry_rate']:g} rad/s), got {v['acquisition_abort_rate']:g}")
     if not v["acquisition_entry_angle"] > v["handover_angle"]:
         raise ConfigError(where, "acquisition_entry_angle", f"expected more than handover_angle "
                                                             f"({v['handover_angle']:g} rad), got {v['acquisition_entry_angle']:g}")

@@ -9,7 +9,7 @@ from magtune_core.design.modes import (ACQUISITION, DETUMBLE, POINTING, SAFE, Me
                                        ModeState)
 from magtune_core.design.node_params import MODE_FIELDS
 
-P = ModeParams(detumble_exit_rate=4e-3, detumble_exit_time=100.0, detumble_entry_rate=8e-3, detumble_entry_time=20.0,
+P = ModeParams(detumble_exit_rate=4e-3, detumble_exit_time=100.0, detumble_entry_rate=8e-3, detumble_entry_time=20.0, acquisition_abort_rate=1.2e-2,
                handover_angle=0.1, handover_time=50.0, acquisition_entry_angle=0.3, acquisition_entry_time=30.0,
                safe_recovery_time=10.0, detumble_exit_bdot=5e-7)
 
@@ -46,16 +46,22 @@ def test_detumble_exit_needs_persistence_and_a_calm_bdot():
 
 
 def test_hysteresis_between_the_rate_thresholds():
-    """In ACQUISITION a rate between the exit (4e-3) and the entry (8e-3) threshold changes nothing;
-    above the entry threshold for 20 s it goes back to DETUMBLE."""
+    """In POINTING a rate between the exit (4e-3) and the entry (8e-3) threshold changes nothing;
+    above the entry threshold for 20 s it goes back to DETUMBLE. ACQUISITION tolerates up to its
+    abort rate (1.2e-2 here: the capture transient)."""
     logic = ModeLogic(P)
-    s0 = ModeState(ACQUISITION, 0.0, "test")
-    state, trs, t = fly(logic, s0, [Measurements(rate=7e-3, pointing_error=1.0)] * 500)
+    s0 = ModeState(POINTING, 0.0, "test")
+    state, trs, t = fly(logic, s0, [Measurements(rate=7e-3, pointing_error=0.01)] * 500)
+    assert trs == [] and state.mode == POINTING
+    state, trs, _ = fly(logic, state, [Measurements(rate=9e-3, pointing_error=0.01)] * 19
+                        + [Measurements(rate=7e-3, pointing_error=0.01)]
+                        + [Measurements(rate=9e-3, pointing_error=0.01)] * 21, t0=t)
+    assert [(tr.source, tr.target, tr.t - t) for tr in trs] == [(POINTING, DETUMBLE, 40.0)]
+    assert trs[0].reason == "|w| > 0.008 rad/s for 20 s"
+    state, trs, _ = fly(logic, ModeState(ACQUISITION, 0.0, "test"), [Measurements(rate=1.1e-2, pointing_error=1.0)] * 300)
     assert trs == [] and state.mode == ACQUISITION
-    state, trs, _ = fly(logic, state, [Measurements(rate=9e-3, pointing_error=1.0)] * 19
-                        + [Measurements(rate=7e-3, pointing_error=1.0)]
-                        + [Measurements(rate=9e-3, pointing_error=1.0)] * 21, t0=t)
-    assert [(tr.source, tr.target, tr.t - t) for tr in trs] == [(ACQUISITION, DETUMBLE, 40.0)]
+    state, trs, _ = fly(logic, state, [Measurements(rate=1.3e-2, pointing_error=1.0)] * 21, t0=300.0)
+    assert [(tr.target, tr.t) for tr in trs] == [(DETUMBLE, 320.0)]
 
 
 def test_handover_and_fallback_by_pointing_error():
