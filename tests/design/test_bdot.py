@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from magtune_core.design.bdot import (BdotController, FieldDerivativeFilter, FilterState, bdot_gain,
-                                      geomagnetic_inclination)
 from magtune_core.base.rotations import rotation_matrix
+from magtune_core.design.bdot import BdotController, FieldDerivativeFilter, FilterState, bdot_gain, geomagnetic_inclination
 from magtune_core.design.params import SpacecraftParams
 from magtune_core.sim.dynamics import AttitudeDynamics
 

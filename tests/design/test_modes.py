@@ -5,8 +5,7 @@ import math
 import pytest
 
 from magtune_core.base.errors import ConfigError
-from magtune_core.design.modes import (ACQUISITION, DETUMBLE, POINTING, SAFE, Measurements, ModeLogic, ModeParams,
-                                       ModeState)
+from magtune_core.design.modes import ACQUISITION, DETUMBLE, POINTING, SAFE, Measurements, ModeLogic, ModeParams, ModeState
 from magtune_core.design.node_params import MODE_FIELDS
 
 P = ModeParams(detumble_exit_rate=4e-3, detumble_exit_time=100.0, detumble_entry_rate=8e-3, detumble_entry_time=20.0, acquisition_abort_rate=1.2e-2,
