@@ -38,6 +38,59 @@ CONTROLLER_FIELDS = (
           DEFAULT_MIN_FIELD, positive=True, bounds=(1e-12, 1e-3), unit="T"),
 )
 
+#: The mode logic (design/modes.py) and the detumble law (design/bdot.py): one schema that the mode
+#: manager node, the controller, the offline mode simulation and campaigns read. Rates are inertial
+#: body rates from the gyro (a detumbled body turns at ~W0 = 1.1e-3 rad/s at 450 km: the default
+#: thresholds are ~4 W0 and ~8 W0); times are sim time. docs/modes.md has the table and the reasons.
+MODE_FIELDS = (
+    Field("detumble_exit_rate", "float", "DETUMBLE ends when |w_gyro| stays below this [rad/s]", 4.5e-3,
+          positive=True, bounds=(1e-5, 1.0), unit="rad/s"),
+    Field("detumble_exit_bdot", "float", "... and the filtered |db/dt| below this [T/s]", 5e-7, positive=True,
+          bounds=(1e-10, 1e-3), unit="T/s"),
+    Field("detumble_exit_time", "float", "for this long [s] (persistence)", 600.0, nonnegative=True,
+          bounds=(0.0, 1e6), unit="s"),
+    Field("detumble_entry_rate", "float", "back to DETUMBLE when |w_gyro| stays above this [rad/s] "
+          "(above detumble_exit_rate: hysteresis)", 9e-3, positive=True, bounds=(1e-5, 1.0), unit="rad/s"),
+    Field("detumble_entry_time", "float", "for this long [s]", 60.0, nonnegative=True, bounds=(0.0, 1e6), unit="s"),
+    Field("acquisition_abort_rate", "float", "ACQUISITION goes back to DETUMBLE above this |w_gyro| [rad/s] "
+          "(eq. 17 spins the body up to 0.064 rad/s while capturing from large errors: docs/modes.md)", 0.09,
+          positive=True, bounds=(1e-5, 1.0), unit="rad/s"),
+    Field("acquisition", "bool", "fly ACQUISITION (eq. 17 capturing) between DETUMBLE and POINTING "
+          "(false: straight to POINTING)", True),
+    Field("handover_angle", "float", "ACQUISITION hands over to POINTING when the estimated pointing error stays "
+          "below this [rad] (captured: docs/modes.md)", 0.087, positive=True, bounds=(1e-4, 3.1416), unit="rad"),
+    Field("handover_time", "float", "for this long [s]", 600.0, nonnegative=True, bounds=(0.0, 1e6), unit="s"),
+    Field("acquisition_entry_angle", "float", "POINTING falls back to ACQUISITION when the error stays above this "
+          "[rad] (above handover_angle: hysteresis)", 0.26, positive=True, bounds=(1e-4, 3.1416), unit="rad"),
+    Field("acquisition_entry_time", "float", "for this long [s]", 120.0, nonnegative=True, bounds=(0.0, 1e6),
+          unit="s"),
+    Field("safe_recovery_time", "float", "SAFE returns to DETUMBLE when the sensors stay fresh this long [s]", 10.0,
+          nonnegative=True, bounds=(0.0, 1e6), unit="s"),
+)
+
+#: The detumble (B-dot) law's options (design/bdot.py).
+BDOT_FIELDS = (
+    Field("bdot_gain", "float", "normalized B-dot gain k [N m s]; 0 = the rule 2 W0 (1 + sin xi_m) J_min "
+          "(Avanzini & Giulietti 2012)", 0.0, nonnegative=True, bounds=(0.0, 1e6), unit="N m s"),
+    Field("bdot_cutoff", "float", "cut-off of the field-derivative filter [rad/s]", 0.2, positive=True,
+          bounds=(1e-4, 1e3), unit="rad/s"),
+)
+
+
+def check_modes(v: dict, where: str) -> None:
+    """The mode schema's rules across fields (``v``: parsed MODE_FIELDS): each entry threshold lies
+    beyond its exit threshold (hysteresis), else the mode could chatter; ConfigError naming the field."""
+    if not v["detumble_entry_rate"] > v["detumble_exit_rate"]:
+        raise ConfigError(where, "detumble_entry_rate", f"expected more than detumble_exit_rate "
+                                                        f"({v['detumble_exit_rate']:g} rad/s), got {v['detumble_entry_rate']:g}")
+    if not v["acquisition_abort_rate"] >= v["detumble_entry_rate"]:
+        raise ConfigError(where, "acquisition_abort_rate", f"expected at least detumble_entry_rate "
+                                                           f"({v['detumble_entry_rate']:g} rad/s), got {v['acquisition_abort_rate']:g}")
+    if not v["acquisition_entry_angle"] > v["handover_angle"]:
+        raise ConfigError(where, "acquisition_entry_angle", f"expected more than handover_angle "
+                                                            f"({v['handover_angle']:g} rad), got {v['acquisition_entry_angle']:g}")
+
+
 #: attitude_sensors: truth plus noise, bias and quantization (SI units).
 SENSOR_FIELDS = (
     SAMPLE_PERIOD,

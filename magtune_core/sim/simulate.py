@@ -21,6 +21,7 @@ from ..design.node_params import INITIAL_RATE_ERROR
 from ..design.params import SpacecraftParams
 from .dynamics import AttitudeDynamics
 from .fullenv import full_params, make_dynamics
+from .initial import substeps_for_rate
 from .metrics import figures_of_merit
 
 #: Initial rate error of the paper's simulation study, dw(0) [rad/s] (the simulator node's default too).
@@ -86,7 +87,7 @@ def initial_state(p: SpacecraftParams, dw0=DW0, q0=(1.0, 0.0, 0.0, 0.0)) -> np.n
 
 
 def simulate(K, p: SpacecraftParams | None = None, *, ts: float = 1.0, orbits: float = 1.0,
-             steps: int | None = None, substeps: int = 2, dw0=DW0, q0=(1.0, 0.0, 0.0, 0.0),
+             steps: int | None = None, substeps: int | None = 2, dw0=DW0, q0=(1.0, 0.0, 0.0, 0.0),
              dipole_limit=DEFAULT_DIPOLE_LIMIT, min_field=DEFAULT_MIN_FIELD,
              residual_dipole=(1.0, 1.0, 1.0), field=None, disturbances=(),
              dynamics: AttitudeDynamics | None = None, environment: str = "paper",
@@ -94,7 +95,8 @@ def simulate(K, p: SpacecraftParams | None = None, *, ts: float = 1.0, orbits: f
     """Closed loop of the nonlinear model with the sample-and-hold projection controller.
 
     ``steps`` (default ``round(orbits * T / ts)``) controller periods are simulated; each
-    period is integrated with ``substeps`` RK4 steps with the dipole held.
+    period is integrated with ``substeps`` RK4 steps with the dipole held (None: chosen from the
+    initial rate, :func:`magtune_core.sim.initial.substeps_for_rate`; 2 from the paper's dw(0)).
     ``environment``: "paper" (eq. 26 field, circular orbit, gravity gradient + residual dipole)
     or "full" (J2 orbit, IGRF, drag, SRP; ``env_options`` a
     :class:`magtune_core.sim.fullenv.FullEnvironmentOptions`): see :mod:`magtune_core.sim.fullenv`. In
@@ -108,6 +110,8 @@ def simulate(K, p: SpacecraftParams | None = None, *, ts: float = 1.0, orbits: f
         Histories at t_k = k Ts, k = 0..steps, and ``info`` (saturated / weak-field steps, divergence).
     """
     p = p or SpacecraftParams()
+    if substeps is None:
+        substeps = substeps_for_rate(np.array([0.0, 0.0, -p.orbit_rate]) + np.asarray(dw0, float), ts)
     if dynamics is None:
         if environment == "full":
             p = full_params(p, env_options)

@@ -1,0 +1,113 @@
+"""The mode machine (magtune_core.design.modes) on scripted measurement sequences: persistence,
+hysteresis, SAFE on stale sensors and its recovery, the reasons, and the one schema's errors."""
+import math
+
+import pytest
+
+from magtune_core.base.errors import ConfigError
+from magtune_core.design.modes import ACQUISITION, DETUMBLE, POINTING, SAFE, Measurements, ModeLogic, ModeParams, ModeState
+from magtune_core.design.node_params import MODE_FIELDS
+
+P = ModeParams(detumble_exit_rate=4e-3, detumble_exit_time=100.0, detumble_entry_rate=8e-3, detumble_entry_time=20.0, acquisition_abort_rate=1.2e-2,
+               handover_angle=0.1, handover_time=50.0, acquisition_entry_angle=0.3, acquisition_entry_time=30.0,
+               safe_recovery_time=10.0, detumble_exit_bdot=5e-7)
+
+
+def fly(logic, state, script, t0=0.0, dt=1.0):
+    """Feed ``script`` (a list of Measurements, one per dt) and collect the transitions."""
+    out, t = [], t0
+    for m in script:
+        state, tr = logic.step(state, m, t)
+        if tr is not None:
+            out.append(tr)
+        t += dt
+    return state, out, t
+
+
+def test_defaults_are_the_schema_s():
+    assert ModeParams() == ModeParams.from_mapping({})
+    assert {f.name for f in MODE_FIELDS} == set(ModeParams.__dataclass_fields__)
+
+
+def test_detumble_exit_needs_persistence_and_a_calm_bdot():
+    logic = ModeLogic(P)
+    calm = Measurements(rate=3e-3, bdot=1e-7)
+    # 99 s calm, one spike above the exit rate (not above the entry rate) resets the timer
+    state, trs, t = fly(logic, ModeState(), [calm] * 99 + [Measurements(rate=5e-3, bdot=1e-7)] + [calm] * 101)
+    assert [(tr.target, tr.t) for tr in trs] == [(ACQUISITION, 100.0 + 100.0)]  # timer restarted at 100 s
+    assert "|w| < 0.004 rad/s" in trs[0].reason and "100 s" in trs[0].reason
+    # a slow rate with a large |db/dt| is not calm (the field still turns fast in the body)
+    state, trs, _ = fly(logic, ModeState(), [Measurements(rate=3e-3, bdot=1e-6)] * 300)
+    assert trs == [] and state.mode == DETUMBLE
+    # no field derivative (nan): the rate guard alone decides, after exactly the persistence time
+    _, trs, _ = fly(logic, ModeState(), [Measurements(rate=3e-3)] * 101)
+    assert [tr.t for tr in trs] == [100.0]
+
+
+def test_hysteresis_between_the_rate_thresholds():
+    """In POINTING a rate between the exit (4e-3) and the entry (8e-3) threshold changes nothing;
+    above the entry threshold for 20 s it goes back to DETUMBLE. ACQUISITION tolerates up to its
+    abort rate (1.2e-2 here: the capture transient)."""
+    logic = ModeLogic(P)
+    s0 = ModeState(POINTING, 0.0, "test")
+    state, trs, t = fly(logic, s0, [Measurements(rate=7e-3, pointing_error=0.01)] * 500)
+    assert trs == [] and state.mode == POINTING
+    state, trs, _ = fly(logic, state, [Measurements(rate=9e-3, pointing_error=0.01)] * 19
+                        + [Measurements(rate=7e-3, pointing_error=0.01)]
+                        + [Measurements(rate=9e-3, pointing_error=0.01)] * 21, t0=t)
+    assert [(tr.source, tr.target, tr.t - t) for tr in trs] == [(POINTING, DETUMBLE, 40.0)]
+    assert trs[0].reason == "|w| > 0.008 rad/s for 20 s"
+    state, trs, _ = fly(logic, ModeState(ACQUISITION, 0.0, "test"), [Measurements(rate=1.1e-2, pointing_error=1.0)] * 300)
+    assert trs == [] and state.mode == ACQUISITION
+    state, trs, _ = fly(logic, state, [Measurements(rate=1.3e-2, pointing_error=1.0)] * 21, t0=300.0)
+    assert [(tr.target, tr.t) for tr in trs] == [(DETUMBLE, 320.0)]
+
+
+def test_handover_and_fallback_by_pointing_error():
+    logic = ModeLogic(P)
+    s0 = ModeState(ACQUISITION, 0.0, "test")
+    m_in, m_mid, m_out = (Measurements(rate=1e-3, pointing_error=e) for e in (0.05, 0.2, 0.5))
+    state, trs, t = fly(logic, s0, [m_in] * 51)
+    assert [(tr.target, tr.t) for tr in trs] == [(POINTING, 50.0)] and state.since == 50.0
+    # between the hand-over (0.1) and the fall-back (0.3) angle: stays in POINTING
+    state, trs, t = fly(logic, state, [m_mid] * 200, t0=t)
+    assert trs == [] and state.mode == POINTING
+    state, trs, _ = fly(logic, state, [m_out] * 31, t0=t)
+    assert [(tr.target, tr.t - t) for tr in trs] == [(ACQUISITION, 30.0)]
+    # no attitude estimate (nan): never hands over
+    state, trs, _ = fly(logic, s0, [Measurements(rate=1e-3)] * 300)
+    assert trs == [] and state.mode == ACQUISITION
+
+
+def test_without_acquisition_detumble_goes_to_pointing():
+    logic = ModeLogic(ModeParams(acquisition=False, detumble_exit_time=0.0))
+    state, trs, _ = fly(logic, ModeState(), [Measurements(rate=1e-3, bdot=1e-8, pointing_error=2.0)] * 10)
+    assert [tr.target for tr in trs] == [POINTING] and state.mode == POINTING  # no fall-back without acquisition
+
+
+def test_stale_sensors_go_safe_at_once_and_recover_to_detumble():
+    logic = ModeLogic(P)
+    good = Measurements(rate=1e-3, pointing_error=0.01)
+    state, trs, t = fly(logic, ModeState(POINTING, 0.0, "test"),
+                        [good] * 5 + [Measurements(rate=math.nan, stale=True)] * 30)
+    assert [(tr.target, tr.t, tr.reason) for tr in trs] == [(SAFE, 5.0, "sensor data stale")]
+    # fresh again, but a stale blip at 5 s restarts the recovery timer
+    state, trs, t2 = fly(logic, state, [good] * 5 + [Measurements(rate=1e-3, stale=True)] + [good] * 11, t0=t)
+    assert [(tr.source, tr.target, tr.t - t) for tr in trs] == [(SAFE, DETUMBLE, 16.0)]
+    assert "fresh for 10 s" in trs[0].reason
+
+
+def test_request_and_bad_values():
+    logic = ModeLogic(P)
+    state, tr = logic.request(ModeState(), SAFE, 3.0, "operator")
+    assert (state.mode, tr.source, tr.reason) == (SAFE, DETUMBLE, "operator")
+    with pytest.raises(ConfigError, match="field 'mode'"):
+        logic.request(state, "SLEEP", 3.0)
+    with pytest.raises(ConfigError, match=r"mode parameters: field 'detumble_exit_rate': expected a number in"):
+        ModeParams.from_mapping({"detumble_exit_rate": 5.0})
+    with pytest.raises(ConfigError, match="field 'detumble_entry_rate': expected more than detumble_exit_rate"):
+        ModeParams.from_mapping({"detumble_entry_rate": 1e-3})
+    with pytest.raises(ConfigError, match="field 'acquisition_entry_angle'"):
+        ModeParams.from_mapping({"handover_angle": 0.5})
+    with pytest.raises(ConfigError, match="field 'handover_time': expected a finite number"):
+        ModeParams.from_mapping({"handover_time": "long"})
