@@ -120,7 +120,7 @@ def best_start(model, sigma: float, req: Requirements, candidates) -> tuple:
 
 
 def run_level_front(model, req: Requirements, axis: str, levels, sigmas=DEFAULT_SIGMAS, *,
-                    settings: CmaSettings = CmaSettings(), seed: int = 0, workers: int = 1, starts=None,
+                    settings: CmaSettings | None = None, seed: int = 0, workers: int = 1, starts=None,
                     references=None, progress=None, executor=None) -> list[LevelPoint]:
     """Tune every (sigma, level) under ``req`` moved along ``axis`` (module docstring).
 
@@ -136,6 +136,7 @@ def run_level_front(model, req: Requirements, axis: str, levels, sigmas=DEFAULT_
     """
     if axis not in AXES:
         raise ValueError(f"axis must be one of {', '.join(AXES)}, got {axis!r}")
+    settings = settings or CmaSettings()
     starts, references = starts or {}, references or {}
     out: list[LevelPoint] = []
     for sigma in sorted(float(s) for s in sigmas):

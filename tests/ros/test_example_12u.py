@@ -70,9 +70,11 @@ def test_shipped_gains_figures():
                    dipole_limit=node["dipole_limit"], residual_dipole=node["residual_dipole"])
     t, dq = run.t, np.linalg.norm(run.x[:, :3], axis=1)
     second = t >= run.orbit_period
-    # README: max |dq_R| 4.524e-2 rad (2nd orbit), RMS over the 2nd orbit 3.045e-2 rad, below 5e-2 rad from
-    # t = 0, peak dipole 0.077 A m^2 (never saturated). 1 % covers libm/BLAS differences across machines.
-    assert settling_time(t, dq, 0.05) == 0.0
-    assert float(np.max(dq[second])) == pytest.approx(4.524e-2, rel=0.01)
-    assert float(np.sqrt(np.mean(dq[second] ** 2))) == pytest.approx(3.045e-2, rel=0.01)
-    assert float(np.max(np.abs(run.m))) == pytest.approx(0.0768, rel=0.01)
+    # docs/own_satellite.md: max |dq_R| 2.651e-2 rad (t = 117 s), 2.291e-2 over the 2nd orbit, RMS over the
+    # 2nd orbit 1.583e-2 rad, below 3e-2 rad from t = 0, peak dipole 0.1069 A m^2 (never saturated: the
+    # design spec's budget is 0.16). 1 % covers libm/BLAS differences across machines.
+    assert settling_time(t, dq, 0.03) == 0.0
+    assert float(np.max(dq)) == pytest.approx(2.651e-2, rel=0.01)
+    assert float(np.max(dq[second])) == pytest.approx(2.291e-2, rel=0.01)
+    assert float(np.sqrt(np.mean(dq[second] ** 2))) == pytest.approx(1.583e-2, rel=0.01)
+    assert float(np.max(np.abs(run.m))) == pytest.approx(0.1069, rel=0.01)
