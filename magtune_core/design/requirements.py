@@ -268,9 +268,10 @@ class FlightScreen:
         return out
 
 
-def scan_hold(model: AttitudeLTP, K, req: Requirements, points: int | None = None):
-    """Dense scan of the sample-and-hold requirement for one gain: is the loop with the gain times
-    ``gain_margin`` stable at ``points`` periods (default scan_periods) of [ts_min, ts_max]?
+def scan_hold(model: AttitudeLTP, K, req: Requirements, points: int | None = None, cache: dict | None = None):
+    """Dense scan of the sample-and-hold requirement for one gain: is the loop with the gain and with
+    the gain times ``gain_margin`` stable at ``points`` periods (default scan_periods) of [ts_min,
+    ts_max]? ``cache``: the loops already built for this model (:meth:`.sampled.SampledLoop.at`).
 
     Returns
     -------
@@ -279,7 +280,7 @@ def scan_hold(model: AttitudeLTP, K, req: Requirements, points: int | None = Non
     """
     K = np.asarray(K, dtype=float).reshape(1, 3, 6)
     ts = req.periods(points or req.sampling["scan_periods"])
-    loops = [SampledLoop.build(model, t) for t in ts]
+    loops = SampledLoop.at(model, ts, cache)
     return np.array([loop.ts for loop in loops]), np.array([held_margin_ok(loop, K, req.gain_margin) for loop in loops])
 
 
