@@ -71,7 +71,7 @@ class Truth:
     lit: np.ndarray | None = None  #: (N+1,) bool, cylindrical shadow
     r: np.ndarray | None = None  #: (N+1, 3) ECI position [m]
     v: np.ndarray | None = None  #: (N+1, 3) ECI velocity [m/s]
-    environment: str = "paper"
+    environment: str = "paper"  #: "paper", "full" or "kinematic" (built by the caller)
     jd0: float = 0.0  #: Julian date of t = 0 (full environment)
 
     @property
@@ -136,10 +136,23 @@ def truth_along(t, q_bo, p: SpacecraftParams | None = None, environment: str = "
 def onboard_field(truth: Truth, p: SpacecraftParams | None = None, igrf_degree: int = 10):
     """The on-board field model ``(k, r_meas) -> b_ref [T]`` (reference axes) of ``truth``'s
     environment: IGRF of ``igrf_degree`` at the measured position (full), eq. 26 (paper)."""
-    if truth.environment == "paper":
+    if truth.environment != "full":
         return lambda k, r_meas: truth.b_ref[k]
     igrf = IGRF(truth.jd0, igrf_degree)
     return lambda k, r_meas: igrf.eci(r_meas, truth.jd0 + truth.t[k] / 86400.0)
+
+
+def onboard_sun(truth: Truth):
+    """The on-board Sun model ``(k, r_meas) -> unit satellite-Sun vector`` (reference axes): in the
+    full environment the Sun position of date (:func:`magtune_core.env.sun.sun_position`) minus the
+    measured position; otherwise the truth's own ``sun_ref``."""
+    if truth.environment != "full":
+        return lambda k, r_meas: truth.sun_ref[k]
+
+    def sun(k, r_meas):
+        d = sun_position(truth.jd0 + truth.t[k] / 86400.0) - r_meas
+        return d / np.linalg.norm(d)
+    return sun
 
 
 @dataclass
@@ -165,12 +178,12 @@ class MekfRun:
 
 
 def run_mekf(truth: Truth, suite: SensorSuite | None = None, seed: int = 0, *, use_sun: bool = True,
-             field_model=None, bias_std: float = 5e-4, gate_probability: float = 0.9999,
+             field_model=None, sun_model=None, bias_std: float = 5e-4, gate_probability: float = 0.9999,
              init_angle: float = math.radians(10.0)) -> MekfRun:
     """Simulate the sensors on ``truth`` (seed ``seed``) and run the MEKF over it.
 
     Per sample: magnetometer update against ``field_model`` (default :func:`onboard_field`),
-    then the sun sensor's (unit vector, R = sigma_s^2 I, 2-dof gate) when valid and ``use_sun``,
+    then the sun sensor's against ``sun_model`` (default :func:`onboard_sun`) (unit vector, R = sigma_s^2 I, 2-dof gate) when valid and ``use_sun``,
     then propagation with the gyro sample. Start: Davenport fix of magnetometer and sun sensor at
     t_0 when the Sun is seen, else of the magnetometer now and the first one carried forward by
     the raw gyro once the reference field has turned by ``init_angle`` (its error inflated by
@@ -191,18 +204,19 @@ def run_mekf(truth: Truth, suite: SensorSuite | None = None, seed: int = 0, *, u
     have_sun = use_sun and truth.sun_body is not None
     if have_sun:
         s_m, s_ok, _ = sun_sensor(suite.sun, truth.sun_body, truth.lit, aux[:, SUN])
-        r_m = position_fix(suite.position, truth.r, truth.v, aux[:, FIX])[0]
     else:
-        s_ok = np.zeros(n1, dtype=bool)
-        r_m = truth.r if truth.r is not None else np.zeros((n1, 3))
+        s_m, s_ok = None, np.zeros(n1, dtype=bool)
+    r_m = (position_fix(suite.position, truth.r, truth.v, aux[:, FIX])[0] if truth.r is not None
+           else np.zeros((n1, 3)))
     field_model = field_model or onboard_field(truth)
+    sun_model = sun_model or onboard_sun(truth)
     params = MekfParams(suite.gyro.arw, suite.gyro.rrw, gate_probability)
     R_mag = suite.magnetometer.covariance
     R_sun = suite.sun.noise_std**2 * np.eye(3)
     gate_mag, gate_sun = params.gate(3), params.gate(2)
 
     out = _empty(truth, n1)
-    k0, state = _coarse_fix(mag, w_m, s_m if have_sun else None, s_ok, r_m, field_model, truth, suite,
+    k0, state = _coarse_fix(mag, w_m, s_m, s_ok, r_m, field_model, sun_model, truth.ts, suite,
                             bias_std, init_angle)
     out.k0 = k0
     counts = dict(mag_accepted=0, mag_rejected=0, sun_accepted=0, sun_rejected=0)
@@ -213,8 +227,7 @@ def run_mekf(truth: Truth, suite: SensorSuite | None = None, seed: int = 0, *, u
         out.nis_mag[k] = nis
         counts["mag_accepted" if ok else "mag_rejected"] += 1
         if s_ok[k]:
-            s_ref = _sun_model(truth, k, r_m[k])
-            state, _, nis, ok = update(state, s_m[k], s_ref, R_sun, gate_sun)
+            state, _, nis, ok = update(state, s_m[k], sun_model(k, r_m[k]), R_sun, gate_sun)
             out.nis_sun[k] = nis
             counts["sun_accepted" if ok else "sun_rejected"] += 1
         out.q[k], out.bias[k], out.P[k] = state.q, state.b, state.P
@@ -232,28 +245,22 @@ def _empty(truth: Truth, n1: int) -> MekfRun:
                    nan((n1, 3), np.nan), nan((n1, 3), np.nan), nan(n1, np.nan), nan(n1, np.nan), nan(n1, np.nan))
 
 
-def _sun_model(truth: Truth, k: int, r_meas) -> np.ndarray:
-    """On-board unit satellite-Sun vector in ECI: Sun model of date minus the measured position."""
-    d = sun_position(truth.jd0 + truth.t[k] / 86400.0) - r_meas
-    return d / np.linalg.norm(d)
-
-
-def _coarse_fix(mag, w_m, s_m, s_ok, r_m, field_model, truth, suite, bias_std, init_angle):
+def _coarse_fix(mag, w_m, s_m, s_ok, r_m, field_model, sun_model, ts, suite, bias_std, init_angle):
     """(k0, initial MekfState): see :func:`run_mekf`."""
     sig_mag = math.sqrt(suite.magnetometer.covariance[0, 0])
     b0_ref = field_model(0, r_m[0])
     if s_m is not None and s_ok[0]:
-        q, P = davenport([mag[0], s_m[0]], [b0_ref, _sun_model(truth, 0, r_m[0])],
+        q, P = davenport([mag[0], s_m[0]], [b0_ref, sun_model(0, r_m[0])],
                          [sig_mag / np.linalg.norm(mag[0]), suite.sun.noise_std])
         return 0, initial_state(q, P, bias_std)
     carry = np.array([1.0, 0.0, 0.0, 0.0])
     g = suite.gyro
     for k in range(1, len(mag)):
-        carry = quat_mul(carry, rotvec_quat(w_m[k - 1] * truth.ts))
+        carry = quat_mul(carry, rotvec_quat(w_m[k - 1] * ts))
         b_ref = field_model(k, r_m[k])
         cosang = b_ref @ b0_ref / (np.linalg.norm(b_ref) * np.linalg.norm(b0_ref))
         if cosang <= math.cos(init_angle):
-            T = k * truth.ts
+            T = k * ts
             b_old = rotation_matrix(carry).T @ mag[0]
             s_old = math.sqrt((sig_mag / np.linalg.norm(mag[0])) ** 2 + (bias_std * T) ** 2 + g.arw**2 * T)
             q, P = davenport([mag[k], b_old], [b_ref, b0_ref], [sig_mag / np.linalg.norm(mag[k]), s_old])
@@ -295,3 +302,30 @@ def error_summary(run: MekfRun, start: int = 0) -> dict:
     return dict(rms=np.sqrt(np.mean(e**2, axis=0)), inside_3sigma=np.mean(np.abs(e) <= 3 * sig, axis=0),
                 nees_mean=float(np.mean(run.nees[s])), bias_rms=np.sqrt(np.mean(run.bias_error[s] ** 2, axis=0)),
                 **run.counts)
+
+
+def kinematic_truth(n: int, ts: float, rate, b_ref, sun_ref=None, lit=None, q0=(1.0, 0.0, 0.0, 0.0)) -> Truth:
+    """A truth of ``n`` steps without dynamics: body rate ``rate(t)`` [rad/s] (held at its
+    mid-step value over each step, so the quaternion integrates exactly), reference field
+    ``b_ref(t)`` (N+1, 3) [T] and a fixed unit Sun vector ``sun_ref`` (3,) visible where ``lit``
+    (N+1,) bool (default everywhere); the consistency checks' truth (docs/estimation.md).
+
+    Returns
+    -------
+    Truth
+        environment "kinematic": the filter's reference vectors are the truth's.
+    """
+    t = np.arange(n + 1) * float(ts)
+    w = np.asarray(rate(t[:-1] + 0.5 * ts), dtype=float).reshape(n, 3)
+    q = np.empty((n + 1, 4))
+    q[0] = np.asarray(q0, dtype=float) / np.linalg.norm(q0)
+    for k in range(n):
+        q[k + 1] = quat_mul(q[k], rotvec_quat(w[k] * ts))
+    R = rotation_matrix(q)
+    br = np.asarray(b_ref(t), dtype=float).reshape(n + 1, 3)
+    extra = {}
+    if sun_ref is not None:
+        s = np.broadcast_to(np.asarray(sun_ref, dtype=float) / np.linalg.norm(sun_ref), (n + 1, 3))
+        extra = dict(sun_ref=s, sun_body=np.einsum("kji,kj->ki", R, s),
+                     lit=np.ones(n + 1, dtype=bool) if lit is None else np.asarray(lit, dtype=bool))
+    return Truth(t, q, w, br, np.einsum("kji,kj->ki", R, br), environment="kinematic", **extra)
