@@ -1,0 +1,331 @@
+"""Offline attitude estimation: truth along a run, the sensor models, the MEKF, its statistics.
+
+The truth is a sequence of attitudes q_bo(t_k) (body w.r.t. orbital axes, e.g. a
+:class:`magtune_core.sim.simulate.SimResult`) turned into the inertial attitude the gyro sees
+(:func:`truth_along`); the sensors are those of :mod:`magtune_core.design.sensors` with a seed;
+the filter :mod:`magtune_core.design.mekf` starts from a coarse fix
+(:mod:`magtune_core.design.attitude_fix`). On-board models: in the full environment IGRF at the
+position fix (degree configurable) and the Sun model of :mod:`magtune_core.env.sun`; in the paper
+environment the environment's own field (eq. 26), so the filter is not biased by a model the truth
+does not use. Equations and figures: docs/estimation.md.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.stats import chi2
+
+from ..base.rotations import matrix_to_quat, quat_mul, rotation_matrix
+from ..design.attitude_fix import davenport
+from ..design.mekf import MekfParams, attitude_error, initial_state, propagate, quat_rotvec, rotvec_quat, update
+from ..design.params import SpacecraftParams
+from ..design.sensors import (
+    AUX_NORMALS,
+    FIX,
+    GYRO_U,
+    GYRO_V,
+    MAG,
+    SUN,
+    Gyro,
+    Magnetometer,
+    PositionFix,
+    SensorSuite,
+    SunSensor,
+    aux_rng,
+    draw,
+    gyro,
+    magnetometer,
+    position_fix,
+    sun_sensor,
+)
+from ..env.environment import Environment, body_to_eci
+from ..env.igrf import IGRF
+from ..env.sun import shadow_cylindrical, sun_position
+from .fullenv import FullEnvironmentOptions
+
+
+def default_suite(ts: float = 1.0) -> SensorSuite:
+    """The estimator's default sensors (docs/estimation.md#parameters): 100 nT magnetometer, MEMS
+    gyro sigma_v 1e-4 rad/s^0.5 (0.34 deg/h^0.5), sigma_u 1e-6 rad/s^1.5, bias (40, -60, 30) deg/h,
+    whole-sphere coarse sun sensors 0.5 deg per axis, 10 m / 0.01 m/s position fix."""
+    bias = tuple(np.deg2rad(np.array([40.0, -60.0, 30.0])) / 3600.0)
+    return SensorSuite(ts, Magnetometer(100e-9), Gyro(1e-4, 1e-6, bias), 0.0, SunSensor(math.radians(0.5)),
+                       PositionFix(10.0, 0.01))
+
+
+@dataclass(frozen=True)
+class Truth:
+    """Truth at t_k = k ts (N + 1 samples) in an inertial reference frame: ECI in the full
+    environment, the orbital axes at t = 0 in the paper's (whose orbital frame turns at
+    [0, 0, -W0] about a fixed axis)."""
+
+    t: np.ndarray  #: (N+1,) [s]
+    q: np.ndarray  #: (N+1, 4) body w.r.t. reference
+    w: np.ndarray  #: (N, 3) mean body rate over [t_k, t_k+1): rotation vector / ts [rad/s]
+    b_ref: np.ndarray  #: (N+1, 3) field in reference axes [T]
+    b_body: np.ndarray  #: (N+1, 3) field in body axes [T]
+    sun_ref: np.ndarray | None = None  #: (N+1, 3) unit satellite-Sun vector, reference axes
+    sun_body: np.ndarray | None = None  #: (N+1, 3) the same in body axes
+    lit: np.ndarray | None = None  #: (N+1,) bool, cylindrical shadow
+    r: np.ndarray | None = None  #: (N+1, 3) ECI position [m]
+    v: np.ndarray | None = None  #: (N+1, 3) ECI velocity [m/s]
+    environment: str = "paper"  #: "paper", "full" or "kinematic" (built by the caller)
+    jd0: float = 0.0  #: Julian date of t = 0 (full environment)
+
+    @property
+    def ts(self) -> float:
+        """Sample period [s]."""
+        return float(self.t[1] - self.t[0])
+
+
+def _rz(angle) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    z, o = np.zeros_like(c), np.ones_like(c)
+    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
+
+
+def mean_rates(q, ts: float) -> np.ndarray:
+    """(N, 3) body rates [rad/s] taking q_k to q_k+1 at constant rate: log(q_k^-1 (x) q_k+1) / ts."""
+    conj = np.array([1.0, -1.0, -1.0, -1.0])
+    return np.array([quat_rotvec(quat_mul(q[k] * conj, q[k + 1])) for k in range(len(q) - 1)]) / ts
+
+
+def truth_along(t, q_bo, p: SpacecraftParams | None = None, environment: str = "paper",
+                options: FullEnvironmentOptions | None = None) -> Truth:
+    """The :class:`Truth` of a run's attitudes ``q_bo`` (N+1, 4) at times ``t`` (uniform).
+
+    "paper": reference = orbital axes at t = 0, R_ref<-orb(t) = R_z(-W0 t), field eq. 26 of ``p``;
+    no Sun. "full": reference = ECI; J2 orbit, IGRF (``options.igrf_degree``), Sun and
+    cylindrical shadow of :class:`magtune_core.env.environment.Environment`.
+
+    Returns
+    -------
+    Truth
+        The reference-frame truth; ``w`` the constant-rate interpolation between the samples
+        (what a rate-integrating gyro measures up to its noise).
+    """
+    p = p or SpacecraftParams()
+    t = np.asarray(t, dtype=float)
+    q_bo = np.asarray(q_bo, dtype=float)
+    R_bo = rotation_matrix(q_bo)
+    if environment == "paper":
+        R_bi = _rz(-p.orbit_rate * t) @ R_bo
+        b_ref = np.einsum("kij,kj->ki", _rz(-p.orbit_rate * t), np.asarray(p.field()(t)).reshape(len(t), 3))
+        extra = {}
+    else:
+        opts = options or FullEnvironmentOptions()
+        env = Environment(opts.environment_config(p), orbit_duration=float(t[-1]) + 60.0)
+        r, v = env.orbit.state(t)
+        R_bi = body_to_eci(q_bo, r, v)
+        b_ref = env.magnetic_field_eci(t, r)
+        sun = env.sun_eci(t)
+        d = sun - r
+        s_ref = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        extra = dict(sun_ref=s_ref, sun_body=np.einsum("kji,kj->ki", R_bi, s_ref),
+                     lit=shadow_cylindrical(r, sun) > 0.5, r=r, v=v, environment="full", jd0=env.jd0)
+    q = np.array([matrix_to_quat(R) for R in R_bi])
+    for k in range(1, len(q)):  # continuous sign
+        if q[k] @ q[k - 1] < 0:
+            q[k] = -q[k]
+    ts = float(t[1] - t[0])
+    return Truth(t, q, mean_rates(q, ts), b_ref, np.einsum("kji,kj->ki", R_bi, b_ref), **extra)
+
+
+def onboard_field(truth: Truth, p: SpacecraftParams | None = None, igrf_degree: int = 10):
+    """The on-board field model ``(k, r_meas) -> b_ref [T]`` (reference axes) of ``truth``'s
+    environment: IGRF of ``igrf_degree`` at the measured position (full), eq. 26 (paper)."""
+    if truth.environment != "full":
+        return lambda k, r_meas: truth.b_ref[k]
+    igrf = IGRF(truth.jd0, igrf_degree)
+    return lambda k, r_meas: igrf.eci(r_meas, truth.jd0 + truth.t[k] / 86400.0)
+
+
+def onboard_sun(truth: Truth):
+    """The on-board Sun model ``(k, r_meas) -> unit satellite-Sun vector`` (reference axes): in the
+    full environment the Sun position of date (:func:`magtune_core.env.sun.sun_position`) minus the
+    measured position; otherwise the truth's own ``sun_ref``."""
+    if truth.environment != "full":
+        return lambda k, r_meas: truth.sun_ref[k]
+
+    def sun(k, r_meas):
+        d = sun_position(truth.jd0 + truth.t[k] / 86400.0) - r_meas
+        return d / np.linalg.norm(d)
+    return sun
+
+
+@dataclass
+class MekfRun:
+    """Histories of an offline MEKF run at t_k (NaN before the filter starts at ``k0``)."""
+
+    t: np.ndarray
+    q: np.ndarray  #: (N+1, 4) estimate after the updates at t_k
+    bias: np.ndarray  #: (N+1, 3) estimated gyro bias [rad/s]
+    P: np.ndarray  #: (N+1, 6, 6)
+    error: np.ndarray  #: (N+1, 3) attitude error dtheta [rad], body axes (q_true = q (x) exp(dtheta/2))
+    bias_error: np.ndarray  #: (N+1, 3) true minus estimated bias [rad/s]
+    nees: np.ndarray  #: (N+1,) attitude NEES dtheta^T P_tt^-1 dtheta (3 dof)
+    nis_mag: np.ndarray  #: (N+1,) NIS of the magnetometer (3 dof)
+    nis_sun: np.ndarray  #: (N+1,) NIS of the sun sensor (2 dof; NaN: no measurement)
+    k0: int = 0  #: first sample with an estimate (coarse fix)
+    counts: dict = field(default_factory=dict)  #: accepted / rejected updates per sensor
+    lit: np.ndarray | None = None  #: (N+1,) sun sensor valid
+
+    def sigma(self) -> np.ndarray:
+        """(N+1, 3) standard deviations of the attitude error per body axis [rad]."""
+        return np.sqrt(np.diagonal(self.P[:, :3, :3], axis1=1, axis2=2))
+
+
+def run_mekf(truth: Truth, suite: SensorSuite | None = None, seed: int = 0, *, use_sun: bool = True,
+             field_model=None, sun_model=None, bias_std: float = 5e-4, gate_probability: float = 0.9999,
+             init_angle: float = math.radians(10.0)) -> MekfRun:
+    """Simulate the sensors on ``truth`` (seed ``seed``) and run the MEKF over it.
+
+    Per sample: magnetometer update against ``field_model`` (default :func:`onboard_field`),
+    then the sun sensor's against ``sun_model`` (default :func:`onboard_sun`) (unit vector, R = sigma_s^2 I, 2-dof gate) when valid and ``use_sun``,
+    then propagation with the gyro sample. Start: Davenport fix of magnetometer and sun sensor at
+    t_0 when the Sun is seen, else of the magnetometer now and the first one carried forward by
+    the raw gyro once the reference field has turned by ``init_angle`` (its error inflated by
+    (bias_std T)^2 + sigma_v^2 T). Initial bias 0 with std ``bias_std`` [rad/s].
+
+    Returns
+    -------
+    MekfRun
+        Estimates, covariances, errors, NEES, NIS and the gate counts.
+    """
+    suite = suite or default_suite(truth.ts)
+    n1, ts = len(truth.t), truth.ts
+    rng = np.random.default_rng(seed)
+    nrm = draw(rng, n1)
+    aux = draw(aux_rng(seed), n1, AUX_NORMALS)
+    mag = magnetometer(suite.magnetometer, truth.b_body, nrm[:, MAG])
+    w_m, beta = gyro(suite.gyro, truth.w, ts, suite.gyro.bias, nrm[:-1, GYRO_V], nrm[:-1, GYRO_U])
+    have_sun = use_sun and truth.sun_body is not None
+    if have_sun:
+        s_m, s_ok, _ = sun_sensor(suite.sun, truth.sun_body, truth.lit, aux[:, SUN])
+    else:
+        s_m, s_ok = None, np.zeros(n1, dtype=bool)
+    r_m = (position_fix(suite.position, truth.r, truth.v, aux[:, FIX])[0] if truth.r is not None
+           else np.zeros((n1, 3)))
+    field_model = field_model or onboard_field(truth)
+    sun_model = sun_model or onboard_sun(truth)
+    params = MekfParams(suite.gyro.arw, suite.gyro.rrw, gate_probability)
+    R_mag = suite.magnetometer.covariance
+    R_sun = suite.sun.noise_std**2 * np.eye(3)
+    gate_mag, gate_sun = params.gate(3), params.gate(2)
+
+    out = _empty(truth, n1)
+    k0, state = _coarse_fix(mag, w_m, s_m, s_ok, r_m, field_model, sun_model, truth.ts, suite,
+                            bias_std, init_angle)
+    out.k0 = k0
+    counts = dict(mag_accepted=0, mag_rejected=0, sun_accepted=0, sun_rejected=0)
+    for k in range(k0, n1):
+        if k > k0:
+            state = propagate(state, w_m[k - 1], ts, params)
+        state, _, nis, ok = update(state, mag[k], field_model(k, r_m[k]), R_mag, gate_mag)
+        out.nis_mag[k] = nis
+        counts["mag_accepted" if ok else "mag_rejected"] += 1
+        if s_ok[k]:
+            state, _, nis, ok = update(state, s_m[k], sun_model(k, r_m[k]), R_sun, gate_sun)
+            out.nis_sun[k] = nis
+            counts["sun_accepted" if ok else "sun_rejected"] += 1
+        out.q[k], out.bias[k], out.P[k] = state.q, state.b, state.P
+        e = attitude_error(truth.q[k], state.q)
+        out.error[k] = e
+        out.nees[k] = e @ np.linalg.solve(state.P[:3, :3], e)
+    out.bias_error = beta - out.bias
+    out.counts, out.lit = counts, s_ok
+    return out
+
+
+def _empty(truth: Truth, n1: int) -> MekfRun:
+    nan = np.full
+    return MekfRun(truth.t, nan((n1, 4), np.nan), nan((n1, 3), np.nan), nan((n1, 6, 6), np.nan),
+                   nan((n1, 3), np.nan), nan((n1, 3), np.nan), nan(n1, np.nan), nan(n1, np.nan), nan(n1, np.nan))
+
+
+def _coarse_fix(mag, w_m, s_m, s_ok, r_m, field_model, sun_model, ts, suite, bias_std, init_angle):
+    """(k0, initial MekfState): see :func:`run_mekf`."""
+    sig_mag = math.sqrt(suite.magnetometer.covariance[0, 0])
+    b0_ref = field_model(0, r_m[0])
+    if s_m is not None and s_ok[0]:
+        q, P = davenport([mag[0], s_m[0]], [b0_ref, sun_model(0, r_m[0])],
+                         [sig_mag / np.linalg.norm(mag[0]), suite.sun.noise_std])
+        return 0, initial_state(q, P, bias_std)
+    carry = np.array([1.0, 0.0, 0.0, 0.0])
+    g = suite.gyro
+    for k in range(1, len(mag)):
+        carry = quat_mul(carry, rotvec_quat(w_m[k - 1] * ts))
+        b_ref = field_model(k, r_m[k])
+        cosang = b_ref @ b0_ref / (np.linalg.norm(b_ref) * np.linalg.norm(b0_ref))
+        if cosang <= math.cos(init_angle):
+            T = k * ts
+            b_old = rotation_matrix(carry).T @ mag[0]
+            s_old = math.sqrt((sig_mag / np.linalg.norm(mag[0])) ** 2 + (bias_std * T) ** 2 + g.arw**2 * T)
+            q, P = davenport([mag[k], b_old], [b_ref, b0_ref], [sig_mag / np.linalg.norm(mag[k]), s_old])
+            return k, initial_state(q, P, bias_std)
+    raise ValueError("the reference field never turned by init_angle: no coarse fix from the magnetometer alone")
+
+
+# ---------------------------------------------------------------- statistics
+def nees_windows(nees, n: int, dof: int = 3, probability: float = 0.95) -> tuple[np.ndarray, float, float]:
+    """Window means of ``nees`` over ``n`` consecutive samples and the two-sided chi-square band
+    of the mean of n independent chi2(dof) values (Bar-Shalom, Li & Kirubarajan 2001, sec. 5.4.2).
+
+    Returns
+    -------
+    means : ndarray (M,)
+        Mean NEES of each complete window.
+    low, high : float
+        The ``probability`` band chi2.ppf((1 -+ p)/2, n dof) / n.
+    """
+    x = np.asarray(nees, dtype=float)
+    x = x[np.isfinite(x)]
+    m = len(x) // n
+    means = x[: m * n].reshape(m, n).mean(axis=1)
+    a = (1.0 - probability) / 2
+    return means, float(chi2.ppf(a, n * dof) / n), float(chi2.ppf(1 - a, n * dof) / n)
+
+
+def error_summary(run: MekfRun, start: int = 0) -> dict:
+    """RMS error per body axis [rad], fraction of samples inside 3 sigma per axis, mean NEES,
+    from sample ``start`` on (after the filter started).
+
+    Returns
+    -------
+    dict
+        ``rms`` (3,), ``inside_3sigma`` (3,), ``nees_mean``, ``bias_rms`` (3,) [rad/s], counts.
+    """
+    s = slice(max(start, run.k0), None)
+    e, sig = run.error[s], run.sigma()[s]
+    return dict(rms=np.sqrt(np.mean(e**2, axis=0)), inside_3sigma=np.mean(np.abs(e) <= 3 * sig, axis=0),
+                nees_mean=float(np.mean(run.nees[s])), bias_rms=np.sqrt(np.mean(run.bias_error[s] ** 2, axis=0)),
+                **run.counts)
+
+
+def kinematic_truth(n: int, ts: float, rate, b_ref, sun_ref=None, lit=None, q0=(1.0, 0.0, 0.0, 0.0)) -> Truth:
+    """A truth of ``n`` steps without dynamics: body rate ``rate(t)`` [rad/s] (held at its
+    mid-step value over each step, so the quaternion integrates exactly), reference field
+    ``b_ref(t)`` (N+1, 3) [T] and a fixed unit Sun vector ``sun_ref`` (3,) visible where ``lit``
+    (N+1,) bool (default everywhere); the consistency checks' truth (docs/estimation.md).
+
+    Returns
+    -------
+    Truth
+        environment "kinematic": the filter's reference vectors are the truth's.
+    """
+    t = np.arange(n + 1) * float(ts)
+    w = np.asarray(rate(t[:-1] + 0.5 * ts), dtype=float).reshape(n, 3)
+    q = np.empty((n + 1, 4))
+    q[0] = np.asarray(q0, dtype=float) / np.linalg.norm(q0)
+    for k in range(n):
+        q[k + 1] = quat_mul(q[k], rotvec_quat(w[k] * ts))
+    R = rotation_matrix(q)
+    br = np.asarray(b_ref(t), dtype=float).reshape(n + 1, 3)
+    extra = {}
+    if sun_ref is not None:
+        s = np.broadcast_to(np.asarray(sun_ref, dtype=float) / np.linalg.norm(sun_ref), (n + 1, 3))
+        extra = dict(sun_ref=s, sun_body=np.einsum("kji,kj->ki", R, s),
+                     lit=np.ones(n + 1, dtype=bool) if lit is None else np.asarray(lit, dtype=bool))
+    return Truth(t, q, w, br, np.einsum("kji,kj->ki", R, br), environment="kinematic", **extra)
