@@ -3,6 +3,7 @@ requirement of the design spec (``--over ts_max|dipole_limit``, :mod:`..studies.
 J, c1, c2, table and plot."""
 from __future__ import annotations
 
+import json
 import os
 import sys
 import time
@@ -82,6 +83,9 @@ def register(sub) -> None:
                    help="writes front.md/.png/.json (front_<over>.* with --over a requirement) here (default: "
                         "docs/ of the repository; existing files are kept unless --force)")
     add_scheduler_arguments(p, TUNER_SCHEDULER_HELP)
+    p.add_argument("--resume", action="store_true",
+                   help="with --over a requirement: keep the points of an interrupted run of the same front "
+                        "(front_<over>.partial.json in --out-dir, written after every point) and tune the rest")
     add_force_argument(p)
     field_model_argument(p)
     p.set_defaults(func=run)
@@ -181,10 +185,26 @@ def run_requirement_front(args) -> int:
         print(f"magtune front: sigma={pt.sigma:g} {axis}={pt.level:g} [{pt.label}] {what}{extra}",
               file=sys.stderr, flush=True)
 
+    partial = out / f"front_{axis}.partial.json"
+    done = []
+    if args.resume and partial.is_file():
+        try:
+            done = [rfront.LevelPoint.from_dict(d) for d in json.loads(partial.read_text())["points"]]
+        except (ValueError, KeyError, TypeError) as exc:
+            raise ConfigError(partial, None, f"not a partial front record ({exc}); remove it or drop --resume") from None
+        print(f"magtune front: resuming with {len(done)} points of {partial}", file=sys.stderr)
+    kept = list(done)
+
+    def record(pt):  # the partial record after every point: an interrupted front loses one point, not all
+        kept.append(pt)
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write(partial, jsonout.dumps({"axis": axis, "points": [p.as_dict() for p in kept]}) + "\n")
+        progress(pt)
+
     with cluster_executor(sched, tls) as executor:
         points = rfront.run_level_front(model, req, axis, levels, sigmas, settings=settings, seed=args.seed,
                                         workers=args.workers, starts=starts, references=references,
-                                        progress=progress, executor=executor)
+                                        progress=record, executor=executor, done=done)
     wall = time.perf_counter() - t0
     out.mkdir(parents=True, exist_ok=True)
     table = rfront.level_table(points, axis)
@@ -209,6 +229,7 @@ def run_requirement_front(args) -> int:
     atomic_write(out / names[2], jsonout.dumps({"command": cmd, "seconds": wall, "field_model": model.field.name,
                                                "axis": axis, "spec": req.describe(),
                                                "points": [p.as_dict() for p in points]}, indent=1) + "\n")
+    partial.unlink(missing_ok=True)
     print(table)
     print(f"wrote {', '.join(str(out / n) for n in names)} ({wall:.0f} s)")
     return 0

@@ -84,6 +84,17 @@ class LevelPoint:
         return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in d.items()}
 
 
+    @classmethod
+    def from_dict(cls, d: dict) -> "LevelPoint":
+        """The point of :meth:`as_dict` (a partial front's record, for ``--resume``)."""
+        nan = float("nan")
+        K = None if d.get("gain") is None else np.asarray(d["gain"], dtype=float).reshape(3, 6)
+        return cls(float(d["sigma"]), float(d["level"]), d["label"], K,
+                   *(nan if d.get(k) is None else float(d[k]) for k in ("J", "c1", "c2", "hold_margin_min",
+                                                                        "dipole_peak")),
+                   bool(d["met"]), bool(d["certified"]), int(d["evaluations"]), float(d["seconds"]), d["note"])
+
+
 def evaluate(model, K, sigma: float, req: Requirements, label: str, level: float) -> LevelPoint:
     """A gain's figures at ``sigma`` and its requirement values under ``req`` (no tuning).
 
@@ -121,13 +132,14 @@ def best_start(model, sigma: float, req: Requirements, candidates) -> tuple:
 
 def run_level_front(model, req: Requirements, axis: str, levels, sigmas=DEFAULT_SIGMAS, *,
                     settings: CmaSettings | None = None, seed: int = 0, workers: int = 1, starts=None,
-                    references=None, progress=None, executor=None) -> list[LevelPoint]:
+                    references=None, progress=None, executor=None, done=()) -> list[LevelPoint]:
     """Tune every (sigma, level) under ``req`` moved along ``axis`` (module docstring).
 
     ``starts``: {sigma: K} first start of each sigma (e.g. the shipped gains; else the LQ gain);
     ``references``: {sigma: (label, K)} gains evaluated at every level (the paper-method gains);
     ``progress(point)`` after each point; ``executor``: the tuner's evaluations on a cluster
-    (:class:`magtune_core.design.objective.HinfObjective`), None for local ``workers``.
+    (:class:`magtune_core.design.objective.HinfObjective`), None for local ``workers``; ``done``:
+    points of an interrupted run of the same front (``--resume``), kept as they are.
 
     Returns
     -------
@@ -142,6 +154,12 @@ def run_level_front(model, req: Requirements, axis: str, levels, sigmas=DEFAULT_
     for sigma in sorted(float(s) for s in sigmas):
         prev = None
         for level in hardest_first(axis, levels):
+            kept = [p for p in done if p.sigma == sigma and p.level == level]
+            tuned = [p for p in kept if p.label == "tuned"]
+            if tuned and (sigma not in references or len(kept) > 1):  # this level is complete
+                out.extend(kept)
+                prev = tuned[0].K if tuned[0].K is not None else prev
+                continue
             r = at_level(req, axis, level)
             t0 = time.perf_counter()
             cands = [(name, K) for name, K in (("start", starts.get(sigma)), ("previous level", prev)) if K is not None]

@@ -77,3 +77,19 @@ def test_bad_options_are_one_line_and_status_2(tmp_path, capsys, argv, option):
     assert main(["front", *argv, "--out-dir", str(tmp_path / "x"), *TINY]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and option in err[0]
+
+
+def test_resume_keeps_the_points_of_an_interrupted_front(tmp_path, spec, capsys):
+    out = tmp_path / "f"
+    args = ["front", "--over", "ts_max", "--levels", "1,20", "--sigmas", "60", "--spec", str(spec), "--reference",
+            "--out-dir", str(out), *TINY]
+    assert main(args) == 0
+    first = json.loads((out / "front_ts_max.json").read_text())["points"]
+    assert not (out / "front_ts_max.partial.json").exists()  # removed once the front is complete
+    # an interruption after the first level: its partial record holds that point only
+    (out / "front_ts_max.partial.json").write_text(json.dumps({"axis": "ts_max", "points": first[:1]}))
+    assert main(args + ["--force", "--resume"]) == 0
+    again = json.loads((out / "front_ts_max.json").read_text())["points"]
+    assert again[0] == first[0]  # kept as recorded, not re-tuned
+    assert [p["level"] for p in again] == [20.0, 1.0] and again[1]["gain"] is not None
+    assert "resuming with 1 points" in capsys.readouterr().err
