@@ -43,3 +43,18 @@ def test_runtime_imports_are_declared():
     assert {"numpy", "scipy", "yaml", "mcap"} <= third  # the walk sees the imports
     assert third <= set(module_to_dist), f"undeclared third-party imports: {third - set(module_to_dist)}"
     assert {module_to_dist[m] for m in third} <= runtime
+
+
+def test_no_symlink_and_no_environment_is_tracked():
+    """The repository holds no symlink (a worktree's .venv or ros2_ws/install link, once committed, replaced
+    the real ones of a checkout on merge) and nothing of what bootstrap builds."""
+    import subprocess
+
+    if not (ROOT / ".git").exists():
+        return  # an sdist or unpacked copy: nothing tracked to check
+    staged = subprocess.run(["git", "-C", str(ROOT), "ls-files", "-s"], capture_output=True, text=True, check=True)
+    links = [ln.split("\t", 1)[1] for ln in staged.stdout.splitlines() if ln.startswith("120000")]
+    assert not links, f"tracked symlinks: {links}"
+    built = [p for p in (ln.split("\t", 1)[1] for ln in staged.stdout.splitlines())
+             if p.split("/")[0] == ".venv" or p.startswith(("ros2_ws/install", "ros2_ws/build", "ros2_ws/log"))]
+    assert not built, f"tracked build outputs: {built[:5]}"
