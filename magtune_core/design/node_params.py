@@ -189,7 +189,7 @@ MANAGER_FIELDS = (
 #: The SIL nodes' schemas by node name.
 SIL_NODE_FIELDS = {"simulator": SIMULATOR_FIELDS, "attitude_sensors": SENSOR_FIELDS + (AUTOSTART,),
                    "controller": CONTROLLER_FIELDS + BDOT_FIELDS + (AUTOSTART,),
-                   "mode_manager": MANAGER_FIELDS + MODE_FIELDS}
+                   "mode_manager": MANAGER_FIELDS + MODE_FIELDS + BDOT_FIELDS}
 #: Parameters every node has (rclpy's own).
 NODE_COMMON = ("use_sim_time",)
 #: Every node parameter a file handed to all SIL nodes may set besides the spacecraft fields.

@@ -17,10 +17,12 @@ Health, two clocks:
              heartbeat) at 1 Hz of steady time; none for ``heartbeat_timeout`` s -> SAFE, the
              node named in the reason and on /diagnostics (ERROR). Wall time, because in lockstep
              a dead node stalls the simulator and so /clock: a sim-time timeout would never expire.
-  staleness  sim time: a sim-time timer (period ts) finds no sensor sample received for
-             ``stale_timeout`` of sim time -> the logic sees ``stale`` -> SAFE (measured from the
-             receipt, not the stamp: the manager is outside the lockstep and may process samples
-             later than the world produced them, never out of order); it recovers by itself after
+  staleness  sim time, from the stamps only: a sim-time timer (period ts) finds one sensor stream
+             whose last stamp lags the newest of the others by more than ``stale_timeout`` -> the
+             logic sees ``stale`` -> SAFE (stamps, not the clock: the manager is outside the
+             lockstep and may process samples well after /clock moved on, so "now minus last
+             sample" fired spuriously at full speed; a stop of every stream is the liveness
+             check's, or the simulator's missed steps'); it recovers by itself after
              ``safe_recovery_time`` of fresh data (while a heartbeat is missing, SAFE holds).
              Sim time, because "data older than 3 s" is a statement about the simulated world.
 
@@ -85,7 +87,6 @@ class ModeManager(Node):
         self.previous = self.state.mode
         self.last = None            # last Measurements
         self.last_sample_ns = None  # stamp of the last sensor sample
-        self.last_rx_ns = None      # sim time at which it was received
         self.beats: dict[str, float] = {}      # node -> steady time [s] of its last heartbeat
         self.errors: dict[str, str] = {}       # node -> its ERROR status message (failed configure)
         self.lost: set[str] = set()
@@ -207,15 +208,18 @@ class ModeManager(Node):
                 self.diag.publish()
 
     def check_stale(self):
-        """Staleness on sim time: no sensor sample for stale_timeout -> the logic steps with ``stale``."""
-        if self.last_rx_ns is None:
+        """Staleness on sim time, from the stamps: a sensor stream whose last stamp lags the newest
+        stamp of the others by more than stale_timeout -> the logic steps with ``stale``."""
+        last = self.gate.last_ns
+        if min(last) < 0:
             return
-        now = self.get_clock().now().nanoseconds
-        if now - self.last_rx_ns > self.stale_ns:
-            self.diag.count("stale", f"no sensor sample received since t={self.last_rx_ns * 1e-9:.3f} s "
-                                     f"(now {now * 1e-9:.3f} s; last stamp {self.last_sample_ns * 1e-9:.3f} s)")
+        lag = max(last) - min(last)
+        if lag > self.stale_ns:
+            slot = last.index(min(last))
+            self.diag.count("stale", f"{('sensors/imu', 'sensors/magnetic_field', 'sensors/attitude')[slot]} "
+                                     f"{lag * 1e-9:.1f} s behind the other sensor streams")
             m = self.last or Measurements(rate=math.nan)
-            self.step(Measurements(m.rate, m.bdot, m.pointing_error, stale=True), now * 1e-9)
+            self.step(Measurements(m.rate, m.bdot, m.pointing_error, stale=True), max(last) * 1e-9)
 
     # ---------------------------------------------------------------- mode logic
     def on_sensor(self, slot: int, msg):
@@ -243,7 +247,7 @@ class ModeManager(Node):
                                                                           + o.z * o.z), 1e-300)
         m = Measurements(rate=math.sqrt(w.x * w.x + w.y * w.y + w.z * w.z), bdot=float(np.linalg.norm(bdot)),
                          pointing_error=2.0 * math.asin(min(qv, 1.0)))
-        self.last, self.last_sample_ns, self.last_rx_ns = m, ns, self.get_clock().now().nanoseconds
+        self.last, self.last_sample_ns = m, ns
         self.diag.count("samples")
         self.step(m, ns * 1e-9)
 
