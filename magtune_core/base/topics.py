@@ -20,6 +20,8 @@ TOPIC_IMU = "sensors/imu"                     # sensor_msgs/Imu: gyro rate only 
 TOPIC_SUN = "sensors/sun"                     # geometry_msgs/Vector3Stamped: measured unit Sun vector, body (when valid)
 TOPIC_POSITION = "sensors/position"           # nav_msgs/Odometry: position fix r, v in ECI with covariance
 TOPIC_DIPOLE = "controller/dipole_command"    # geometry_msgs/Vector3Stamped: m [A m^2]
+TOPIC_MODE = "mode"                           # magtune_interfaces/Mode: flight mode and last transition's reason
+SERVICE_SET_MODE = "set_mode"                 # magtune_interfaces/SetMode: commanded mode change (mode_manager)
 TOPIC_CLOCK = "/clock"                        # rosgraph_msgs/Clock (absolute, as ROS requires)
 TOPIC_DIAGNOSTICS = "/diagnostics"            # diagnostic_msgs/DiagnosticArray (absolute, by convention)
 TOPIC_TF = "tf"                               # tf2_msgs/TFMessage: orbital -> body (+ eci -> orbital, full env.); /tf un-namespaced
@@ -49,6 +51,7 @@ IMU = "/" + TOPIC_IMU
 SUN = "/" + TOPIC_SUN
 POSITION = "/" + TOPIC_POSITION
 DIPOLE = "/" + TOPIC_DIPOLE
+MODE = "/" + TOPIC_MODE
 TF = "/" + TOPIC_TF
 MARKERS = "/" + TOPIC_MARKERS
 CONTROLLER_INPUTS = (MAG, ATTITUDE)
@@ -69,6 +72,7 @@ PROJECT_TOPICS: dict[str, tuple[str, str]] = {
     SUN: ("geometry_msgs/msg/Vector3Stamped", "transient_local"),
     POSITION: ("nav_msgs/msg/Odometry", "transient_local"),
     DIPOLE: ("geometry_msgs/msg/Vector3Stamped", "transient_local"),
+    MODE: ("magtune_interfaces/msg/Mode", "transient_local"),
     TOPIC_DIAGNOSTICS: ("diagnostic_msgs/msg/DiagnosticArray", "volatile"),
     TF: ("tf2_msgs/msg/TFMessage", "transient_local"),
     MARKERS: ("visualization_msgs/msg/MarkerArray", "transient_local"),

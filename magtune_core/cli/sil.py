@@ -18,7 +18,18 @@ def register(sub) -> None:
     p.add_argument("--orbits", type=float, default=5.0, help="run length in orbits (default 5)")
     p.add_argument("--steps", type=int, default=None, help="run length in controller steps (overrides --orbits)")
     p.add_argument("--ts", type=float, default=None, help="controller sample period [s] (default: gains file ts)")
-    p.add_argument("--substeps", type=int, default=2, help="RK4 sub-steps per sample period (default 2)")
+    p.add_argument("--substeps", type=int, default=None,
+                   help="RK4 sub-steps per sample period (default: from the initial rate, |w| h <= 0.05 rad, at "
+                        "least 2: 2 for the paper's dw(0); docs/modes.md)")
+    p.add_argument("--initial-rate-deg", type=_triple("--initial-rate-deg"), default=None, metavar="X,Y,Z",
+                   help="initial rate deviation dw(0) [deg/s, body axes] from the orbit-following rate "
+                        "(default: the paper's dw(0) = [1e-3, 2e-3, 0] rad/s)")
+    p.add_argument("--initial-attitude-deg", type=_triple("--initial-attitude-deg"), default=None, metavar="RX,RY,RZ",
+                   help="initial attitude as a rotation vector [deg] (axis x angle, at most 180 deg) of the body "
+                        "w.r.t. the orbital axes (default: aligned)")
+    p.add_argument("--modes", action="store_true",
+                   help="fly the flight modes: start the mode manager (lifecycle bring-up, ModeLogic, health "
+                        "monitor) in DETUMBLE; without it the controller flies POINTING (the paper's run)")
     p.add_argument("--spacecraft", "--config", dest="spacecraft", default=None,
                    help="spacecraft/orbit parameter file (default: the global --config, config/spacecraft.yaml)")
     p.add_argument("--field", metavar="FILE", default=None,
@@ -69,7 +80,8 @@ def run(args) -> int:
                                  timeout=args.timeout, environment=args.environment,
                                  env_options=environment_options(args), field=args.field, epoch_time=args.epoch_time,
                                  foxglove=args.foxglove, bag_topics=args.bag_topics, bag_exclude=args.bag_exclude,
-                                 dds_interfaces=args.dds_interfaces)
+                                 dds_interfaces=args.dds_interfaces, initial_rate_deg=args.initial_rate_deg,
+                                 initial_attitude_deg=args.initial_attitude_deg, modes=args.modes)
     if not args.quiet:
         print("magtune sil: starting the nodes (discovery takes a few seconds)", file=sys.stderr, flush=True)
         if args.foxglove is not None:
@@ -89,6 +101,23 @@ def run(args) -> int:
         for ns, r in runs.items():
             print(f"== {ns or '/'} ({sats.get(ns, '')})\n{r.summary()}")
     return 0
+
+
+def _triple(flag: str):
+    """argparse type of ``X,Y,Z``: three finite numbers (a bad one: one line naming the flag, exit 2)."""
+    import argparse
+    import math
+
+    def parse(text: str):
+        try:
+            v = tuple(float(x) for x in text.split(","))
+        except ValueError:
+            v = ()
+        if len(v) != 3 or not all(math.isfinite(x) for x in v):
+            raise argparse.ArgumentTypeError(f"expected three numbers X,Y,Z, got {text!r}")
+        return v
+    parse.__name__ = flag
+    return parse
 
 
 def satellites(values: list[str]) -> dict:

@@ -30,12 +30,17 @@ SAMPLE_PERIOD = Field("ts", "float", "controller sample period Ts [s] (sim time)
 DIPOLE_LIMIT = Field("dipole_limit", "float[]", "per-axis dipole saturation [A m^2]", (DEFAULT_DIPOLE_LIMIT,) * 3,
                      size=3, positive=True, bounds=(1e-6, 1e4), unit="A m^2")
 
+#: The flight modes by id (magtune_interfaces/msg/Mode's constants; design/modes.py MODES is the same tuple).
+MODE_NAMES = ("DETUMBLE", "ACQUISITION", "POINTING", "SAFE")
+
 #: The controller node's own options (a gains file may set them too): the projection's
 #: weak-field threshold lies below the geomagnetic field (at most 1e-3 T).
 CONTROLLER_FIELDS = (
     DIPOLE_LIMIT,
     Field("min_field", "float", "below this |b| [T] the dipole is zero (projection ill-conditioned)",
           DEFAULT_MIN_FIELD, positive=True, bounds=(1e-12, 1e-3), unit="T"),
+    Field("initial_mode", "str", "law until the mode manager publishes a mode (POINTING: the paper's run)",
+          "POINTING", choices=MODE_NAMES),
 )
 
 #: The mode logic (design/modes.py) and the detumble law (design/bdot.py): one schema that the mode
@@ -163,8 +168,28 @@ SIMULATOR_FIELDS = (
           "[N m]) added to gravity gradient and residual dipole", ()),
 )
 
+#: Managed (lifecycle) nodes (controller, attitude_sensors): who drives the transitions.
+AUTOSTART = Field("autostart", "bool", "configure and activate at start (false: wait for the mode manager's "
+                  "lifecycle_msgs/ChangeState requests)", True)
+
+#: mode_manager: the bring-up, the health monitor and the first mode (besides MODE_FIELDS).
+MANAGER_FIELDS = (
+    SAMPLE_PERIOD,
+    Field("initial_mode", "str", "mode at start (DETUMBLE after deployment)", "DETUMBLE", choices=MODE_NAMES),
+    Field("managed_nodes", "str[]", "lifecycle nodes brought up in this order (down in reverse)",
+          ("attitude_sensors", "controller")),
+    Field("heartbeat_timeout", "float", "a managed node whose /diagnostics heartbeat (1 Hz) is missing this long "
+          "[s, steady wall-clock time] -> SAFE", 3.0, positive=True, bounds=(1.5, 3600.0), unit="s"),
+    Field("stale_timeout", "float", "sensor data older than this [s, sim time] is stale -> SAFE", 3.0,
+          positive=True, bounds=(1e-3, 1e6), unit="s"),
+    Field("transition_timeout", "float", "wall seconds to wait for a node's lifecycle service", 30.0,
+          positive=True, bounds=(0.1, 3600.0), unit="s"),
+)
+
 #: The SIL nodes' schemas by node name.
-SIL_NODE_FIELDS = {"simulator": SIMULATOR_FIELDS, "attitude_sensors": SENSOR_FIELDS, "controller": CONTROLLER_FIELDS}
+SIL_NODE_FIELDS = {"simulator": SIMULATOR_FIELDS, "attitude_sensors": SENSOR_FIELDS + (AUTOSTART,),
+                   "controller": CONTROLLER_FIELDS + BDOT_FIELDS + (AUTOSTART,),
+                   "mode_manager": MANAGER_FIELDS + MODE_FIELDS + BDOT_FIELDS}
 #: Parameters every node has (rclpy's own).
 NODE_COMMON = ("use_sim_time",)
 #: Every node parameter a file handed to all SIL nodes may set besides the spacecraft fields.

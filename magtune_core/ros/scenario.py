@@ -27,12 +27,19 @@ from ..base.errors import ConfigError, SilError
 from ..base.paramfile import check_path, check_ros_params, load_ros_params, merge_ros_params
 from ..design.fitfield import field_for_spacecraft
 from ..design.gains import CONTROLLER_NODE, Gains
+from ..design.modes import DETUMBLE, POINTING, ModeParams
+from ..design.node_params import BDOT_FIELDS, INITIAL_RATE_ERROR, MANAGER_FIELDS, MODE_FIELDS, MODE_NAMES
+from ..base.schema import parse
 from ..design.params import SpacecraftParams, check_sample_period
 from ..sim.fullenv import FullEnvironmentOptions, full_params
+from ..sim.initial import initial_conditions, substeps_for_rate
+from ..sim.simulate import initial_state
 
 DEFAULT_SPACECRAFT = ROOT / "config" / "spacecraft.yaml"
 #: The SIL nodes of one satellite, in start order after the recorder.
 NODES = ("controller", "attitude_sensors", "simulator")
+#: Started after them with ``modes``: it brings the two managed nodes up (docs/ros.md).
+MODE_MANAGER = "mode_manager"
 #: A ROS namespace as ``magtune sil --gains NS=FILE`` takes it: tokens of letters, digits, _.
 NAMESPACE = re.compile(r"^(/[A-Za-z][A-Za-z0-9_]*)+$")
 
@@ -120,6 +127,46 @@ def _plain(v):
     return v
 
 
+def initial_state_parameters(sc: SpacecraftParams, simulator_params: dict, attitude_deg, rate_deg, substeps, ts: float):
+    """The simulator's ``initial_quaternion``/``initial_rate_error`` from the CLI's degrees
+    (:func:`magtune_core.sim.initial.initial_conditions`) and the RK4 sub-steps (``substeps`` None:
+    :func:`~magtune_core.sim.initial.substeps_for_rate` of the initial inertial rate, 2 for the
+    paper's dw(0)). Returns (simulator_params, substeps); ConfigError for a bad state."""
+    if attitude_deg is not None or rate_deg is not None:
+        q0, dw0 = initial_conditions(attitude_deg if attitude_deg is not None else (0.0, 0.0, 0.0),
+                                     rate_deg if rate_deg is not None else (0.0, 0.0, 0.0))
+        if attitude_deg is not None:
+            simulator_params["initial_quaternion"] = [float(x) for x in q0]
+        if rate_deg is not None:
+            simulator_params["initial_rate_error"] = [float(x) for x in dw0]
+    if substeps is None:
+        q0 = simulator_params.get("initial_quaternion", (1.0, 0.0, 0.0, 0.0))
+        dw0 = simulator_params.get("initial_rate_error", INITIAL_RATE_ERROR)
+        substeps = substeps_for_rate(initial_state(sc, dw0, q0)[4:], ts)
+    return simulator_params, substeps
+
+
+def check_modes_arguments(modes: bool, initial_mode, mode_params) -> tuple[str, dict]:
+    """The first mode (DETUMBLE with the mode manager, POINTING without) and the manager's
+    parameters, validated by their schemas (ranges, hysteresis) before anything starts."""
+    mode = initial_mode or (DETUMBLE if modes else POINTING)
+    if mode not in MODE_NAMES:
+        raise ConfigError("--initial-mode", None, f"expected one of {', '.join(MODE_NAMES)}, got {mode!r}")
+    mparams = dict(mode_params or {})
+    if not modes:
+        if mparams:
+            raise ConfigError("mode parameters", None, "only with --modes")
+        return mode, mparams
+    extra = sorted(set(mparams) - {f.name for f in MODE_FIELDS + MANAGER_FIELDS + BDOT_FIELDS})
+    if extra:
+        raise ConfigError("mode parameters", extra[0], "not a mode-manager parameter")
+    ModeParams.from_mapping(mparams, "mode parameters")
+    for fields in (MANAGER_FIELDS, BDOT_FIELDS):
+        names = {f.name for f in fields}
+        parse({k: v for k, v in mparams.items() if k in names}, fields, "mode parameters")
+    return mode, mparams
+
+
 @dataclass(frozen=True)
 class Satellite:
     """One satellite of a scenario: its namespace, gains file and the controller's parameters."""
@@ -163,23 +210,36 @@ class SilScenario:
     dds_interfaces: str = "loopback"
     #: extra ROS parameters per node name (every satellite): simulator, attitude_sensors, controller
     node_params: dict = _field(default_factory=dict)
+    #: fly the flight modes: the mode manager brings the managed nodes up and runs ModeLogic
+    modes: bool = False
+    #: the first mode (mode manager and controller)
+    initial_mode: str = POINTING
+    #: the mode manager's parameters (MODE_FIELDS, MANAGER_FIELDS, BDOT_FIELDS), validated
+    mode_params: dict = _field(default_factory=dict)
 
     @classmethod
     def build(cls, satellites: dict, *, orbits: float = 5.0, steps: int | None = None, ts: float | None = None,
-              spacecraft=DEFAULT_SPACECRAFT, substeps: int = 2, bag=None, real_time_factor: float = 0.0,
+              spacecraft=DEFAULT_SPACECRAFT, substeps: int | None = None, bag=None, real_time_factor: float = 0.0,
               lockstep: bool = True, lockstep_timeout: float = 2.0, startup_timeout: float = 30.0,
               timeout: float | None = None, domain_id: int | None = None, log_dir=None, results=None,
               dds_interfaces: str = "loopback",
               simulator_params: dict | None = None, sensor_params: dict | None = None,
               controller_params: dict | None = None, environment: str = "paper", env_options=None, field=None,
               epoch_time: bool = False, foxglove: int | None = None, bag_topics=None,
-              bag_exclude: str | None = None) -> "SilScenario":
+              bag_exclude: str | None = None, initial_attitude_deg=None, initial_rate_deg=None,
+              modes: bool = False, initial_mode: str | None = None, mode_params: dict | None = None) -> "SilScenario":
         """Read and validate every input of a run (``satellites``: namespace -> gains file).
 
         ``ts`` overrides each gains file's ``ts``; ``environment`` "paper" or "full" (with
         ``env_options``, :class:`~magtune_core.sim.fullenv.FullEnvironmentOptions`); ``field``: a
         field file for the paper environment; ``epoch_time``: stamps from the spacecraft epoch;
         ``*_params``: extra ROS parameters of that node (every satellite).
+        ``initial_attitude_deg`` (rotation vector) and ``initial_rate_deg`` (dw(0), body axes):
+        the simulator's ``initial_quaternion``/``initial_rate_error``
+        (:func:`magtune_core.sim.initial.initial_conditions`); ``substeps`` None = chosen from
+        the initial rate (:func:`~magtune_core.sim.initial.substeps_for_rate`: 2 for the paper's
+        dw(0)). ``modes``: start the mode manager (``initial_mode``, default DETUMBLE with it,
+        POINTING without; ``mode_params`` its parameters, validated here).
 
         Returns
         -------
@@ -196,6 +256,10 @@ class SilScenario:
         gains = {ns: Gains.from_mapping(gains_params[ns], g) for ns, g in sats.items()}
         sc_doc = load_ros_params(spacecraft)
         sc = SpacecraftParams.from_mapping(merge_ros_params(sc_doc), spacecraft, strict=True)
+        simulator_params, substeps = initial_state_parameters(
+            sc, dict(simulator_params or {}), initial_attitude_deg, initial_rate_deg, substeps,
+            float(ts if ts is not None else min(g.ts for g in gains.values())))
+        mode, mparams = check_modes_arguments(modes, initial_mode, mode_params)
         check_run_arguments(orbits=orbits, steps=steps, substeps=substeps, real_time_factor=real_time_factor,
                             timeout=timeout)
         sat_list = []
@@ -244,14 +308,20 @@ class SilScenario:
                    time_origin_ns=int(time_origin_ns), foxglove=None if foxglove is None else int(foxglove),
                    domain_id=domain_id, log_dir=Path(log_dir) if log_dir else None,
                    results=Path(results) if results else None, dds_interfaces=dds_interfaces,
-                   node_params={"simulator": dict(simulator_params or {}), "attitude_sensors": dict(sensor_params or {}),
-                                "controller": dict(controller_params or {})})
+                   node_params={"simulator": simulator_params, "attitude_sensors": dict(sensor_params or {}),
+                                "controller": dict(controller_params or {})},
+                   modes=bool(modes), initial_mode=mode, mode_params=mparams)
 
     # ------------------------------------------------------------------ derived
     @property
     def multi(self) -> bool:
         """Several satellites, or one outside the root namespace (topics and files get a tag)."""
         return len(self.satellites) > 1 or self.satellites[0].namespace != ""
+
+    @property
+    def nodes(self) -> tuple[str, ...]:
+        """The nodes of one satellite in start order (the mode manager last, with ``modes``)."""
+        return NODES + ((MODE_MANAGER,) if self.modes else ())
 
     @property
     def n_steps(self) -> float:
@@ -291,9 +361,14 @@ class SilScenario:
                        env_srp=bool(o.srp), env_field=str(o.field), igrf_degree=int(o.igrf_degree))
         elif self.field_file is not None:
             sim["field_file"] = str(self.field_file.resolve())
-        own = {"simulator": sim, "attitude_sensors": dict(common), "controller": dict(common)}
+        own = {"simulator": sim, "attitude_sensors": dict(common), "controller": dict(common, initial_mode=self.initial_mode)}
+        if self.modes:  # the managed nodes wait for the mode manager's transitions
+            bd = {k: v for k, v in self.mode_params.items() if k in {f.name for f in BDOT_FIELDS}}
+            own["attitude_sensors"]["autostart"] = own["controller"]["autostart"] = False
+            own["controller"].update(bd)
+            own[MODE_MANAGER] = dict(common, initial_mode=self.initial_mode, **self.mode_params)
         out = {}
-        for node in NODES:
+        for node in self.nodes:
             params = self._spacecraft_params(f"{sat.namespace}/{node}")
             if node == "controller":
                 params.update({k: _plain(v) for k, v in sat.gains_params.items()})

@@ -22,12 +22,12 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..base.errors import SilError
+from ..base.errors import ConfigError, SilError
 from ..base.topics import topic_specs
 from ..sim.metrics import format_figures
 from ..sim.simulate import DIVERGED_EXIT, SimResult
 from .process import PACKAGE, DomainLock, NodeProcess, StopSignals, child_env, package_prefix, resolve_executable, start_node, stop_nodes
-from .scenario import NODES, SilScenario, tag
+from .scenario import MODE_MANAGER, SilScenario, tag
 
 #: Recorder executable of the bags helper, started first with
 #: ``--ros-args -p use_sim_time:=true -p path:=<bag>`` when --bag is given; the simulator then
@@ -150,7 +150,7 @@ def _recorder_ros_args(scenario: SilScenario) -> list[str]:
 
 def _executables(scenario: SilScenario) -> dict[str, Path]:
     """Every executable the run starts (SilError naming the missing one, before anything starts)."""
-    exes = {n: resolve_executable(n) for n in NODES}
+    exes = {n: resolve_executable(n) for n in scenario.nodes}
     if scenario.foxglove is not None:
         exes["live_bridge"] = resolve_executable("live_bridge")
     rec = _recorder_executable(scenario)
@@ -181,7 +181,7 @@ def _launch(scenario: SilScenario, exes: dict, pfiles: dict, env: dict, log_dir:
         ns = sat.namespace
         remap = ["-r", f"__ns:={ns}", "-r", f"/clock:={ns}/clock"] if ns else []
         prefix = f"{tag(ns)}_" if ns else ""
-        for node in NODES:
+        for node in scenario.nodes:
             procs.append(start_node(f"{prefix}{node}", exes[node], ["--params-file", str(pfiles[ns][node])] + remap,
                                     env, log_dir, fds))
             if node == "simulator":
@@ -219,6 +219,8 @@ def _wait(scenario: SilScenario, procs: list[NodeProcess], sims: dict, res_paths
         report()
         for p in procs:
             if p not in sims.values() and p.popen.poll() is not None:
+                if p.name.endswith(MODE_MANAGER) and p.popen.returncode == 2:  # a node's one-line reason
+                    raise ConfigError(p.name, None, p.tail(1).removeprefix(f"{MODE_MANAGER}: "))
                 raise SilError(f"node '{p.name}' exited with status {p.popen.returncode}:\n{p.tail()}")
         if time.monotonic() > deadline:
             raise SilError(f"SIL run timed out after {time.monotonic() - t0:.0f} s; simulator log:\n"
@@ -286,7 +288,9 @@ def run_fleet(scenario: SilScenario, *, on_start=None, progress=None) -> dict[st
     finally:
         stops.shield()  # a second Ctrl-C / SIGHUP must not abort the clean-up
         try:
-            stop_nodes([p for p in procs if p.name != "recorder"])
+            # the mode managers first: they bring their managed nodes down (reverse order, lifecycle)
+            stop_nodes([p for p in procs if p.name.endswith(MODE_MANAGER)])
+            stop_nodes([p for p in procs if p.name != "recorder" and not p.name.endswith(MODE_MANAGER)])
             stop_nodes([p for p in procs if p.name == "recorder"], grace=10.0)  # last: let it close the bag
         finally:
             lock.release()  # after every node is gone (they also held the lock's descriptor)

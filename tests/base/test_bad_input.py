@@ -157,8 +157,9 @@ def test_node_parameters_come_from_the_schemas():
         assert "c.declare(" not in src, name
     names = {f.name for fields in SIL_NODE_FIELDS.values() for f in fields}
     assert set(NODE_PARAMETERS) == names | {"use_sim_time"}
-    # what the hand-kept list held before it was derived (37), plus the 8 sensor-model fields of issue 31
-    assert len(NODE_PARAMETERS) == 37 + 8 and {"initial_quaternion", "mag_quantum", "min_field", "seed"} <= names
+    # what the hand-kept list held before it was derived (37), plus the 8 sensor-model fields of issue 31,
+    # plus issue 30's: 12 mode fields, 2 B-dot fields, initial_mode, 4 mode-manager fields, autostart
+    assert len(NODE_PARAMETERS) == 37 + 8 + 12 + 2 + 1 + 4 + 1 and {"initial_quaternion", "mag_quantum", "min_field", "seed"} <= names
 
 
 def test_example_files_pass_the_strict_checks():

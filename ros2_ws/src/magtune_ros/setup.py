@@ -18,13 +18,14 @@ setup(
     zip_safe=True,
     maintainer="magtune developers",
     maintainer_email="magtune@example.com",
-    description="magtune ROS 2 nodes: simulator, attitude_sensors, controller (lockstep SIL)",
+    description="magtune ROS 2 nodes: simulator, attitude_sensors, controller, mode_manager (lockstep SIL)",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
             "simulator = magtune_ros.simulator:main",
             "attitude_sensors = magtune_ros.attitude_sensors:main",
             "controller = magtune_ros.controller:main",
+            "mode_manager = magtune_ros.mode_manager:main",
             "recorder = magtune_ros.recorder:main",
             "player = magtune_ros.player:main",
             "live_bridge = magtune_ros.live_bridge:main",

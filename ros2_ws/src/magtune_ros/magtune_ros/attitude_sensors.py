@@ -1,4 +1,6 @@
-"""Sensors node: truth in, raw and controller measurements out (models: magtune_core.design.sensors).
+"""Sensors node, managed (lifecycle): truth in, raw and controller measurements out (models:
+magtune_core.design.sensors). configure loads and validates the parameters and builds the models;
+activate seeds the noise and creates the topics below (magtune_ros.common.ManagedNode).
 
 Subscribes:
   sim/truth              nav_msgs/Odometry          attitude q (see simulator.py)
@@ -34,8 +36,6 @@ import math
 import numpy as np
 from geometry_msgs.msg import Vector3Stamped
 from nav_msgs.msg import Odometry
-from rclpy.node import Node
-from rclpy.task import Future
 from sensor_msgs.msg import Imu, MagneticField
 
 from magtune_core.design import sensors as s
@@ -48,33 +48,41 @@ def _cov3(var: float) -> list:
     return [var, 0.0, 0.0, 0.0, var, 0.0, 0.0, 0.0, var]
 
 
-class AttitudeSensors(Node):
+class AttitudeSensors(c.ManagedNode):
     NODE_NAME = "attitude_sensors"
 
     def __init__(self):
-        super().__init__(self.NODE_NAME)
-        self.done = Future()
+        super().__init__(self.NODE_NAME, ["samples", "rejected_nonfinite", "rejected_quaternion", "rejected_stamp",
+                                          "stale_inputs", "sun_samples", "sun_eclipse", "sun_out_of_fov"])
+
+    # ---------------------------------------------------------------- lifecycle
+    def configure(self):
+        """Load and validate the sensor parameters; build the sensor models (design.sensors)."""
         v = c.parse_fields(self, SENSOR_FIELDS)
         c.check(check_sensors, v, self)
+        self.values = v
         self.suite = s.SensorSuite.from_values(v)
+        self.make_messages()
+
+    def activate(self):
+        """Noise generators from the seed (an activation replays the same noise), input state, then
+        the publishers and the subscriptions to the simulator's truth."""
+        v = self.values
         self.rng, self.aux = np.random.default_rng(v["seed"]), s.aux_rng(v["seed"])
         self.beta = np.asarray(self.suite.gyro.bias, dtype=float)  # gyro bias before the next sample
-        self.diag = c.Diagnostics(self, ["samples", "rejected_nonfinite", "rejected_quaternion", "rejected_stamp",
-                                         "stale_inputs", "sun_samples", "sun_eclipse", "sun_out_of_fov"])
         self.gate = c.StampGate(self, 2 * c.sec_to_ns(self.suite.ts), n=5)
         self.sync = c.PairSync(3)  # field, truth (attitude), inertial rate: same stamp t_k
         self.sync_orbit = c.PairSync(3)  # truth, orbit, Sun (full environment)
-        self.pub_mag = self.create_publisher(MagneticField, c.TOPIC_MAG, c.LOCKSTEP_QOS)
-        self.pub_imu = self.create_publisher(Imu, c.TOPIC_IMU, c.LOCKSTEP_QOS)
-        self.pub_att = self.create_publisher(Imu, c.TOPIC_ATTITUDE, c.LOCKSTEP_QOS)
-        self.pub_sun = self.create_publisher(Vector3Stamped, c.TOPIC_SUN, c.LOCKSTEP_QOS)
-        self.pub_pos = self.create_publisher(Odometry, c.TOPIC_POSITION, c.LOCKSTEP_QOS)
-        self.create_subscription(Odometry, c.TOPIC_TRUTH, self.on_truth, c.LOCKSTEP_QOS)
-        self.create_subscription(MagneticField, c.TOPIC_TRUE_FIELD, self.on_field, c.LOCKSTEP_QOS)
-        self.create_subscription(Vector3Stamped, c.TOPIC_INERTIAL_RATE, self.on_rate, c.LOCKSTEP_QOS)
-        self.create_subscription(Odometry, c.TOPIC_ORBIT, self.on_orbit, c.LOCKSTEP_QOS)
-        self.create_subscription(Vector3Stamped, c.TOPIC_TRUE_SUN, self.on_sun, c.LOCKSTEP_QOS)
-        self.make_messages()
+        self.pub_mag = self.data_publisher(MagneticField, c.TOPIC_MAG, c.LOCKSTEP_QOS)
+        self.pub_imu = self.data_publisher(Imu, c.TOPIC_IMU, c.LOCKSTEP_QOS)
+        self.pub_att = self.data_publisher(Imu, c.TOPIC_ATTITUDE, c.LOCKSTEP_QOS)
+        self.pub_sun = self.data_publisher(Vector3Stamped, c.TOPIC_SUN, c.LOCKSTEP_QOS)
+        self.pub_pos = self.data_publisher(Odometry, c.TOPIC_POSITION, c.LOCKSTEP_QOS)
+        self.data_subscription(Odometry, c.TOPIC_TRUTH, self.on_truth, c.LOCKSTEP_QOS)
+        self.data_subscription(MagneticField, c.TOPIC_TRUE_FIELD, self.on_field, c.LOCKSTEP_QOS)
+        self.data_subscription(Vector3Stamped, c.TOPIC_INERTIAL_RATE, self.on_rate, c.LOCKSTEP_QOS)
+        self.data_subscription(Odometry, c.TOPIC_ORBIT, self.on_orbit, c.LOCKSTEP_QOS)
+        self.data_subscription(Vector3Stamped, c.TOPIC_TRUE_SUN, self.on_sun, c.LOCKSTEP_QOS)
 
     def make_messages(self):
         """Preallocated messages with their frames and (constant) covariances."""

@@ -18,15 +18,18 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 
 from magtune_core.base.errors import ConfigError
 from magtune_core.base.paramfile import check_ros_params
 from magtune_core.base.schema import Field, parse
+from magtune_core.design.node_params import AUTOSTART
 
 #: Lockstep data topics (truth, field, sensors, dipole command, torques): reliable, and
 #: transient-local so a subscriber matched after the first publication (DDS discovery is
@@ -40,6 +43,10 @@ LOCKSTEP_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
 #: depth 1000 as the lockstep topics, for a reliable recorder that falls behind (with 100, a
 #: recorder starved at load 4.7 lost up to 265 /clock samples of a 5-orbit run; issue #10).
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+#: mode: reliable and transient-local with depth 10, so a late subscriber (controller activated
+#: after the manager published, a recorder) gets the current mode and the last transitions.
+MODE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 #: /diagnostics: the usual diagnostic_aggregator QoS.
 DIAG_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -57,6 +64,8 @@ from magtune_core.base.topics import (  # noqa: E402,F401
     TOPIC_MAG,
     TOPIC_MAG_TORQUE,
     TOPIC_MARKERS,
+    TOPIC_MODE,
+    SERVICE_SET_MODE,
     TOPIC_ORBIT,
     TOPIC_POSITION,
     TOPIC_SUN,
@@ -120,6 +129,9 @@ def declare_field(node: Node, f: Field):
                                description=f.description + (f" [{f.unit}]" if f.unit and f.unit not in f.description
                                                             else ""))
     default = None if f.required else (list(f.default) if isinstance(f.default, tuple) else f.default)
+    if node.has_parameter(f.name):  # a managed node configured again (after cleanup): read it back
+        value = node.get_parameter(f.name).value
+        return list(value) if isinstance(value, (list, tuple, array.array)) or hasattr(value, "tolist") else value
     try:
         if default is None or default == []:
             # no default (an empty list would be typed BYTE_ARRAY): typed, set by a parameter file or not at all
@@ -195,6 +207,8 @@ class Diagnostics:
         self.node = node
         self.counts = {k: 0 for k in counters}
         self.extra: dict = {}
+        #: (level, message) overriding the counters' status, e.g. a managed node's failed configure
+        self.status: tuple | None = None
         self.pub = node.create_publisher(DiagnosticArray, "/diagnostics", DIAG_QOS)
         self.name = f"magtune/{node.get_name()}"
         self._last_reason: dict = {}
@@ -210,8 +224,8 @@ class Diagnostics:
 
     def publish(self):
         warn = any(v for k, v in self.counts.items() if k not in INFO_COUNTERS)
-        st = DiagnosticStatus(level=DiagnosticStatus.WARN if warn else DiagnosticStatus.OK, name=self.name,
-                              hardware_id="magtune_sil", message="counters")
+        level, message = self.status or (DiagnosticStatus.WARN if warn else DiagnosticStatus.OK, "counters")
+        st = DiagnosticStatus(level=level, name=self.name, hardware_id="magtune_sil", message=message)
         st.values = [KeyValue(key=k, value=str(v)) for k, v in {**self.counts, **self.extra}.items()]
         msg = DiagnosticArray(status=[st])
         msg.header.stamp = self.node.get_clock().now().to_msg()
@@ -301,6 +315,9 @@ def run(node_cls, args=None) -> int:
         node = node_cls(options) if parse_options else node_cls()
         executor = (getattr(node_cls, "EXECUTOR", None) or make_executor)()
         executor.add_node(node)
+        if isinstance(node, ManagedNode) and not node.autostart():
+            print(f"{prog}: {node.config_error}", file=sys.stderr)
+            return 2
         code = _spin_profiled(prog, node, executor, stop)
     except start_errors as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
@@ -310,6 +327,106 @@ def run(node_cls, args=None) -> int:
     finally:
         _shutdown(prog, node, executor)
     return code
+
+
+# ---------------------------------------------------------------- managed (lifecycle) nodes
+class ManagedNode(LifecycleNode):
+    """A magtune flight node with a life (``rclpy.lifecycle``): configure, activate, deactivate,
+    cleanup, shutdown, driven through ``~/change_state`` (lifecycle_msgs) by the mode manager.
+
+    Subclasses implement ``configure()`` (declare and validate the parameters, build the law:
+    ParamError/ConfigError -> the transition fails, the node stays *unconfigured*, the one-line
+    reason is logged, kept in ``config_error`` and published as an ERROR status on /diagnostics,
+    where the manager reads it), ``activate()`` (create the data subscriptions and publishers) and
+    ``deactivate()`` (destroy them). Data entities live only while *active* so a lockstep peer
+    (the simulator waits for its subscribers) sees the node only once it takes and sends data.
+    /diagnostics (the node's heartbeat, 1 Hz steady time, key ``state``) runs in every state.
+
+    With parameter ``autostart`` true (default: a node started alone, or ``magtune sil`` without
+    ``--modes``) :func:`run` configures and activates the node itself: a bad parameter prints the
+    one line and exits 2 as a plain node does.
+    """
+
+    def __init__(self, name: str, counters):
+        super().__init__(name)
+        self.done = Future()
+        self.config_error: str | None = None
+        self.autostart_on = declare_field(self, AUTOSTART)
+        self.diag = Diagnostics(self, counters)
+        self.diag.extra["state"] = "unconfigured"
+        self.diag.extra["namespace"] = self.get_namespace()  # /diagnostics is shared by every satellite
+        self._entities: list = []
+
+    # the transitions, as rclpy calls them
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        try:
+            self.configure()
+        except (ParamError, ConfigError) as exc:
+            self.config_error = str(exc)
+            self.diag.status = (DiagnosticStatus.ERROR, f"configure failed: {exc}")
+            self.diag.publish()
+            if not self.autostart_on:  # alone, run() prints the one line
+                self.get_logger().error(f"configure failed: {exc}")
+            return TransitionCallbackReturn.FAILURE
+        self.config_error, self.diag.status = None, None
+        return self._entered("inactive")
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.activate()
+        return self._entered("active")
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._destroy_entities()
+        return self._entered("inactive")
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._destroy_entities()
+        return self._entered("unconfigured")
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Finalized: the process ends (status 0), as a lifecycle node's owner would end it."""
+        self._destroy_entities()
+        if not self.done.done():
+            self.done.set_result(0)
+        return self._entered("finalized")
+
+    def _entered(self, label: str) -> TransitionCallbackReturn:
+        self.diag.extra["state"] = label
+        return TransitionCallbackReturn.SUCCESS
+
+    # entity bookkeeping of activate()
+    def data_publisher(self, *args):
+        """A publisher that exists while the node is active."""
+        pub = self.create_publisher(*args)
+        self._entities.append(pub)
+        return pub
+
+    def data_subscription(self, *args):
+        """A subscription that exists while the node is active."""
+        sub = self.create_subscription(*args)
+        self._entities.append(sub)
+        return sub
+
+    def _destroy_entities(self):
+        for e in self._entities:
+            (self.destroy_publisher if hasattr(e, "publish") else self.destroy_subscription)(e)
+        self._entities = []
+
+    def autostart(self) -> bool:
+        """With ``autostart``: configure then activate; False (reason in ``config_error``) if configure failed."""
+        if not self.autostart_on:
+            return True
+        if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+            return False
+        self.trigger_activate()
+        return True
+
+    # what subclasses fill in
+    def configure(self):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def activate(self):  # pragma: no cover - abstract
+        raise NotImplementedError
 
 
 def _spin_profiled(prog: str, node: Node, executor, stop: threading.Event) -> int:

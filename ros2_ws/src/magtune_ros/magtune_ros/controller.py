@@ -1,6 +1,14 @@
-"""Projection-based magnetorquer controller node (paper eq. 17), digital sample-and-hold.
+"""Magnetorquer controller node, managed (lifecycle), digital sample-and-hold; law by flight mode.
 
-    m = sat( S(b)^T K x / |b|^2 ),   x = [dq; dw]  (magtune_core.design.law.ProjectionController)
+    POINTING, ACQUISITION: m = sat( S(b)^T K x / |b|^2 ), x = [dq; dw]  (paper eq. 17,
+                           magtune_core.design.law.ProjectionController)
+    DETUMBLE:              saturated B-dot (magtune_core.design.bdot.BdotController, gain rule of
+                           Avanzini & Giulietti 2012 unless bdot_gain is set)
+    SAFE:                  m = 0
+The mode is parameter ``initial_mode`` (default POINTING: the paper's run) until the mode
+manager publishes one on ``mode`` (magtune_interfaces/Mode); a change applies from the next
+sample. Lifecycle (magtune_ros.common.ManagedNode): configure loads and validates every
+parameter, activate creates the subscriptions and the command publisher.
 
 Parameters: the gains file ``config/gains/sigma_*.yaml`` (``gain``: 18 doubles, row-major 3x6 K;
 ``sigma``; ``ts``; provenance entries are declared read-only) and ``config/spacecraft.yaml``
@@ -9,12 +17,14 @@ Parameters: the gains file ``config/gains/sigma_*.yaml`` (``gain``: 18 doubles, 
 Subscribes (LOCKSTEP_QOS):
   sensors/magnetic_field   sensor_msgs/MagneticField  [T], body axes
   sensors/attitude         sensor_msgs/Imu            orientation (body w.r.t. orbital), rate [rad/s]
+  mode                     magtune_interfaces/Mode    flight mode (MODE_QOS: reliable, transient-local)
   /clock                   rosgraph_msgs/Clock        (use_sim_time; stamps are checked against it)
 Publishes:
   controller/dipole_command  geometry_msgs/Vector3Stamped [A m^2], stamped with the input stamp;
                              one per input pair; recomputed every ``ts`` of sim time, held between.
   /diagnostics  counters: samples, commands, weak_field, saturated, rejected_nonfinite, rejected_implausible,
-                rejected_quaternion, rejected_stamp, stale_inputs, stale_data
+                rejected_quaternion, rejected_stamp, stale_inputs, stale_data, mode_changes, rejected_mode;
+                state (lifecycle), mode
 Inputs are paired by identical stamps. Bad inputs are rejected with a logged reason and
 counted; |b| < min_field gives a zero dipole (counted as weak_field); if no valid input for
 more than 2 ts of sim time, the held dipole is zeroed (stale_data).
@@ -26,13 +36,15 @@ import math
 import numpy as np
 from geometry_msgs.msg import Vector3Stamped
 from rclpy.clock import Clock, ClockType
-from rclpy.node import Node
-from rclpy.task import Future
+from magtune_interfaces.msg import Mode
 from sensor_msgs.msg import Imu, MagneticField
 
 from magtune_core.design.gains import Gains
+from magtune_core.design.bdot import (BdotController, FieldDerivativeFilter, FilterState, bdot_gain,
+                                      geomagnetic_inclination)
 from magtune_core.design.law import ProjectionController, linear_state
-from magtune_core.design.node_params import CONTROLLER_FIELDS
+from magtune_core.design.modes import ACQUISITION, DETUMBLE, MODES, POINTING
+from magtune_core.design.node_params import BDOT_FIELDS, CONTROLLER_FIELDS
 from magtune_core.design.params import SpacecraftParams
 
 from . import common as c
@@ -43,37 +55,66 @@ from . import common as c
 MAX_FIELD = 1e-3
 
 
-class Controller(Node):
+class Controller(c.ManagedNode):
     NODE_NAME = "controller"
 
     def __init__(self):
-        super().__init__(self.NODE_NAME)
-        self.done = Future()
+        super().__init__(self.NODE_NAME, ["samples", "commands", "weak_field", "saturated", "rejected_nonfinite",
+                                          "rejected_implausible", "rejected_quaternion", "rejected_stamp",
+                                          "stale_inputs", "stale_data", "mode_changes", "rejected_mode"])
+        self.m = np.zeros(3)
+        self.last_input_ns = None
+        self.create_timer(0.1, self.check_stale, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    # ---------------------------------------------------------------- lifecycle
+    def configure(self):
+        """Load and validate the gains, the node's options and the spacecraft file; build both laws."""
         # the gains-file schema (as `magtune analyze`), the node's options and the spacecraft file's:
         # each parameter declared from its schema and validated once
         gains = c.from_schema(self, Gains)
         K, self.sigma, self.ts = gains.K, gains.sigma, gains.ts
         v = c.parse_fields(self, CONTROLLER_FIELDS)
+        b = c.parse_fields(self, BDOT_FIELDS)
         p = c.from_schema(self, SpacecraftParams)
         c.declare_overrides(self)
         self.w0 = p.orbit_rate
         self.law = ProjectionController(K, v["dipole_limit"], v["min_field"])
+        k = b["bdot_gain"] or bdot_gain(p.orbit_rate, geomagnetic_inclination(math.radians(p.inclination_deg)),
+                                        p.inertia)
+        self.bdot_law = BdotController(k, v["dipole_limit"], min_field=v["min_field"])
+        self.filter = FieldDerivativeFilter(self.ts, b["bdot_cutoff"])
+        self.mode = v["initial_mode"]
         self.ts_ns = c.sec_to_ns(self.ts)
+        self.msg = Vector3Stamped()
+        self.msg.header.frame_id = c.FRAME_BODY
+        self.get_logger().info(f"K loaded (sigma={self.sigma:g}, ts={self.ts:g} s, |K|={np.linalg.norm(K):.4g}); "
+                               f"B-dot k={k:.4g} N m s; mode {self.mode}")
+
+    def activate(self):
+        """Fresh input state, then the command publisher and the subscriptions (sensors, mode)."""
         self.gate = c.StampGate(self, 2 * self.ts_ns)
         self.sync = c.PairSync()
+        self.fstate = FilterState()
         self.next_sample_ns = None
         self.last_input_ns = None
         self.m = np.zeros(3)
-        self.diag = c.Diagnostics(self, ["samples", "commands", "weak_field", "saturated", "rejected_nonfinite",
-                                         "rejected_implausible",
-                                         "rejected_quaternion", "rejected_stamp", "stale_inputs", "stale_data"])
-        self.pub = self.create_publisher(Vector3Stamped, c.TOPIC_DIPOLE, c.LOCKSTEP_QOS)
-        self.create_subscription(MagneticField, c.TOPIC_MAG, self.on_mag, c.LOCKSTEP_QOS)
-        self.create_subscription(Imu, c.TOPIC_ATTITUDE, self.on_attitude, c.LOCKSTEP_QOS)
-        self.msg = Vector3Stamped()
-        self.msg.header.frame_id = c.FRAME_BODY
-        self.create_timer(0.1, self.check_stale, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.get_logger().info(f"K loaded (sigma={self.sigma:g}, ts={self.ts:g} s, |K|={np.linalg.norm(K):.4g})")
+        self.pub = self.data_publisher(Vector3Stamped, c.TOPIC_DIPOLE, c.LOCKSTEP_QOS)
+        self.data_subscription(Mode, c.TOPIC_MODE, self.on_mode, c.MODE_QOS)
+        self.data_subscription(MagneticField, c.TOPIC_MAG, self.on_mag, c.LOCKSTEP_QOS)
+        self.data_subscription(Imu, c.TOPIC_ATTITUDE, self.on_attitude, c.LOCKSTEP_QOS)
+
+    # ---------------------------------------------------------------- inputs
+    def on_mode(self, msg: Mode):
+        """The mode manager's mode: the law of the next sample (unknown ids rejected and counted)."""
+        if msg.mode >= len(MODES):
+            return self.diag.count("rejected_mode", f"unknown mode id {msg.mode}")
+        mode = MODES[msg.mode]
+        if mode != self.mode:
+            self.diag.count("mode_changes")
+            self.get_logger().info(f"mode {self.mode} -> {mode} (decided at t={c.stamp_to_ns(msg.header.stamp) * 1e-9:.1f}"
+                                   f" s: {msg.reason})")
+            self.mode = mode
+        self.diag.extra["mode"] = mode
 
     def on_mag(self, msg: MagneticField):
         b = msg.magnetic_field
@@ -104,13 +145,20 @@ class Controller(Node):
         self.last_input_ns = ns
         if self.next_sample_ns is None or ns >= self.next_sample_ns:
             o, w, b = att.orientation, att.angular_velocity, mag.magnetic_field
-            x = linear_state((o.w, o.x, o.y, o.z), (w.x, w.y, w.z), self.w0)
-            out = self.law(x, np.array([b.x, b.y, b.z]))
-            self.m = out.m
-            if out.weak_field:
-                self.diag.count("weak_field", f"|b| below min_field at t={ns * 1e-9:.3f} s: zero dipole")
-            if out.saturated:
-                self.diag.count("saturated")
+            bv = np.array([b.x, b.y, b.z])
+            self.fstate, bdot = self.filter.step(self.fstate, bv)  # every sample: warm when DETUMBLE starts
+            if self.mode in (ACQUISITION, POINTING):
+                x = linear_state((o.w, o.x, o.y, o.z), (w.x, w.y, w.z), self.w0)
+                out = self.law(x, bv)
+                self.m = out.m
+                if out.weak_field:
+                    self.diag.count("weak_field", f"|b| below min_field at t={ns * 1e-9:.3f} s: zero dipole")
+                if out.saturated:
+                    self.diag.count("saturated")
+            elif self.mode == DETUMBLE:
+                self.m = self.bdot_law.dipole(bv, bdot)
+            else:  # SAFE: torquers off
+                self.m = np.zeros(3)
             self.diag.count("samples")
             # next sample one period later on the grid of the first sample (ZOH at Ts)
             self.next_sample_ns = ns + self.ts_ns if self.next_sample_ns is None else \
@@ -125,7 +173,7 @@ class Controller(Node):
         self.pub.publish(msg)
 
     def check_stale(self):
-        if self.last_input_ns is None or not np.any(self.m):
+        if self.last_input_ns is None or not np.any(self.m) or self.diag.extra.get("state") != "active":
             return
         now = self.get_clock().now().nanoseconds
         if now - self.last_input_ns > 2 * self.ts_ns:

@@ -1,0 +1,300 @@
+"""mode_manager node: lifecycle bring-up of the flight nodes, the mode logic, health monitoring.
+
+Bring-up (lifecycle_msgs services ``<node>/change_state``, in ``managed_nodes`` order, default
+attitude_sensors then controller): configure every node, then activate them in order; a failed
+configure leaves that node *unconfigured*: the manager prints ``mode_manager: <node>: <reason>``
+(the node's one line, read from its ERROR status on /diagnostics) and exits 2. On shutdown
+(SIGINT/SIGTERM) it deactivates them in reverse order, then shuts them down (their processes end).
+The manager itself is a plain node: it manages, as Nav2's lifecycle_manager does.
+
+Mode logic (magtune_core.design.modes.ModeLogic, parameters MODE_FIELDS): stepped at each sensor
+sample t_k (sensors/imu, sensors/magnetic_field and sensors/attitude paired by stamp) with the
+measured quantities only: |w_gyro| from sensors/imu, the filtered |db/dt| of sensors/magnetic_field
+(design.bdot.FieldDerivativeFilter, bdot_cutoff) and the pointing error of the attitude estimate.
+
+Health, two clocks:
+  liveness   steady wall-clock time: every managed node publishes its /diagnostics status (its
+             heartbeat) at 1 Hz of steady time; none for ``heartbeat_timeout`` s -> SAFE, the
+             node named in the reason and on /diagnostics (ERROR). Wall time, because in lockstep
+             a dead node stalls the simulator and so /clock: a sim-time timeout would never expire.
+  staleness  sim time, from the stamps only: a sim-time timer (period ts) finds one sensor stream
+             whose last stamp lags the newest of the others by more than ``stale_timeout`` -> the
+             logic sees ``stale`` -> SAFE (stamps, not the clock: the manager is outside the
+             lockstep and may process samples well after /clock moved on, so "now minus last
+             sample" fired spuriously at full speed; a stop of every stream is the liveness
+             check's, or the simulator's missed steps'); it recovers by itself after
+             ``safe_recovery_time`` of fresh data (while a heartbeat is missing, SAFE holds).
+             Sim time, because "data older than 3 s" is a statement about the simulated world.
+
+Publishes:
+  mode           magtune_interfaces/Mode (MODE_QOS: reliable, transient-local): the mode, the
+                 previous one and the reason of the last transition, stamped with its sim time
+  /diagnostics   counters: samples, transitions, requests, rejected_nonfinite, rejected_stamp,
+                 stale, heartbeat_lost; mode; ERROR naming the node whose heartbeat is missing
+Service:
+  set_mode       magtune_interfaces/SetMode: a commanded mode (reason recorded)
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from lifecycle_msgs.msg import State, Transition
+from lifecycle_msgs.srv import ChangeState, GetState
+from magtune_interfaces.msg import Mode
+from magtune_interfaces.srv import SetMode
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.task import Future
+from sensor_msgs.msg import Imu, MagneticField
+
+from magtune_core.base.errors import ConfigError
+from magtune_core.design.bdot import FieldDerivativeFilter, FilterState
+from magtune_core.design.modes import MODES, SAFE, Measurements, ModeLogic, ModeParams, ModeState
+from magtune_core.design.node_params import BDOT_FIELDS, MANAGER_FIELDS, MODE_FIELDS
+
+from . import common as c
+
+
+class BringUpError(RuntimeError):
+    """A managed node could not be brought up: one line naming it (exit status 2)."""
+
+
+class ModeManager(Node):
+    NODE_NAME = "mode_manager"
+    START_ERRORS = (BringUpError,)
+
+    def __init__(self):
+        super().__init__(self.NODE_NAME)
+        self.done = Future()
+        v = c.parse_fields(self, MANAGER_FIELDS)
+        bd = c.parse_fields(self, BDOT_FIELDS)
+        try:
+            self.logic = ModeLogic(ModeParams.from_mapping(c.declare_fields(self, MODE_FIELDS),
+                                                           f"node '{self.get_name()}'"))
+        except ConfigError as exc:
+            raise c._param_error(exc) from None
+        c.declare_overrides(self)
+        self.ts_ns = c.sec_to_ns(v["ts"])
+        self.nodes = list(v["managed_nodes"])
+        self.heartbeat_timeout, self.transition_timeout = v["heartbeat_timeout"], v["transition_timeout"]
+        self.stale_ns = c.sec_to_ns(v["stale_timeout"])
+        self.filter, self.fstate = FieldDerivativeFilter(v["ts"], bd["bdot_cutoff"]), FilterState()
+        self.state = ModeState(v["initial_mode"], 0.0, "start")
+        self.previous = self.state.mode
+        self.last = None            # last Measurements
+        self.last_sample_ns = None  # stamp of the last sensor sample
+        self.beats: dict[str, float] = {}      # node -> steady time [s] of its last heartbeat
+        self.errors: dict[str, str] = {}       # node -> its ERROR status message (failed configure)
+        self.lost: set[str] = set()
+        self.monitoring = False
+        self.diag = c.Diagnostics(self, ["samples", "transitions", "requests", "rejected_nonfinite", "rejected_stamp",
+                                         "stale", "heartbeat_lost"])
+        # stamps must increase; no age limit: a manager behind the world (it is outside the lockstep)
+        # still steps the logic on every sample, in stamp order, so its decisions do not depend on its lag
+        self.gate = c.StampGate(self, 2**62, n=3)
+        self.sync = c.PairSync(3)  # gyro, magnetometer, attitude of t_k
+        self.pub_mode = self.create_publisher(Mode, c.TOPIC_MODE, c.MODE_QOS)
+        self.create_subscription(DiagnosticArray, c.TOPIC_DIAGNOSTICS, self.on_diagnostics, c.DIAG_QOS)
+        self.create_subscription(Imu, c.TOPIC_IMU, lambda m: self.on_sensor(0, m), c.LOCKSTEP_QOS)
+        self.create_subscription(MagneticField, c.TOPIC_MAG, lambda m: self.on_sensor(1, m), c.LOCKSTEP_QOS)
+        self.create_subscription(Imu, c.TOPIC_ATTITUDE, lambda m: self.on_sensor(2, m), c.LOCKSTEP_QOS)
+        self.create_service(SetMode, c.SERVICE_SET_MODE, self.on_set_mode)
+        self.change = {n: self.create_client(ChangeState, f"{n}/change_state") for n in self.nodes}
+        self.get_state = {n: self.create_client(GetState, f"{n}/get_state") for n in self.nodes}
+        self.create_timer(v["ts"], self.check_stale)  # sim time (use_sim_time)
+        self.create_timer(0.25, self.check_heartbeats, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.publish_mode()
+
+    # ---------------------------------------------------------------- lifecycle of the managed nodes
+    def spin(self, executor, stop) -> int:
+        """Bring the nodes up, run until stopped, bring them down in reverse (c.run calls this)."""
+        self.bring_up(executor, stop)
+        while rclpy.ok() and not stop.is_set() and not self.done.done():
+            executor.spin_until_future_complete(self.done, timeout_sec=0.1)
+        self.bring_down(executor)
+        return 0
+
+    def _call(self, executor, client, request, timeout: float):
+        """The response of one service call, or None (no service or no answer within ``timeout`` wall s)."""
+        if not client.wait_for_service(timeout_sec=timeout):
+            return None
+        fut = client.call_async(request)
+        executor.spin_until_future_complete(fut, timeout_sec=timeout)
+        return fut.result() if fut.done() else None
+
+    def _transition(self, executor, node: str, tid: int, timeout: float) -> bool:
+        r = self._call(executor, self.change[node], ChangeState.Request(transition=Transition(id=tid)), timeout)
+        return bool(r and r.success)
+
+    def bring_up(self, executor, stop) -> None:
+        """Configure every node (in order), then activate each (in order); BringUpError naming a failing node."""
+        for n in self.nodes:
+            if not self._transition(executor, n, Transition.TRANSITION_CONFIGURE, self.transition_timeout):
+                raise BringUpError(f"{n}: {self._reason(executor, n)}")
+            self.get_logger().info(f"{n}: configured")
+        for n in self.nodes:
+            if not self._transition(executor, n, Transition.TRANSITION_ACTIVATE, self.transition_timeout):
+                raise BringUpError(f"{n}: activation failed")
+            self.get_logger().info(f"{n}: active")
+        now = time.monotonic()
+        self.beats = {n: max(self.beats.get(n, now), now) for n in self.nodes}
+        self.monitoring = True
+
+    def _reason(self, executor, node: str) -> str:
+        """Why ``node`` did not configure: its ERROR status on /diagnostics (waited for up to 3 s)."""
+        end = time.monotonic() + 3.0
+        while node not in self.errors and time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.1)
+        r = self._call(executor, self.get_state[node], GetState.Request(), 2.0)
+        where = f" (node {r.current_state.label})" if r else " (no answer from its lifecycle services)"
+        return self.errors.get(node, "configure failed" + where).removeprefix("configure failed: ")
+
+    def bring_down(self, executor) -> None:
+        """Deactivate the nodes in reverse order, then shut them down (best effort, 2 s per call)."""
+        self.monitoring = False
+        if not rclpy.ok():
+            return
+        for n in reversed(self.nodes):
+            self._transition(executor, n, Transition.TRANSITION_DEACTIVATE, 2.0)
+        for n in reversed(self.nodes):
+            r = self._call(executor, self.get_state[n], GetState.Request(), 2.0)
+            if r is None:
+                continue
+            tid = {State.PRIMARY_STATE_INACTIVE: Transition.TRANSITION_INACTIVE_SHUTDOWN,
+                   State.PRIMARY_STATE_UNCONFIGURED: Transition.TRANSITION_UNCONFIGURED_SHUTDOWN,
+                   State.PRIMARY_STATE_ACTIVE: Transition.TRANSITION_ACTIVE_SHUTDOWN}.get(r.current_state.id)
+            if tid is not None:
+                self._transition(executor, n, tid, 2.0)
+
+    # ---------------------------------------------------------------- health
+    def on_diagnostics(self, msg: DiagnosticArray):
+        """Heartbeats: a status ``magtune/<node>`` of this namespace's managed node (steady receive time)."""
+        now = time.monotonic()
+        for st in msg.status:
+            node = st.name.removeprefix("magtune/")
+            if node not in self.change:
+                continue
+            ns = next((kv.value for kv in st.values if kv.key == "namespace"), None)
+            if ns is not None and ns != self.get_namespace():
+                continue
+            self.beats[node] = now
+            if st.level == DiagnosticStatus.ERROR:
+                self.errors[node] = st.message
+            if node in self.lost:
+                self.lost.discard(node)
+                self.get_logger().warning(f"heartbeat of {node} back")
+                if not self.lost:
+                    self.diag.status = None
+
+    def check_heartbeats(self):
+        """Liveness on steady time: a managed node silent for heartbeat_timeout s -> SAFE, named."""
+        if not self.monitoring:
+            return
+        now = time.monotonic()
+        for n in self.nodes:
+            age = now - self.beats.get(n, now)
+            if age > self.heartbeat_timeout and n not in self.lost:
+                self.lost.add(n)
+                reason = f"heartbeat of {n} missed for {age:.1f} s (heartbeat_timeout {self.heartbeat_timeout:g} s)"
+                self.diag.count("heartbeat_lost", reason)
+                self.diag.status = (DiagnosticStatus.ERROR, reason)
+                self.diag.extra["lost"] = ",".join(sorted(self.lost))
+                if self.state.mode != SAFE:
+                    self.apply(*self.logic.request(self.state, SAFE, self.now_s(), reason))
+                self.diag.publish()
+
+    def check_stale(self):
+        """Staleness on sim time, from the stamps: a sensor stream whose last stamp lags the newest
+        stamp of the others by more than stale_timeout -> the logic steps with ``stale``."""
+        last = self.gate.last_ns
+        if min(last) < 0:
+            return
+        lag = max(last) - min(last)
+        if lag > self.stale_ns:
+            slot = last.index(min(last))
+            self.diag.count("stale", f"{('sensors/imu', 'sensors/magnetic_field', 'sensors/attitude')[slot]} "
+                                     f"{lag * 1e-9:.1f} s behind the other sensor streams")
+            m = self.last or Measurements(rate=math.nan)
+            self.step(Measurements(m.rate, m.bdot, m.pointing_error, stale=True), max(last) * 1e-9)
+
+    # ---------------------------------------------------------------- mode logic
+    def on_sensor(self, slot: int, msg):
+        if slot == 1:
+            b = msg.magnetic_field
+            vals = (b.x, b.y, b.z)
+        else:
+            w, o = msg.angular_velocity, msg.orientation
+            vals = (w.x, w.y, w.z) + ((o.w, o.x, o.y, o.z) if slot == 2 else ())
+        if not c.finite(*vals):
+            return self.diag.count("rejected_nonfinite", "non-finite sensor sample")
+        ns = c.stamp_to_ns(msg.header.stamp)
+        bad = self.gate.check(slot, ns)
+        if bad:
+            return self.diag.count(*bad)
+        trio = self.sync.add(slot, ns, msg)
+        if trio:
+            self.sample(ns, *trio)
+
+    def sample(self, ns: int, imu: Imu, mag: MagneticField, att: Imu):
+        """One sample t_k: the measured quantities, then one step of the logic."""
+        w, b, o = imu.angular_velocity, mag.magnetic_field, att.orientation
+        self.fstate, bdot = self.filter.step(self.fstate, [b.x, b.y, b.z])
+        qv = math.sqrt(o.x * o.x + o.y * o.y + o.z * o.z) / max(math.sqrt(o.w * o.w + o.x * o.x + o.y * o.y
+                                                                          + o.z * o.z), 1e-300)
+        m = Measurements(rate=math.sqrt(w.x * w.x + w.y * w.y + w.z * w.z), bdot=float(np.linalg.norm(bdot)),
+                         pointing_error=2.0 * math.asin(min(qv, 1.0)))
+        self.last, self.last_sample_ns = m, ns
+        self.diag.count("samples")
+        self.step(m, ns * 1e-9)
+
+    def step(self, m: Measurements, t: float):
+        if self.lost:  # a silent node: SAFE holds (the logic's only health input is ``stale``)
+            m = Measurements(m.rate, m.bdot, m.pointing_error, stale=True)
+        state, tr = self.logic.step(self.state, m, t)
+        self.apply(state, tr)
+
+    def apply(self, state: ModeState, tr):
+        self.state = state
+        if tr is not None:
+            self.previous = tr.source
+            self.diag.count("transitions")
+            self.get_logger().info(f"t={tr.t:.1f} s: {tr.source} -> {tr.target}: {tr.reason}")
+            self.publish_mode()
+
+    def publish_mode(self):
+        st = self.state
+        msg = Mode(mode=MODES.index(st.mode), label=st.mode, previous=MODES.index(self.previous), reason=st.reason)
+        msg.header.stamp = c.ns_to_stamp(max(0, c.sec_to_ns(st.since)))
+        self.diag.extra["mode"] = st.mode
+        self.pub_mode.publish(msg)
+
+    def on_set_mode(self, req: SetMode.Request, res: SetMode.Response):
+        self.diag.count("requests")
+        if req.mode >= len(MODES):
+            res.success, res.message = False, f"unknown mode id {req.mode} (expected 0..{len(MODES) - 1}: " \
+                                              f"{', '.join(MODES)})"
+        else:
+            self.apply(*self.logic.request(self.state, MODES[req.mode], self.now_s(),
+                                           f"commanded: {req.reason or 'set_mode'}"))
+            res.success, res.message = True, f"mode {self.state.mode}"
+        res.mode = MODES.index(self.state.mode)
+        return res
+
+    def now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def finish(self):
+        if self.context.ok():
+            self.diag.publish()
+
+
+def main(args=None):
+    return c.run(ModeManager, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
