@@ -40,19 +40,24 @@ from ``q_meas, w_meas`` and its dipole from ``b_meas``; the plant feels the true
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from ..design.bdot import FieldDerivativeFilter, bdot_gain, geomagnetic_inclination
 from ..design.law import DEFAULT_MIN_FIELD
+from ..design.modes import DETUMBLE, MODES, ModeParams
+from ..design.modes_kernel import MODE_CODE, GUARDS, kernel_params
 from ..design.params import SpacecraftParams
 from ..design.sensors import GYRO_U, NORMALS_PER_STEP, Gyro, draw, gyro_bias_walk, gyro_from
 from ..env.environment import Environment
 from ..env.igrf import IGRF
 from ..env.orbit import initial_state, orbital_rate
-from .batch_kernels import Chunk, Controller, Outputs, Plant, Sensors, closed_loop, env_rows, igrf_arrays, orbit_rhs
+from .batch_kernels import (Chunk, Controller, Modes, Outputs, Plant, Sensors, closed_loop, env_rows, igrf_arrays,
+                            orbit_rhs)
 from .fullenv import FullEnvironmentOptions, _environment, environment_table, nominal_orbit_period
 from .metrics import pointing_error_deg
 
@@ -103,6 +108,28 @@ class SensorNoise:
         std, arw, rrw = (self._per_run(v) for v in (self.gyro_std, self.gyro_arw, self.gyro_rrw))
         bias = np.asarray(self.gyro_bias, float).reshape(-1, 3)
         return [gyro_from(std[i], arw[i], rrw[i], bias[i], ts) for i in range(len(self.seeds))]
+
+
+@dataclass(frozen=True)
+class BatchModes:
+    """Fly the flight modes in the batch (:mod:`magtune_core.design.modes`, B-dot of :mod:`magtune_core.design.bdot`).
+
+    ``params`` the mode machine's thresholds and timers; ``bdot_gain`` k [N m s] (0: the Avanzini-Giulietti
+    rule :func:`~magtune_core.design.bdot.bdot_gain` from the nominal spacecraft ``BatchRuns.p``: the flight
+    software knows the nominal inertia, not a run's dispersed one); ``bdot_cutoff`` of the derivative filter
+    [rad/s]; every run starts in ``initial_mode``. The fields of ``MODE_FIELDS`` and ``BDOT_FIELDS``.
+    """
+
+    params: ModeParams = ModeParams()
+    bdot_gain: float = 0.0
+    bdot_cutoff: float = 0.2
+    normalized: bool = True
+    initial_mode: str = DETUMBLE
+
+    def gain(self, p: SpacecraftParams) -> float:
+        """The B-dot gain flown [N m s] (``bdot_gain`` or the rule, as simulate_modes' ``bdot_k``)."""
+        return float(self.bdot_gain or bdot_gain(p.orbit_rate, geomagnetic_inclination(math.radians(p.inclination_deg)),
+                                                 p.inertia))
 
 
 @dataclass
@@ -165,6 +192,15 @@ class BatchResult:
     m_norm: np.ndarray | None = None
     record_index: np.ndarray | None = None
     saturated: np.ndarray | None = None
+    #: with modes (:class:`BatchModes`): ``mode`` (B, N+1) int8 mode code after each instant's decision (with
+    #: ``full_series``; code = index in design.modes.MODES), ``transitions`` (B,) count, ``detumble_time`` the
+    #: first instant DETUMBLE was left and ``pointing_time`` the first instant POINTING was entered [s] (nan:
+    #: never), ``final_mode`` (B,) code at the last instant
+    mode: np.ndarray | None = None
+    transitions: np.ndarray | None = None
+    detumble_time: np.ndarray | None = None
+    pointing_time: np.ndarray | None = None
+    final_mode: np.ndarray | None = None
 
 
 def _as3x3(I: np.ndarray, n: int) -> np.ndarray:
@@ -370,7 +406,8 @@ def _noise_blocks(sensors: SensorNoise, ts: float):
 
 
 def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: int = 2,
-                   record_every: int = 1, orbit_periods=None, full_series: bool = False) -> BatchResult:
+                   record_every: int = 1, orbit_periods=None, full_series: bool = False,
+                   modes: BatchModes | None = None) -> BatchResult:
     """Closed loop of B runs of the nonlinear model with the sample-and-hold projection controller.
 
     Same loop as :func:`magtune_core.sim.simulate.simulate` (``steps`` controller periods of
@@ -381,6 +418,9 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
     periods (default :func:`run_orbit_periods`). ``full_series``: also keep the true pointing
     error and |m| at every instant (what the figures of merit of a campaign need).
     Control law of paper eq. (17) with per-axis saturation; set-up of paper section 5.
+    ``modes``: fly the flight modes (DETUMBLE: B-dot, ACQUISITION / POINTING: eq. 17, SAFE: zero), as
+    :func:`magtune_core.sim.modes_loop.simulate_modes` does for one run; None: eq. 17 throughout (bit
+    for bit the loop without modes).
 
     Returns
     -------
@@ -448,6 +488,7 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
                    gyro_avg, gyro_white)
     out = Outputs(sat, weak, diverged, DIVERGED_RATE, bool(full_series), ang_all, mn_all, rec_slot, Q, W, X, M, Bb,
                   sat_all)
+    mstate = _modes_state(modes, runs, B, n, ts, bool(full_series))
     # controller steps in chunks of ENV_CHUNK (a divisor of NOISE_CHUNK): one environment table and one
     # compiled call per chunk (batch_kernels.closed_loop: sensors, controller, S RK4 steps per period)
     for kc in range(0, n + 1, ENV_CHUNK):
@@ -456,11 +497,34 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
         if noisy and kc % NOISE_CHUNK == 0:
             noise, gyro_avg = block()
             sens = sens._replace(noise=noise, gyro_avg=gyro_avg, noise_k0=kc)
-        closed_loop(y, Chunk(table, index, kc, kc, k1, n, per, S, h), plant, ctrl, sens, out)
-    return BatchResult(np.asarray(rec, dtype=float) * ts, Q, W, X, M, Bb, T, sat, weak, diverged, n,
-                       dict(ts=ts, substeps=S, environment=runs.environment, record_every=int(record_every)),
-                       pointing_error_deg(ang_all) if full_series else None, mn_all if full_series else None,
-                       np.asarray(rec), sat_all if full_series else None)
+        closed_loop(y, Chunk(table, index, kc, kc, k1, n, per, S, h), plant, ctrl, sens, out, mstate)
+    res = BatchResult(np.asarray(rec, dtype=float) * ts, Q, W, X, M, Bb, T, sat, weak, diverged, n,
+                      dict(ts=ts, substeps=S, environment=runs.environment, record_every=int(record_every)),
+                      pointing_error_deg(ang_all) if full_series else None, mn_all if full_series else None,
+                      np.asarray(rec), sat_all if full_series else None)
+    return _with_modes(res, mstate, full_series) if modes is not None else res
+
+
+def _with_modes(res: BatchResult, mstate: Modes, full: bool) -> BatchResult:
+    """``res`` with the mode outputs of the kernel state ``mstate`` (BatchResult.mode and the rest)."""
+    res.mode = mstate.mode_all if full else None
+    res.transitions, res.detumble_time, res.pointing_time = mstate.n_tr, mstate.t_detumble, mstate.t_pointing
+    res.final_mode = mstate.mode.copy()
+    return res
+
+
+def _modes_state(modes: BatchModes | None, runs: BatchRuns, B: int, n: int, ts: float, full: bool) -> Modes:
+    """The kernel's :class:`~magtune_core.sim.batch_kernels.Modes` (``on`` False with ``modes`` None)."""
+    on = modes is not None
+    m = modes or BatchModes()
+    if m.initial_mode not in MODES:
+        raise ValueError(f"BatchModes: initial_mode must be one of {', '.join(MODES)}, got {m.initial_mode!r}")
+    k = np.full(B, m.gain(runs.p) if on else 0.0)
+    return Modes(on, kernel_params(m.params), k, bool(m.normalized), float(runs.min_field),
+                 FieldDerivativeFilter(float(ts), float(m.bdot_cutoff)).pole, float(ts), np.full(B, MODE_CODE[m.initial_mode], dtype=np.int64),
+                 np.full((B, len(GUARDS)), np.nan), np.zeros((B, 3)), np.zeros((B, 3)), np.ones(B, dtype=np.bool_),
+                 np.zeros(B, dtype=np.int64), np.full(B, np.nan), np.full(B, np.nan),
+                 np.full((B, n + 1) if (on and full) else (B, 1), -1, dtype=np.int8))
 
 
 def _geometry(runs: BatchRuns):

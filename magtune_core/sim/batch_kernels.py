@@ -18,7 +18,9 @@ single-run ``simulate`` to ~1e-12 (state):
   co-rotating-air wind, low-precision Sun and cylindrical shadow (:mod:`magtune_core.env.sun`).
 * :func:`closed_loop` = the loop body of ``simulate_batch`` (sensors, projection controller of paper
   eq. 17 with saturation and weak-field guard, sample-and-hold, ``substeps`` classical RK4 steps,
-  quaternion renormalization, divergence flag), for each run over a chunk of controller steps.
+  quaternion renormalization, divergence flag), for each run over a chunk of controller steps; with
+  :class:`Modes` ``on``, the flight modes pick the law each step (the mode machine and the B-dot law
+  of :mod:`magtune_core.design.modes_kernel`, as :func:`magtune_core.sim.modes_loop.simulate_modes`).
 
 Compiled on first use and cached on disk (``cache=True``: ~40 s once per installation, in
 ``__pycache__`` next to this file; the Dask workers load the cached machine code). ``error_model="numpy"``:
@@ -32,6 +34,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from ..design.modes_kernel import MODE_CODE, KernelModeParams, bdot_dipole, filter_step, mode_step
 from ..env.atmosphere import HP_HEIGHT_KM, HP_RHO_MAX, HP_RHO_MIN, RA_LAG
 from ..env.earth import F_WGS84, GM_EARTH, J2, J3, J4, JD_J2000, OMEGA_EARTH, R_EARTH, R_WGS84, SECONDS_PER_DAY
 from ..env.igrf import IGRF_RADIUS, NT
@@ -493,8 +496,36 @@ class Outputs(NamedTuple):
     sat_all: np.ndarray  #: (B, n + 1) bool: step k saturated an axis (with ``full``)
 
 
+_DET, _PNT, _SAFE = MODE_CODE["DETUMBLE"], MODE_CODE["POINTING"], MODE_CODE["SAFE"]
+
+
+class Modes(NamedTuple):
+    """The flight modes of every run (``on`` False: the projection law throughout, as before) and their state.
+
+    The measurements the mode machine reads are the sensors' (the gyro's |w|, the filtered |db/dt| of the
+    measured field, the pointing error of the measured attitude), as in the mode manager node.
+    """
+
+    on: bool  #: fly the modes
+    P: KernelModeParams  #: thresholds and timers (design.modes.ModeParams)
+    k: np.ndarray  #: (B,) B-dot gain [N m s] (normalized law) or [A m^2 s / T] (raw)
+    normalized: bool  #: the normalized B-dot law (design.bdot.BdotController)
+    min_field: float  #: B-dot weak-field guard [T]
+    a: float  #: derivative-filter pole exp(-cutoff Ts)
+    ts: float  #: controller period [s] (sim time t_k = k ts)
+    mode: np.ndarray  #: (B,) int64 current mode code (design.modes_kernel.MODE_CODE)
+    pending: np.ndarray  #: (B, 6) guard start times [s] (nan: not holding)
+    fb: np.ndarray  #: (B, 3) previous measured field [T] (filter memory)
+    fy: np.ndarray  #: (B, 3) previous filter output [T/s]
+    first: np.ndarray  #: (B,) bool: no field sample yet
+    n_tr: np.ndarray  #: (B,) int64 transitions so far
+    t_detumble: np.ndarray  #: (B,) first instant DETUMBLE was left [s] (nan: not yet)
+    t_pointing: np.ndarray  #: (B,) first instant POINTING was entered [s] (nan: not yet)
+    mode_all: np.ndarray  #: (B, n + 1) int8 mode code after each step's decision (with ``Outputs.full``)
+
+
 @njit(cache=True, error_model="numpy")
-def closed_loop(y, chunk, plant, ctrl, sens, out):
+def closed_loop(y, chunk, plant, ctrl, sens, out, modes):
     """Controller steps ``chunk.ka .. chunk.kb-1`` (<= n) of every run (the loop of ``batch.simulate_batch``).
 
     Parameters
@@ -509,12 +540,16 @@ def closed_loop(y, chunk, plant, ctrl, sens, out):
     out : Outputs
         Accumulates sat/weak/diverged, writes the per-step series (``full``) and the recorded
         instants (``rec_slot[k] >= 0``).
+    modes : Modes
+        With ``on``: the mode machine's state per run (updated), the law per mode (DETUMBLE: B-dot,
+        ACQUISITION and POINTING: eq. 17, SAFE: zero dipole) and the mode series (``full``).
     """
     table, idx, kc, ka, kb, n, per, S, h = chunk
     I, J, hw, mres, gg, drag, srp, A, cp, cd, es, ed = plant
     K, lim, W0, min_b2 = ctrl
     noisy, noise, noise_k0, mag_bias, mag_std, quantum, mag_on, mag_M, att_std, gyro_avg, gyro_white = sens
     sat, weak, diverged, diverged_rate, full, ang_all, mn_all, rec_slot, Q, Wr, X, M, Bb, sat_all = out
+    mon, MP, bk, bnorm, bmin, fa, mts = modes.on, modes.P, modes.k, modes.normalized, modes.min_field, modes.a, modes.ts
     B = y.shape[1]
     hh, h6 = 0.5 * h, h / 6.0
     ys = np.empty(7)
@@ -584,7 +619,37 @@ def closed_loop(y, chunk, plant, ctrl, sens, out):
             s0 = min(max(m0, -lim[0, b]), lim[0, b])
             s1 = min(max(m1, -lim[1, b]), lim[1, b])
             s2 = min(max(m2, -lim[2, b]), lim[2, b])
-            if ok:
+            md = -1
+            d0 = d1 = d2 = 0.0
+            if mon:  # the mode machine on the measurements (modes_loop.simulate_modes' order: decide, then command)
+                d0, d1, d2 = filter_step(fa, mts, modes.first[b], modes.fb[b], modes.fy[b], bm0, bm1, bm2)
+                modes.first[b] = False
+                t = k * mts
+                old = modes.mode[b]
+                md = mode_step(old, modes.pending[b], math.sqrt(wm0 * wm0 + wm1 * wm1 + wm2 * wm2),
+                               math.sqrt(d0 * d0 + d1 * d1 + d2 * d2),
+                               2.0 * math.asin(min(math.sqrt(x0 * x0 + x1 * x1 + x2 * x2), 1.0)), False, t, MP)
+                if md != old:
+                    modes.n_tr[b] += 1
+                    if old == _DET and math.isnan(modes.t_detumble[b]):
+                        modes.t_detumble[b] = t
+                    if md == _PNT and math.isnan(modes.t_pointing[b]):
+                        modes.t_pointing[b] = t
+                modes.mode[b] = md
+                if full:
+                    modes.mode_all[b, k] = md
+            if md == _DET:  # B-dot rate damping (design.bdot.BdotController)
+                s0, s1, s2, wk, st = bdot_dipole(bm0, bm1, bm2, d0, d1, d2, bk[b], bnorm, bmin, lim[0, b], lim[1, b],
+                                                 lim[2, b])
+                if wk:
+                    weak[b] += 1
+                elif st:
+                    sat[b] += 1
+                    if full:
+                        sat_all[b, k] = True
+            elif md == _SAFE:
+                s0 = s1 = s2 = 0.0
+            elif ok:
                 if s0 != m0 or s1 != m1 or s2 != m2:
                     sat[b] += 1
                     if full:

@@ -65,9 +65,12 @@ from ..base.errors import ConfigError
 from ..base.paramfile import load_user_yaml
 from ..base.schema import Field, parse
 from ..design.gains import load_gains
+from ..design.modes import MODES, POINTING, ModeParams
+from ..design.node_params import BDOT_FIELDS, MODE_FIELDS, check_modes
 from ..design.params import SpacecraftParams, load_spacecraft
-from ..sim.batch import BatchRuns, SensorNoise, simulate_batch
+from ..sim.batch import BatchModes, BatchRuns, SensorNoise, simulate_batch
 from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions, nominal_orbit_period, substeps_for
+from ..sim.initial import substeps_for_rate
 from ..sim.metrics import settling_time
 from ..sim.simulate import DW0
 from . import cluster
@@ -92,6 +95,8 @@ CAMPAIGN_FIELDS = (
     Field("arg_lat_deg", "float", "full environment: argument of latitude at the epoch [deg] (default: the "
           "spacecraft file's arg_latitude)", None),
     Field("min_field", "float", "weak-field guard of the controller [T]", 1e-7, positive=True),
+    Field("modes", "bool", "fly the flight modes from deployment (DETUMBLE: B-dot, ACQUISITION, POINTING: eq. 17; "
+          "thresholds in section modes): a deployment campaign", False),
 )
 
 #: Section ``dispersions``.
@@ -118,6 +123,8 @@ DISPERSION_FIELDS = (
     Field("dipole_limit_min", "float", "per-axis dipole limit range start [A m^2]", 50.0, positive=True),
     Field("dipole_limit_max", "float", "per-axis dipole limit range end [A m^2] (default dipole_limit_min)", None,
           positive=True),
+    Field("attitude_uniform", "bool", "initial attitude uniformly distributed over all rotations (a normalized "
+          "4-D normal quaternion; replaces attitude_max_deg)", False),
 )
 
 #: Section ``criteria`` (a run passes when it is ok and meets every criterion given).
@@ -133,14 +140,25 @@ CRITERIA_FIELDS = (
           None, nonnegative=True),
     Field("max_steady_saturation_fraction", "float", "limit of the fraction of saturated controller steps in "
           "steady state (t >= max_settling_orbits T)", None, nonnegative=True),
+    Field("max_deployment_orbits", "float", "deployment campaigns: limit of the time to settled pointing "
+          "[nominal orbits]", None, positive=True),
 )
 
-SECTIONS = {"campaign": CAMPAIGN_FIELDS, "dispersions": DISPERSION_FIELDS, "criteria": CRITERIA_FIELDS}
+#: Section ``modes`` (with ``campaign.modes``): the mode machine's and the B-dot law's schema, the one the
+#: mode manager node, the controller and the offline mode loop read (design/node_params.py).
+MODES_SECTION_FIELDS = MODE_FIELDS + BDOT_FIELDS
+
+SECTIONS = {"campaign": CAMPAIGN_FIELDS, "dispersions": DISPERSION_FIELDS, "criteria": CRITERIA_FIELDS,
+            "modes": MODES_SECTION_FIELDS}
 STATUSES = ("ok", "diverged", "failed")
 #: Figures of merit (columns of runs.parquet) and their units, in report order.
 FIGURES = (("settling_time", "s"), ("max_pointing_deg", "deg"), ("rms_pointing_deg", "deg"),
            ("final_pointing_deg", "deg"), ("peak_dipole", "A m^2"), ("rms_dipole", "A m^2"),
            ("saturation_fraction", "-"), ("steady_saturation_fraction", "-"), ("weak_field_fraction", "-"))
+#: Figures of a deployment campaign (``campaign.modes``): time to detumble (DETUMBLE left for the first time),
+#: to POINTING (first entry), to settled pointing (from then on in POINTING with the error below
+#: ``settle_threshold_deg``), the number of mode transitions.
+MODE_FIGURES = (("detumble_time", "s"), ("pointing_time", "s"), ("settled_time", "s"), ("transitions", "-"))
 
 
 @dataclass
@@ -158,6 +176,7 @@ class CampaignSpec:
     epoch_min: datetime
     epoch_max: datetime
     raw: dict = field(default_factory=dict)
+    modes: dict = field(default_factory=dict)  #: section ``modes`` (parsed; used with ``campaign.modes``)
 
     @property
     def seed(self) -> int:
@@ -165,8 +184,24 @@ class CampaignSpec:
 
     @property
     def substeps(self) -> int:
+        """RK4 steps per Ts: ``campaign.substeps``, 0 = at most 0.5 s per step; a deployment campaign takes at
+        least what the fastest drawable initial rate needs (sim.initial.substeps_for_rate of the bound
+        |rate_mean| + rate_max + W0 per axis: one value for every run, so a batch is one integrator)."""
         s = int(self.campaign["substeps"])
-        return s if s > 0 else substeps_for(self.campaign["ts"])
+        s = s if s > 0 else substeps_for(self.campaign["ts"])
+        if self.campaign["modes"]:
+            d = self.dispersions
+            bound = np.abs(d["rate_mean"]) + d["rate_max"] + np.array([0.0, 0.0, self.p.orbit_rate])
+            s = max(s, substeps_for_rate(bound, self.campaign["ts"]))
+        return s
+
+    def batch_modes(self) -> BatchModes | None:
+        """The flight modes every run flies (``campaign.modes``; section ``modes``), else None."""
+        if not self.campaign["modes"]:
+            return None
+        v = self.modes
+        return BatchModes(ModeParams(**{f.name: v[f.name] for f in MODE_FIELDS}), bdot_gain=v["bdot_gain"],
+                          bdot_cutoff=v["bdot_cutoff"])
 
     def env_options(self, epoch: datetime, raan_deg: float) -> FullEnvironmentOptions:
         c = self.campaign
@@ -270,6 +305,9 @@ def load_spec(path) -> CampaignSpec:
         raise ConfigError(path, "dispersions.attitude_max_deg", f"expected at most 180, got {d['attitude_max_deg']:g}")
     if np.any(3.0 * d["inertia_rel_std"] >= 1.0):
         raise ConfigError(path, "dispersions.inertia_rel_std", "expected < 1/3 (3-sigma inertia must stay positive)")
+    if raw.get("modes") and not c["modes"]:
+        raise ConfigError(path, "modes", "a modes section needs campaign.modes: true")
+    check_modes(values["modes"], path)
     Ks, files = [], []
     for g in c["gains"]:
         gp = _resolve(g, path)
@@ -277,7 +315,7 @@ def load_spec(path) -> CampaignSpec:
             raise ConfigError(path, "campaign.gains", f"file not found: {g}")
         Ks.append(load_gains(gp).K)
         files.append(str(g))
-    return CampaignSpec(str(path), c, d, values["criteria"], files, np.array(Ks), p, e0, e1, raw)
+    return CampaignSpec(str(path), c, d, values["criteria"], files, np.array(Ks), p, e0, e1, raw, values["modes"])
 
 
 # --- per-run parameters ------------------------------------------------------------------------
@@ -300,6 +338,14 @@ def draw_run(spec: CampaignSpec, i: int) -> dict:
     limit = d["dipole_limit_min"] + (d["dipole_limit_max"] - d["dipole_limit_min"]) * rng.uniform()
     mag_bias = d["mag_bias_std"] * rng.standard_normal(3)
     gyro_bias = d["gyro_bias_std"] * rng.standard_normal(3)
+    # drawn last (always), so the draws above are those of a spec without it: a uniform rotation is a
+    # normalized 4-D standard normal (Shoemake 1992; scipy's Rotation.random draws it so)
+    qu = rng.standard_normal(4)
+    if d["attitude_uniform"]:
+        q0 = qu / np.linalg.norm(qu)
+        q0 = -q0 if q0[0] < 0 else q0
+        angle = 2.0 * math.acos(min(q0[0], 1.0))
+        axis = q0[1:] / (np.linalg.norm(q0[1:]) or 1.0)
     return dict(run=int(i), inertia=inertia, residual_dipole=mres, attitude_angle_deg=math.degrees(angle),
                 attitude_axis=axis, q0=q0, dw0=dw0, epoch=spec.epoch_min + timedelta(seconds=epoch_offset),
                 epoch_offset_s=epoch_offset, raan_deg=raan, dipole_limit=limit, mag_bias=mag_bias,
@@ -349,11 +395,38 @@ def run_figures(t, err_deg, m_norm, orbit_period: float, criteria: dict, saturat
                 rms_dipole=float(np.sqrt(np.mean(mn**2))))
 
 
+def deployment_figures(t, err_deg, mode_codes, criteria: dict) -> dict:
+    """Time to settled pointing of one deployment from its mode and true pointing error at every instant.
+
+    Settled pointing: the first instant from which the run stays in POINTING with the error below
+    ``settle_threshold_deg`` to the end (nan: the run does not end so).
+
+    Returns
+    -------
+    dict
+        settled_time [s] (nan: never), final_mode (name), reached_pointing (POINTING entered at some instant).
+    """
+    t, err, code = np.asarray(t), np.asarray(err_deg), np.asarray(mode_codes)
+    pnt = MODES.index(POINTING)
+    good = (code == pnt) & (err < criteria["settle_threshold_deg"])
+    bad = np.nonzero(~good)[0]
+    settled = math.nan if not good[-1] else float(t[bad[-1] + 1] if bad.size else t[0])
+    return dict(settled_time=settled, final_mode=MODES[int(code[-1])], reached_pointing=bool(np.any(code == pnt)))
+
+
 def verdict(row: dict, criteria: dict, orbit_period: float) -> tuple[bool, str]:
-    """(pass, reasons) of one run against the spec's criteria."""
+    """(pass, reasons) of one run against the spec's criteria (a deployment: also reached and settled POINTING)."""
     if row["status"] != "ok":
         return False, row["status"]
     why = []
+    if "settled_time" in row:  # a deployment campaign
+        lim = criteria["max_deployment_orbits"]
+        if not row["reached_pointing"]:
+            why.append("never reached POINTING")
+        elif not np.isfinite(row["settled_time"]):
+            why.append(f"not settled in POINTING (final mode {row['final_mode']})")
+        elif lim is not None and row["settled_time"] > lim * orbit_period:
+            why.append(f"settled pointing at {row['settled_time']:.0f} s > {lim:g} orbits")
     if not np.isfinite(row["settling_time"]):
         why.append(f"never below {criteria['settle_threshold_deg']:g} deg")
     elif row["settling_time"] > criteria["max_settling_orbits"] * orbit_period:
@@ -381,7 +454,7 @@ def _simulate_rows(spec: CampaignSpec, jobs: list, steps: int, record_every: int
     draws = [draw_run(spec, i) for _, i in jobs]
     runs = _batch_runs(spec, draws, [g for g, _ in jobs])
     res = simulate_batch(runs, ts=spec.campaign["ts"], steps=steps, substeps=spec.substeps, record_every=record_every,
-                         full_series=True)
+                         full_series=True, modes=spec.batch_modes())
     t_all = np.arange(steps + 1) * spec.campaign["ts"]
     rows = []
     for b, ((g, i), r) in enumerate(zip(jobs, draws)):
@@ -391,6 +464,10 @@ def _simulate_rows(spec: CampaignSpec, jobs: list, steps: int, record_every: int
         row.update(saturation_fraction=res.saturated_steps[b] / (steps + 1),
                    weak_field_fraction=res.weak_field_steps[b] / (steps + 1),
                    status="diverged" if res.diverged[b] else "ok", error="")
+        if res.mode is not None:
+            row.update(detumble_time=float(res.detumble_time[b]), pointing_time=float(res.pointing_time[b]),
+                       transitions=int(res.transitions[b]),
+                       **deployment_figures(t_all, res.pointing_deg[b], res.mode[b], spec.criteria))
         rows.append(row)
     hist = dict(t=res.t.astype(np.float32), pointing_deg=res.pointing_deg[:, res.record_index].astype(np.float32),
                 dipole=np.linalg.norm(res.m, axis=2).astype(np.float32),
@@ -407,6 +484,8 @@ def _failed_row(spec: CampaignSpec, g: int, i: int, exc: BaseException) -> dict:
     row = dict(params, gains=spec.gains_files[g], gains_index=g, orbit_period=math.nan, status="failed",
                error=f"{type(exc).__name__}: {exc}"[:500])
     row.update({k: math.nan for k, _ in FIGURES})
+    if spec.campaign["modes"]:
+        row.update({k: math.nan for k, _ in MODE_FIGURES}, transitions=-1, final_mode="", reached_pointing=False)
     return row
 
 
@@ -581,7 +660,7 @@ def write_results(spec: CampaignSpec, runs: int, out: Path, results: list, batch
                 batch_size=spec.campaign["batch_size"], batches=len(batches),
                 counts={s: status.count(s) for s in STATUSES}, passed=int(sum(bool(r["passed"]) for r in rows)),
                 campaign=_plain(spec.campaign), dispersions=_plain(spec.dispersions), criteria=_plain(spec.criteria),
-                **info)
+                **(dict(modes=_plain(spec.modes)) if spec.campaign["modes"] else {}), **info)
     meta["failed_runs"] = [dict(run=int(r["run"]), gains=r["gains"], error=r.get("error", "")) for r in rows
                            if r["status"] == "failed"]
     meta["runs_per_second"] = len(rows) / info["wall"] if info.get("wall") else math.nan

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..base.atomic import atomic_savefig, atomic_write
-from .campaign import FIGURES, STATUSES, read_histories, read_runs
+from .campaign import FIGURES, MODE_FIGURES, STATUSES, read_histories, read_runs
 
 PERCENTILES = (5.0, 50.0, 95.0)
 #: Worst runs listed in summary.md (ranked by max pointing error after settling; not settled first).
@@ -33,6 +33,41 @@ def envelopes(h: dict, key: str, ok: np.ndarray) -> np.ndarray:
     if x.shape[0] == 0:
         return np.full((3, len(h["t"])), np.nan)
     return np.nanpercentile(x, PERCENTILES, axis=0)
+
+
+def figures_of(cols: dict) -> tuple:
+    """(name, unit) of the figures the campaign's rows carry: FIGURES, and MODE_FIGURES for a deployment campaign."""
+    return FIGURES + tuple(f for f in MODE_FIGURES if f[0] in cols)
+
+
+def deployment_failures(cols: dict) -> np.ndarray:
+    """Indices of the ok runs of a deployment campaign that never reached POINTING or did not end settled in it."""
+    if "settled_time" not in cols:
+        return np.zeros(0, dtype=int)
+    ok = cols["status"].astype(str) == "ok"
+    return np.nonzero(ok & ~np.isfinite(cols["settled_time"].astype(float)))[0]
+
+
+def _deployment_lines(cols: dict) -> list:
+    """summary.md section of a deployment campaign: how many runs reached and settled in POINTING, the failures."""
+    if "settled_time" not in cols:
+        return []
+    ok = cols["status"].astype(str) == "ok"
+    reached = cols["reached_pointing"].astype(bool) & ok
+    fails = deployment_failures(cols)
+    out = ["## Deployment", "", f"Reached POINTING: {int(reached.sum())} / {int(ok.sum())} ok runs; settled in POINTING at "
+           f"the end: {int(ok.sum()) - fails.size}. Times in the table above: detumble_time (DETUMBLE left), "
+           "pointing_time (POINTING entered), settled_time (from then on in POINTING with the error below the settle "
+           "threshold); transitions: mode changes per run.", ""]
+    if fails.size:
+        out += ["| run | gains | final mode | detumble [s] | POINTING [s] | reason |", "|---|---|---|---|---|---|"]
+        for i in fails:
+            out.append(f"| {cols['run'][i]} | {cols['gains'][i]} | {cols['final_mode'][i]} | "
+                       f"{_fmt(cols['detumble_time'][i])} | {_fmt(cols['pointing_time'][i])} | "
+                       f"{cols['fail_reasons'][i] or '-'} |")
+    else:
+        out.append("No deployment failure: every ok run ended settled in POINTING.")
+    return out + [""]
 
 
 def _fmt(v, unit="") -> str:
@@ -80,7 +115,7 @@ def write_report(out) -> str:
         lines += [f"With {n} runs the 5 % and 95 % percentiles rest on very few runs: read them as indications.", ""]
     lines += ["## Figures of merit (ok runs)", "", "| figure | unit | 5 % | 50 % | 95 % | max | runs with a value |",
               "|---|---|---|---|---|---|---|"]
-    for key, unit in FIGURES:
+    for key, unit in figures_of(cols):
         v = cols[key][ok].astype(float)
         f = v[np.isfinite(v)]
         if f.size:
@@ -92,6 +127,7 @@ def write_report(out) -> str:
               f"{meta['criteria']['settle_threshold_deg']:g} deg (n/a: never). Max and RMS pointing error: over the "
               f"steady-state window t >= {meta['criteria']['max_settling_orbits']:g} orbits (the settling limit), the "
               "same for every run. Pointing error: rotation angle between body and orbital axes (true attitude).", ""]
+    lines += _deployment_lines(cols)
     bad = np.nonzero(~ok)[0]
     lines += ["## Failed and diverged runs", ""]
     if bad.size:
@@ -153,10 +189,11 @@ def _plot_histograms(cols: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     ok = cols["status"].astype(str) == "ok"
-    nf = len(FIGURES)
+    figs = figures_of(cols)
+    nf = len(figs)
     ncol = 4
-    fig, axes = plt.subplots(math.ceil(nf / ncol), ncol, figsize=(14, 6))
-    for a, (key, unit) in zip(axes.ravel(), FIGURES):
+    fig, axes = plt.subplots(math.ceil(nf / ncol), ncol, figsize=(14, 2 * math.ceil(nf / ncol)))
+    for a, (key, unit) in zip(axes.ravel(), figs):
         v = cols[key][ok].astype(float)
         f = v[np.isfinite(v)]
         if f.size:
@@ -179,13 +216,20 @@ def summary_lines(meta: dict, cols: dict) -> list:
            f"{meta['batches']} batches, task CPU {meta.get('cpu_s_per_run', float('nan')):.3f} s per run): "
            + ", ".join(f"{s} {int(np.sum(status == s))}" for s in STATUSES)
            + f"; passed {int(cols['passed'].astype(bool).sum())} ({100.0 * cols['passed'].astype(bool).mean():.1f} %)"]
-    for key, unit in (("settling_time", "s"), ("max_pointing_deg", "deg"), ("peak_dipole", "A m^2")):
+    keys = (("settling_time", "s"), ("max_pointing_deg", "deg"), ("peak_dipole", "A m^2"))
+    if "settled_time" in cols:
+        keys += (("detumble_time", "s"), ("settled_time", "s"))
+    for key, unit in keys:
         v = cols[key][ok].astype(float)
         f = v[np.isfinite(v)]
         if f.size:
             p = np.percentile(f, PERCENTILES)
             out.append(f"  {key:18s} 5/50/95 %: {p[0]:.4g} / {p[1]:.4g} / {p[2]:.4g} {unit}"
                        + (f"  ({v.size - f.size} n/a)" if f.size < v.size else ""))
+    fails = deployment_failures(cols)
+    if "settled_time" in cols:
+        out.append(f"  deployment failures (never settled in POINTING): {fails.size}"
+                   + (": runs " + ", ".join(str(cols["run"][i]) for i in fails[:10]) if fails.size else ""))
     bad = np.nonzero(~ok)[0]
     for i in bad[:10]:
         out.append(f"  run {cols['run'][i]} ({cols['gains'][i]}): {status[i]} {cols['error'][i]}")

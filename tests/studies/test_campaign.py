@@ -353,3 +353,96 @@ def test_cluster_options_one_line_exit_2(tmp_path, capsys, extra, expect, monkey
     err = capsys.readouterr().err.strip()
     assert rc == 2 and expect in err and len(err.splitlines()) == 1, err
     assert not (tmp_path / "o").exists()
+
+
+# --- deployment campaigns (campaign.modes) ---------------------------------------------------------------
+#: A small deployment: 8 runs tumbling at up to 2 deg/s per axis from uniformly random attitudes, 3 orbits of
+#: the full environment with sensor noise, the flight modes flown (DETUMBLE -> ACQUISITION -> POINTING).
+DEPLOY = dict(
+    campaign=dict(name="dep", seed=5, gains="config/gains/sigma_60.yaml", environment="full", orbits=3.0, ts=1.0,
+                  batch_size=8, history_step=60.0, modes=True),
+    modes=dict(detumble_exit_time=600.0, handover_time=600.0),
+    dispersions=dict(inertia_rel_std=[0.05, 0.05, 0.05], residual_dipole_std=[0.3, 0.3, 0.3], attitude_uniform=True,
+                     rate_mean=[0.0, 0.0, 0.0], rate_max=[0.0349, 0.0349, 0.0349], raan_min_deg=0.0, raan_max_deg=360.0,
+                     mag_noise_std=1e-7, gyro_noise_std=1e-5, attitude_noise_std=1e-3, dipole_limit_min=40.0,
+                     dipole_limit_max=50.0),
+    criteria=dict(settle_threshold_deg=2.0, max_settling_orbits=2.5, max_deployment_orbits=2.5),
+)
+
+
+@pytest.fixture(scope="module")
+def deployment(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("dep")
+    spec = campaign.load_spec(_write_spec(tmp, DEPLOY))
+    campaign.run_campaign(spec, 8, tmp / "out", scheduler="synchronous", progress=False)
+    return spec, tmp / "out"
+
+
+def test_deployment_campaign_detumbles_and_points(deployment):
+    spec, out = deployment
+    cols = campaign.read_runs(out)
+    assert spec.substeps == 2  # |w| <= sqrt(3) 2 deg/s + W0 = 0.062 rad/s: 2 RK4 steps keep |w| h <= 0.05 rad
+    assert set(cols["status"]) == {"ok"} and len(cols["run"]) == 8
+    det, pnt, sett = (cols[k].astype(float) for k in ("detumble_time", "pointing_time", "settled_time"))
+    # detumbled: never before the 600-s persistence (exactly 600 s for a run drawn already calm: run 2, measured)
+    # and, from <= 3.5 deg/s, well under an orbit (5674 s; measured 1457-2286 s)
+    assert np.all(np.isfinite(det)) and np.all(det >= 600.0) and np.all(det < 5674.0) and np.sum(det > 600.0) >= 6
+    # POINTING after the 600-s hand-over persistence, settled at or after it, before the end
+    assert np.all(pnt >= det + 600.0) and np.all(sett >= pnt) and np.all(sett < 3 * 5674.0)
+    assert np.all(cols["transitions"] >= 2) and set(cols["final_mode"]) == {"POINTING"}
+    assert cols["reached_pointing"].all() and cols["passed"].all()
+    meta = yaml.safe_load((out / "campaign.json").read_text())
+    assert meta["modes"]["detumble_exit_time"] == 600.0 and meta["campaign"]["modes"] is True
+
+
+def test_deployment_report_has_percentiles_and_failures(deployment, tmp_path):
+    _, out = deployment
+    md = campaign_report.write_report(out)
+    assert "## Deployment" in md and "| settled_time | s |" in md and "| detumble_time | s |" in md
+    assert "No deployment failure" in md
+    # a run that never reached POINTING is listed with its reason (the verdict, on a copy of a row)
+    row = dict(status="ok", settling_time=1.0, settled_time=float("nan"), reached_pointing=False, final_mode="DETUMBLE",
+               **{k: float("nan") for k in ("max_pointing_deg", "rms_pointing_deg", "peak_dipole", "saturation_fraction",
+                                            "steady_saturation_fraction")})
+    ok, why = campaign.verdict(row, campaign.load_spec(_write_spec(tmp_path, DEPLOY)).criteria, 5674.0)
+    assert not ok and why == "never reached POINTING"
+
+
+def test_uniform_attitude_draw_and_the_other_draws_unchanged(tmp_path):
+    spec = campaign.load_spec(_write_spec(tmp_path, DEPLOY))
+    off = campaign.load_spec(_write_spec(tmp_path, dict(DEPLOY, dispersions=dict(DEPLOY["dispersions"], attitude_uniform=False)),
+                                         name="off.yaml"))
+    a, b = campaign.draw_run(spec, 3), campaign.draw_run(off, 3)
+    for k in ("inertia", "residual_dipole", "dw0", "mag_bias", "gyro_bias"):  # the new draw comes last
+        assert np.array_equal(a[k], b[k]), k
+    ang = np.radians([campaign.draw_run(spec, i)["attitude_angle_deg"] for i in range(2000)])
+    # uniform on SO(3): angle density (1 - cos t) / pi, mean pi/2 + 2/pi = 126.5 deg; the sample mean's std is
+    # ~0.65 deg at N = 2000 (angle std ~29 deg), so +-3 deg is a 4.6-sigma bound; half the angles above 2.02 rad
+    # would be the U(0, 180 deg) angle's fault (its mean is 90 deg)
+    assert abs(np.degrees(ang.mean()) - np.degrees(np.pi / 2 + 2 / np.pi)) < 3.0
+    assert ang.max() <= np.pi + 1e-12 and np.mean(ang < np.pi / 2) == pytest.approx((np.pi / 2 - 1) / np.pi, abs=0.03)
+
+
+def test_modes_off_campaign_is_todays(reference, tmp_path):
+    """`campaign.modes: false` (the default) runs the pointing campaign unchanged: the same table as the
+    reference and no deployment column (bit for bit against the code before deployment campaigns was checked
+    when they were added: a 10-run, 0.3-orbit full-environment campaign with noise, every column and history)."""
+    out = tmp_path / "off"
+    spec = campaign.load_spec(_write_spec(tmp_path, dict(SPEC, campaign=dict(SPEC["campaign"], modes=False))))
+    campaign.run_campaign(spec, RUNS, out, scheduler="synchronous", progress=False)
+    cols = campaign.read_runs(out)
+    _columns_equal(cols, campaign.read_runs(reference))
+    assert not {k for k, _ in campaign.MODE_FIGURES} & set(cols)
+
+
+@pytest.mark.parametrize("change, field", [
+    (dict(modes=dict(detumble_exit_time=600.0)), "modes"),  # a modes section without campaign.modes
+    (dict(modes=dict(detumble_entry_rate=1e-3)), "detumble_entry_rate"),  # below the exit rate: no hysteresis
+    (dict(modes=dict(bdot_cutoff=-1.0)), "bdot_cutoff"),
+])
+def test_deployment_spec_errors_name_the_field(tmp_path, change, field):
+    raw = dict(DEPLOY, **change)
+    if field == "modes":
+        raw["campaign"] = dict(DEPLOY["campaign"], modes=False)
+    with pytest.raises(ConfigError, match=field):
+        campaign.load_spec(_write_spec(tmp_path, raw))

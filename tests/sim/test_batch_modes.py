@@ -1,0 +1,102 @@
+"""The flight modes in the batched simulation (design/modes_kernel.py in sim/batch_kernels.closed_loop)
+against the Python ModeLogic and the offline numpy mode loop (sim/modes_loop.simulate_modes)."""
+import math
+
+import numpy as np
+import pytest
+
+from magtune_core.design.gains import load_gains
+from magtune_core.design.modes import MODES, SAFE, Measurements, ModeLogic, ModeParams, ModeState
+from magtune_core.design.modes_kernel import GUARDS, MODE_CODE, kernel_params, mode_step
+from magtune_core.design.params import SpacecraftParams
+from magtune_core.sim.batch import BatchModes, BatchRuns, simulate_batch
+from magtune_core.sim.initial import initial_conditions
+from magtune_core.sim.modes_loop import simulate_modes
+
+#: Trajectory equality with the numpy loop: both integrate the same dynamics with the same RK4 steps and the
+#: same held dipoles; they differ by the association of a few sums and numpy's BLAS dot products (~1e-16 per
+#: step). Over 2.2 orbits through B-dot saturation switches and the capture that stays ~1e-13 in q (measured
+#: 3.5e-14); 1e-9 leaves four orders of margin and would still catch a different law or a step off by one.
+TOL = 1e-9
+
+
+def _transitions(mode_codes, ts=1.0):
+    """(t, from, to) of a batched run's mode series."""
+    k = np.nonzero(mode_codes[1:] != mode_codes[:-1])[0] + 1
+    return [(float(i) * ts, MODES[mode_codes[i - 1]], MODES[mode_codes[i]]) for i in k]
+
+
+def test_kernel_machine_equals_mode_logic_on_random_measurements():
+    """Every guard of the machine (stale, fresh, calm, tumbling, inside, outside, with and without
+    ACQUISITION) on seeded random measurement sequences that cross every threshold: same mode and same
+    pending timers as ModeLogic at every step (exact: the same comparisons on the same floats)."""
+    rng = np.random.default_rng(30)
+    for acquisition in (True, False):
+        p = ModeParams(detumble_exit_time=20.0, detumble_entry_time=5.0, handover_time=15.0, acquisition_entry_time=8.0,
+                       safe_recovery_time=4.0, acquisition=acquisition)
+        logic, kp = ModeLogic(p), kernel_params(p)
+        state, code, pending = ModeState(), MODE_CODE["DETUMBLE"], np.full(len(GUARDS), np.nan)
+        seen = set()
+        # slowly varying levels (a random walk in log space) so that guards hold for their persistence times
+        lr, le, lb = math.log(5e-3), math.log(0.1), math.log(5e-7)
+        for k in range(20000):
+            lr = min(max(lr + 0.1 * rng.standard_normal(), math.log(1e-3)), math.log(0.2))
+            le = min(max(le + 0.1 * rng.standard_normal(), math.log(0.01)), math.log(1.0))
+            lb = min(max(lb + 0.1 * rng.standard_normal(), math.log(1e-8)), math.log(1e-5))
+            bdot = math.nan if rng.uniform() < 0.005 else math.exp(lb)
+            err = math.nan if rng.uniform() < 0.005 else math.exp(le)
+            stale = bool(rng.uniform() < 0.002) or (state.mode == SAFE and rng.uniform() < 0.1)
+            m = Measurements(math.exp(lr), bdot, err, stale)
+            t = float(k)
+            state, _ = logic.step(state, m, t)
+            code = mode_step(code, pending, m.rate, m.bdot, m.pointing_error, m.stale, t, kp)
+            assert MODES[code] == state.mode, k
+            held = {g: s for g, s in state.pending}
+            assert {GUARDS[i]: pending[i] for i in range(len(GUARDS)) if not math.isnan(pending[i])} == held, k
+            seen.add(state.mode)
+        assert seen == (set(MODES) if acquisition else set(MODES) - {"ACQUISITION"})
+
+
+@pytest.fixture(scope="module")
+def deployments():
+    """Two tumbling deployments flown by the numpy loop and, together, by the batched engine (paper
+    environment, perfect sensors, sigma_60, 50 A m^2, the default mode parameters and B-dot rule)."""
+    p = SpacecraftParams()
+    K = load_gains("config/gains/sigma_60.yaml").K
+    cases = [((-100.0, 40.0, 90.0), (-4.0, 2.0, 5.0)), ((150.0, 10.0, -60.0), (5.0, -5.0, 1.0))]
+    orbits = 2.2
+    refs = [simulate_modes(K, p, q0=q0, dw0=dw0, orbits=orbits) for q0, dw0 in (initial_conditions(*c) for c in cases)]
+    assert {r.substeps for r in refs} == {3}  # both rates take 3 RK4 sub-steps (|w| h <= 0.05 rad)
+    qs, ws = zip(*[initial_conditions(*c) for c in cases])
+    runs = BatchRuns(K=K, inertia=np.tile(p.inertia, (2, 1)), residual_dipole=np.ones((2, 3)), dipole_limit=np.full(2, 50.0),
+                     q0=np.array(qs), dw0=np.array(ws), p=p, environment="paper")
+    res = simulate_batch(runs, ts=1.0, steps=len(refs[0].t) - 1, substeps=3, full_series=True, modes=BatchModes())
+    return refs, res
+
+
+def test_batched_modes_equal_the_numpy_mode_loop(deployments):
+    refs, res = deployments
+    for b, ref in enumerate(refs):
+        # the same transitions, to the sample (integers of Ts: compared exactly)
+        assert _transitions(res.mode[b]) == [(tr.t, tr.source, tr.target) for tr in ref.transitions]
+        assert [tr.target for tr in ref.transitions] == ["ACQUISITION", "POINTING"]  # a full deployment
+        assert res.transitions[b] == 2 and res.detumble_time[b] == ref.transitions[0].t
+        assert res.pointing_time[b] == ref.transitions[1].t and MODES[res.final_mode[b]] == "POINTING"
+        assert [MODES[c] for c in res.mode[b]] == list(ref.mode)
+        # the same trajectory and dipoles (TOL above; the dipole scaled by its 50 A m^2 limit)
+        assert np.abs(res.q[b] - ref.q).max() <= TOL and np.abs(res.w[b] - ref.w).max() <= TOL
+        assert np.abs(res.m[b] - ref.m).max() <= TOL * 50.0
+
+
+def test_modes_off_is_the_batch_without_modes(deployments):
+    """BatchModes absent: the projection law throughout, bit for bit what simulate_batch computed before
+    (tests/sim/test_batch.py checks that against simulate); here: differs from the modes run at once."""
+    _, res = deployments
+    p = SpacecraftParams()
+    K = load_gains("config/gains/sigma_60.yaml").K
+    q0, dw0 = initial_conditions((-100.0, 40.0, 90.0), (-4.0, 2.0, 5.0))
+    runs = BatchRuns(K=K, inertia=p.inertia[None], residual_dipole=np.ones((1, 3)), dipole_limit=np.full(1, 50.0),
+                     q0=q0[None], dw0=dw0[None], p=p, environment="paper")
+    off = simulate_batch(runs, ts=1.0, steps=200, substeps=3, full_series=True)
+    assert off.mode is None and off.transitions is None
+    assert not np.allclose(off.m[0, :200], res.m[0, :200])  # B-dot flew in the modes run, eq. 17 here
