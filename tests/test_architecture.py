@@ -152,7 +152,7 @@ def test_core_never_imports_rclpy():
     assert r.returncode == 0, r.stderr
 
 
-@pytest.mark.parametrize("node", ["controller.py", "attitude_sensors.py"])
+@pytest.mark.parametrize("node", ["controller.py", "attitude_sensors.py", "attitude_estimator.py"])
 def test_flight_nodes_import_no_simulation(node):
     src = (ROOT / "ros2_ws" / "src" / "magtune_ros" / "magtune_ros" / node).read_text()
     assert "magtune_core.sim" not in src

@@ -19,6 +19,7 @@ TOPIC_ATTITUDE = "sensors/attitude"           # sensor_msgs/Imu: measured attitu
 TOPIC_IMU = "sensors/imu"                     # sensor_msgs/Imu: gyro rate only (orientation_covariance[0] = -1)
 TOPIC_SUN = "sensors/sun"                     # geometry_msgs/Vector3Stamped: measured unit Sun vector, body (when valid)
 TOPIC_POSITION = "sensors/position"           # nav_msgs/Odometry: position fix r, v in ECI with covariance
+TOPIC_ESTIMATE = "estimate/attitude"          # sensor_msgs/Imu: attitude_estimator's attitude + rate with covariance
 TOPIC_DIPOLE = "controller/dipole_command"    # geometry_msgs/Vector3Stamped: m [A m^2]
 TOPIC_MODE = "mode"                           # magtune_interfaces/Mode: flight mode and last transition's reason
 SERVICE_SET_MODE = "set_mode"                 # magtune_interfaces/SetMode: commanded mode change (mode_manager)
@@ -51,6 +52,7 @@ IMU = "/" + TOPIC_IMU
 SUN = "/" + TOPIC_SUN
 POSITION = "/" + TOPIC_POSITION
 DIPOLE = "/" + TOPIC_DIPOLE
+ESTIMATE = "/" + TOPIC_ESTIMATE
 MODE = "/" + TOPIC_MODE
 TF = "/" + TOPIC_TF
 MARKERS = "/" + TOPIC_MARKERS
@@ -72,6 +74,7 @@ PROJECT_TOPICS: dict[str, tuple[str, str]] = {
     SUN: ("geometry_msgs/msg/Vector3Stamped", "transient_local"),
     POSITION: ("nav_msgs/msg/Odometry", "transient_local"),
     DIPOLE: ("geometry_msgs/msg/Vector3Stamped", "transient_local"),
+    ESTIMATE: ("sensor_msgs/msg/Imu", "transient_local"),
     MODE: ("magtune_interfaces/msg/Mode", "transient_local"),
     TOPIC_DIAGNOSTICS: ("diagnostic_msgs/msg/DiagnosticArray", "volatile"),
     TF: ("tf2_msgs/msg/TFMessage", "transient_local"),

@@ -30,6 +30,13 @@ def register(sub) -> None:
     p.add_argument("--modes", action="store_true",
                    help="fly the flight modes: start the mode manager (lifecycle bring-up, ModeLogic, health "
                         "monitor) in DETUMBLE; without it the controller flies POINTING (the paper's run)")
+    p.add_argument("--attitude", choices=("truth", "estimator"), default="truth",
+                   help="the controller's attitude: truth (sensors/attitude: truth plus attitude_noise_std, the "
+                        "default) or estimator (the attitude_estimator node's MEKF on gyro, magnetometer, sun sensor "
+                        "and position fix, with the estimator's default sensors: docs/estimation.md)")
+    p.add_argument("--estimator-param", action="append", default=[], metavar="NAME=VALUE",
+                   help="with --attitude estimator: an attitude_estimator parameter (ESTIMATOR_FIELDS, YAML value), "
+                        "e.g. gate_probability=0.999; repeatable")
     p.add_argument("--spacecraft", "--config", dest="spacecraft", default=None,
                    help="spacecraft/orbit parameter file (default: the global --config, config/spacecraft.yaml)")
     p.add_argument("--field", metavar="FILE", default=None,
@@ -81,7 +88,8 @@ def run(args) -> int:
                                  env_options=environment_options(args), field=args.field, epoch_time=args.epoch_time,
                                  foxglove=args.foxglove, bag_topics=args.bag_topics, bag_exclude=args.bag_exclude,
                                  dds_interfaces=args.dds_interfaces, initial_rate_deg=args.initial_rate_deg,
-                                 initial_attitude_deg=args.initial_attitude_deg, modes=args.modes)
+                                 initial_attitude_deg=args.initial_attitude_deg, modes=args.modes,
+                                 attitude=args.attitude, estimator_params=_assignments(args.estimator_param))
     if not args.quiet:
         print("magtune sil: starting the nodes (discovery takes a few seconds)", file=sys.stderr, flush=True)
         if args.foxglove is not None:
@@ -101,6 +109,22 @@ def run(args) -> int:
         for ns, r in runs.items():
             print(f"== {ns or '/'} ({sats.get(ns, '')})\n{r.summary()}")
     return 0
+
+
+def _assignments(items: list[str]) -> dict:
+    """``NAME=VALUE`` strings -> {name: YAML value} (one line, exit 2, for a malformed one)."""
+    import yaml
+
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            raise CommandError(f"--estimator-param: expected NAME=VALUE, got {item!r}", code=2)
+        try:
+            out[name.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise CommandError(f"--estimator-param {name}: not a YAML value: {value!r}", code=2) from None
+    return out
 
 
 def _triple(flag: str):

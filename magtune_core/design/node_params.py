@@ -125,6 +125,33 @@ SENSOR_FIELDS = (
           nonnegative=True, bounds=(0.0, 1e3), unit="m/s"),
 )
 
+#: attitude_estimator: the filter's model of the sensors (defaults: design.estimator.default_suite,
+#: which ``magtune sil --attitude estimator`` also gives the sensors node), its on-board models and
+#: its tuning (docs/estimation.md).
+ESTIMATOR_FIELDS = (
+    SAMPLE_PERIOD,
+    Field("environment", "str", "on-board models: 'full' (IGRF at the position fix, Sun of date; needs "
+          "sensors/position) or 'paper' (the environment's eq. 26 field, no Sun)", "paper", choices=("paper", "full")),
+    Field("igrf_degree", "int", "on-board IGRF truncation degree (full environment)", 10, positive=True, bounds=(1, 13)),
+    Field("time_origin_ns", "int", "stamp of sim time 0 [ns since 1970] (the simulator's)", 0, nonnegative=True),
+    Field("mag_noise_std", "float", "filter model: magnetometer white noise std [T]", 100e-9, positive=True,
+          bounds=(1e-12, 1e-5), unit="T"),
+    Field("gyro_arw", "float", "filter model: gyro angle random walk sigma_v [rad/s^0.5]", 1e-4, positive=True,
+          bounds=(1e-9, 0.1), unit="rad/s^0.5"),
+    Field("gyro_rrw", "float", "filter model: gyro rate random walk sigma_u [rad/s^1.5]", 1e-6, nonnegative=True,
+          bounds=(0.0, 1e-3), unit="rad/s^1.5"),
+    Field("sun_noise_std", "float", "filter model: sun sensor angle error std per axis [rad]", math.radians(0.5),
+          positive=True, bounds=(1e-6, 0.5), unit="rad"),
+    Field("gate_probability", "float", "chi-square innovation gate: innovations beyond this quantile are "
+          "rejected (1: no gating)", 0.9999, positive=True, bounds=(0.5, 1.0)),
+    Field("initial_bias_std", "float", "initial gyro bias std per axis [rad/s] (bias prior 0)", 5e-4, positive=True,
+          bounds=(1e-9, 0.1), unit="rad/s"),
+    Field("init_angle", "float", "magnetometer-only coarse fix once the reference field turned by this [rad]",
+          math.radians(10.0), positive=True, bounds=(1e-3, 3.0), unit="rad"),
+    Field("sun_wait", "float", "wall seconds to wait for a sun sample the on-board model predicts (lit) before "
+          "the step goes on without it (counted as sun_missing)", 0.5, positive=True, bounds=(1e-3, 60.0), unit="s"),
+)
+
 #: simulator: run length, lockstep, initial state, plant options, environment, outputs.
 SIMULATOR_FIELDS = (
     SAMPLE_PERIOD,
@@ -189,6 +216,7 @@ MANAGER_FIELDS = (
 #: The SIL nodes' schemas by node name.
 SIL_NODE_FIELDS = {"simulator": SIMULATOR_FIELDS, "attitude_sensors": SENSOR_FIELDS + (AUTOSTART,),
                    "controller": CONTROLLER_FIELDS + BDOT_FIELDS + (AUTOSTART,),
+                   "attitude_estimator": ESTIMATOR_FIELDS + (AUTOSTART,),
                    "mode_manager": MANAGER_FIELDS + MODE_FIELDS + BDOT_FIELDS}
 #: Parameters every node has (rclpy's own).
 NODE_COMMON = ("use_sim_time",)

@@ -28,7 +28,10 @@ from ..base.paramfile import check_path, check_ros_params, load_ros_params, merg
 from ..design.fitfield import field_for_spacecraft
 from ..design.gains import CONTROLLER_NODE, Gains
 from ..design.modes import DETUMBLE, POINTING, ModeParams
-from ..design.node_params import BDOT_FIELDS, INITIAL_RATE_ERROR, MANAGER_FIELDS, MODE_FIELDS, MODE_NAMES
+from ..base.topics import TOPIC_ATTITUDE, TOPIC_ESTIMATE
+from ..design.estimator import default_suite
+from ..design.node_params import (BDOT_FIELDS, ESTIMATOR_FIELDS, INITIAL_RATE_ERROR, MANAGER_FIELDS, MODE_FIELDS,
+                                  MODE_NAMES)
 from ..base.schema import parse
 from ..design.params import SpacecraftParams, check_sample_period
 from ..sim.fullenv import FullEnvironmentOptions, full_params
@@ -38,6 +41,10 @@ from ..sim.simulate import initial_state
 DEFAULT_SPACECRAFT = ROOT / "config" / "spacecraft.yaml"
 #: The SIL nodes of one satellite, in start order after the recorder.
 NODES = ("controller", "attitude_sensors", "simulator")
+#: ``attitude="estimator"``: the estimator node, started before the simulator; the controller's
+#: sensors/attitude is remapped to its estimate/attitude (docs/estimation.md).
+ESTIMATOR = "attitude_estimator"
+ATTITUDE_SOURCES = ("truth", "estimator")
 #: Started after them with ``modes``: it brings the two managed nodes up (docs/ros.md).
 MODE_MANAGER = "mode_manager"
 #: A ROS namespace as ``magtune sil --gains NS=FILE`` takes it: tokens of letters, digits, _.
@@ -167,6 +174,38 @@ def check_modes_arguments(modes: bool, initial_mode, mode_params) -> tuple[str, 
     return mode, mparams
 
 
+def check_attitude_arguments(attitude: str, sensor_params, estimator_params, modes: bool, field) -> tuple[dict, dict]:
+    """The sensors' and the estimator's parameters for ``attitude`` ("truth": unchanged, no
+    estimator), validated by ESTIMATOR_FIELDS before anything starts (ConfigError: one line).
+    With the estimator the sensors default to :func:`magtune_core.design.estimator.default_suite`
+    (the filter's own model), the explicit ``sensor_params`` on top."""
+    sensor_params = dict(sensor_params or {})
+    if attitude not in ATTITUDE_SOURCES:
+        raise ConfigError("--attitude", None, f"expected one of {', '.join(ATTITUDE_SOURCES)}, got {attitude!r}")
+    if attitude == "truth":
+        if estimator_params:
+            raise ConfigError("estimator parameters", None, "only with --attitude estimator")
+        return sensor_params, {}
+    if modes:
+        raise ConfigError("--attitude", None, "estimator: not yet with --modes (the mode manager does not manage it)")
+    if field is not None:
+        raise ConfigError("--attitude", None, "estimator: the on-board model is the spacecraft's field_model; "
+                                              "no --field file")
+    eparams = dict(estimator_params or {})
+    names = {f.name for f in ESTIMATOR_FIELDS}
+    extra = sorted(set(eparams) - names)
+    if extra:
+        raise ConfigError("estimator parameters", extra[0], "not an attitude_estimator parameter")
+    parse(eparams, ESTIMATOR_FIELDS, "estimator parameters")
+    su = default_suite()
+    g = su.gyro
+    defaults = dict(mag_noise_std=su.magnetometer.noise_std, gyro_arw=g.arw, gyro_rrw=g.rrw,
+                    gyro_bias=[float(x) for x in g.bias], sun_noise_std=su.sun.noise_std,
+                    position_noise_std=su.position.noise_std, velocity_noise_std=su.position.velocity_noise_std,
+                    seed=0)
+    return {**defaults, **sensor_params}, eparams
+
+
 @dataclass(frozen=True)
 class Satellite:
     """One satellite of a scenario: its namespace, gains file and the controller's parameters."""
@@ -216,6 +255,8 @@ class SilScenario:
     initial_mode: str = POINTING
     #: the mode manager's parameters (MODE_FIELDS, MANAGER_FIELDS, BDOT_FIELDS), validated
     mode_params: dict = _field(default_factory=dict)
+    #: the controller's attitude: "truth" (sensors/attitude, truth plus noise) or "estimator"
+    attitude: str = "truth"
 
     @classmethod
     def build(cls, satellites: dict, *, orbits: float = 5.0, steps: int | None = None, ts: float | None = None,
@@ -227,7 +268,8 @@ class SilScenario:
               controller_params: dict | None = None, environment: str = "paper", env_options=None, field=None,
               epoch_time: bool = False, foxglove: int | None = None, bag_topics=None,
               bag_exclude: str | None = None, initial_attitude_deg=None, initial_rate_deg=None,
-              modes: bool = False, initial_mode: str | None = None, mode_params: dict | None = None) -> "SilScenario":
+              modes: bool = False, initial_mode: str | None = None, mode_params: dict | None = None,
+              attitude: str = "truth", estimator_params: dict | None = None) -> "SilScenario":
         """Read and validate every input of a run (``satellites``: namespace -> gains file).
 
         ``ts`` overrides each gains file's ``ts``; ``environment`` "paper" or "full" (with
@@ -239,7 +281,10 @@ class SilScenario:
         (:func:`magtune_core.sim.initial.initial_conditions`); ``substeps`` None = chosen from
         the initial rate (:func:`~magtune_core.sim.initial.substeps_for_rate`: 2 for the paper's
         dw(0)). ``modes``: start the mode manager (``initial_mode``, default DETUMBLE with it,
-        POINTING without; ``mode_params`` its parameters, validated here).
+        POINTING without; ``mode_params`` its parameters, validated here). ``attitude``
+        "estimator": start the attitude_estimator (``estimator_params``, validated here by
+        ESTIMATOR_FIELDS) and fly on its estimate; the sensors get the estimator's default suite
+        (design.estimator.default_suite) unless ``sensor_params`` set them.
 
         Returns
         -------
@@ -260,6 +305,7 @@ class SilScenario:
             sc, dict(simulator_params or {}), initial_attitude_deg, initial_rate_deg, substeps,
             float(ts if ts is not None else min(g.ts for g in gains.values())))
         mode, mparams = check_modes_arguments(modes, initial_mode, mode_params)
+        sensor_params, eparams = check_attitude_arguments(attitude, sensor_params, estimator_params, modes, field)
         check_run_arguments(orbits=orbits, steps=steps, substeps=substeps, real_time_factor=real_time_factor,
                             timeout=timeout)
         sat_list = []
@@ -309,8 +355,8 @@ class SilScenario:
                    domain_id=domain_id, log_dir=Path(log_dir) if log_dir else None,
                    results=Path(results) if results else None, dds_interfaces=dds_interfaces,
                    node_params={"simulator": simulator_params, "attitude_sensors": dict(sensor_params or {}),
-                                "controller": dict(controller_params or {})},
-                   modes=bool(modes), initial_mode=mode, mode_params=mparams)
+                                "controller": dict(controller_params or {}), ESTIMATOR: eparams},
+                   modes=bool(modes), initial_mode=mode, mode_params=mparams, attitude=attitude)
 
     # ------------------------------------------------------------------ derived
     @property
@@ -321,7 +367,14 @@ class SilScenario:
     @property
     def nodes(self) -> tuple[str, ...]:
         """The nodes of one satellite in start order (the mode manager last, with ``modes``)."""
-        return NODES + ((MODE_MANAGER,) if self.modes else ())
+        nodes = NODES[:-1] + ((ESTIMATOR,) if self.attitude == "estimator" else ()) + NODES[-1:]
+        return nodes + ((MODE_MANAGER,) if self.modes else ())
+
+    def remaps(self, node: str) -> list[str]:
+        """Extra ``-r`` arguments of ``node``: with the estimator the controller reads its estimate."""
+        if self.attitude == "estimator" and node == "controller":
+            return ["-r", f"{TOPIC_ATTITUDE}:={TOPIC_ESTIMATE}"]
+        return []
 
     @property
     def n_steps(self) -> float:
@@ -361,7 +414,10 @@ class SilScenario:
                        env_srp=bool(o.srp), env_field=str(o.field), igrf_degree=int(o.igrf_degree))
         elif self.field_file is not None:
             sim["field_file"] = str(self.field_file.resolve())
-        own = {"simulator": sim, "attitude_sensors": dict(common), "controller": dict(common, initial_mode=self.initial_mode)}
+        own = {"simulator": sim, "attitude_sensors": dict(common), "controller": dict(common, initial_mode=self.initial_mode),
+               ESTIMATOR: dict(common, environment=self.environment, time_origin_ns=int(self.time_origin_ns))}
+        if self.environment == "full":
+            own[ESTIMATOR]["igrf_degree"] = int(self.env_options.igrf_degree)
         if self.modes:  # the managed nodes wait for the mode manager's transitions
             bd = {k: v for k, v in self.mode_params.items() if k in {f.name for f in BDOT_FIELDS}}
             own["attitude_sensors"]["autostart"] = own["controller"]["autostart"] = False

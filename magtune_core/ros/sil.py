@@ -182,7 +182,8 @@ def _launch(scenario: SilScenario, exes: dict, pfiles: dict, env: dict, log_dir:
         remap = ["-r", f"__ns:={ns}", "-r", f"/clock:={ns}/clock"] if ns else []
         prefix = f"{tag(ns)}_" if ns else ""
         for node in scenario.nodes:
-            procs.append(start_node(f"{prefix}{node}", exes[node], ["--params-file", str(pfiles[ns][node])] + remap,
+            procs.append(start_node(f"{prefix}{node}", exes[node], ["--params-file", str(pfiles[ns][node])] + remap
+                                    + scenario.remaps(node),
                                     env, log_dir, fds))
             if node == "simulator":
                 sims[ns] = procs[-1]

@@ -18,8 +18,8 @@ import numpy as np
 from scipy.stats import chi2
 
 from ..base.rotations import matrix_to_quat, quat_mul, rotation_matrix
-from ..design.attitude_fix import davenport
-from ..design.mekf import MekfParams, attitude_error, initial_state, propagate, quat_rotvec, rotvec_quat, update
+from ..design.estimator import MekfStream, OnboardModels, default_suite  # noqa: F401 - default_suite: the offline runs' suite
+from ..design.mekf import attitude_error, quat_rotvec, rotvec_quat
 from ..design.params import SpacecraftParams
 from ..design.sensors import (
     AUX_NORMALS,
@@ -28,11 +28,7 @@ from ..design.sensors import (
     GYRO_V,
     MAG,
     SUN,
-    Gyro,
-    Magnetometer,
-    PositionFix,
     SensorSuite,
-    SunSensor,
     aux_rng,
     draw,
     gyro,
@@ -41,18 +37,8 @@ from ..design.sensors import (
     sun_sensor,
 )
 from ..env.environment import Environment, body_to_eci
-from ..env.igrf import IGRF
-from ..env.sun import shadow_cylindrical, sun_position
+from ..env.sun import shadow_cylindrical
 from .fullenv import FullEnvironmentOptions
-
-
-def default_suite(ts: float = 1.0) -> SensorSuite:
-    """The estimator's default sensors (docs/estimation.md#parameters): 100 nT magnetometer, MEMS
-    gyro sigma_v 1e-4 rad/s^0.5 (0.34 deg/h^0.5), sigma_u 1e-6 rad/s^1.5, bias (40, -60, 30) deg/h,
-    whole-sphere coarse sun sensors 0.5 deg per axis, 10 m / 0.01 m/s position fix."""
-    bias = tuple(np.deg2rad(np.array([40.0, -60.0, 30.0])) / 3600.0)
-    return SensorSuite(ts, Magnetometer(100e-9), Gyro(1e-4, 1e-6, bias), 0.0, SunSensor(math.radians(0.5)),
-                       PositionFix(10.0, 0.01))
 
 
 @dataclass(frozen=True)
@@ -135,24 +121,22 @@ def truth_along(t, q_bo, p: SpacecraftParams | None = None, environment: str = "
 
 def onboard_field(truth: Truth, p: SpacecraftParams | None = None, igrf_degree: int = 10):
     """The on-board field model ``(k, r_meas) -> b_ref [T]`` (reference axes) of ``truth``'s
-    environment: IGRF of ``igrf_degree`` at the measured position (full), eq. 26 (paper)."""
+    environment: IGRF of ``igrf_degree`` at the measured position (full,
+    :class:`magtune_core.design.estimator.OnboardModels`, as the node), eq. 26 (paper)."""
     if truth.environment != "full":
         return lambda k, r_meas: truth.b_ref[k]
-    igrf = IGRF(truth.jd0, igrf_degree)
-    return lambda k, r_meas: igrf.eci(r_meas, truth.jd0 + truth.t[k] / 86400.0)
+    models = OnboardModels("full", truth.jd0, igrf_degree)
+    return lambda k, r_meas: models.field(float(truth.t[k]), r_meas)
 
 
 def onboard_sun(truth: Truth):
     """The on-board Sun model ``(k, r_meas) -> unit satellite-Sun vector`` (reference axes): in the
-    full environment the Sun position of date (:func:`magtune_core.env.sun.sun_position`) minus the
-    measured position; otherwise the truth's own ``sun_ref``."""
+    full environment the Sun position of date minus the measured position
+    (:meth:`magtune_core.design.estimator.OnboardModels.sun`); otherwise the truth's own ``sun_ref``."""
     if truth.environment != "full":
         return lambda k, r_meas: truth.sun_ref[k]
-
-    def sun(k, r_meas):
-        d = sun_position(truth.jd0 + truth.t[k] / 86400.0) - r_meas
-        return d / np.linalg.norm(d)
-    return sun
+    models = OnboardModels("full", truth.jd0, 1)
+    return lambda k, r_meas: models.sun(float(truth.t[k]), r_meas)
 
 
 @dataclass
@@ -210,30 +194,29 @@ def run_mekf(truth: Truth, suite: SensorSuite | None = None, seed: int = 0, *, u
            else np.zeros((n1, 3)))
     field_model = field_model or onboard_field(truth)
     sun_model = sun_model or onboard_sun(truth)
-    params = MekfParams(suite.gyro.arw, suite.gyro.rrw, gate_probability)
-    R_mag = suite.magnetometer.covariance
-    R_sun = suite.sun.noise_std**2 * np.eye(3)
-    gate_mag, gate_sun = params.gate(3), params.gate(2)
-
+    stream = MekfStream(suite, bias_std=bias_std, gate_probability=gate_probability, init_angle=init_angle)
     out = _empty(truth, n1)
-    k0, state = _coarse_fix(mag, w_m, s_m, s_ok, r_m, field_model, sun_model, truth.ts, suite,
-                            bias_std, init_angle)
-    out.k0 = k0
+    out.k0 = -1
     counts = dict(mag_accepted=0, mag_rejected=0, sun_accepted=0, sun_rejected=0)
-    for k in range(k0, n1):
-        if k > k0:
-            state = propagate(state, w_m[k - 1], ts, params)
-        state, _, nis, ok = update(state, mag[k], field_model(k, r_m[k]), R_mag, gate_mag)
-        out.nis_mag[k] = nis
-        counts["mag_accepted" if ok else "mag_rejected"] += 1
-        if s_ok[k]:
-            state, _, nis, ok = update(state, s_m[k], sun_model(k, r_m[k]), R_sun, gate_sun)
-            out.nis_sun[k] = nis
-            counts["sun_accepted" if ok else "sun_rejected"] += 1
+    for k in range(n1):
+        sun = (s_m[k], sun_model(k, r_m[k])) if s_ok[k] else (None, None)
+        step = stream.step(w_m[k - 1] if k else None, mag[k], field_model(k, r_m[k]), *sun)
+        if step.state is None:
+            continue
+        if step.started:
+            out.k0 = k
+        out.nis_mag[k] = step.nis_mag
+        counts["mag_accepted" if step.mag_accepted else "mag_rejected"] += 1
+        if step.sun_accepted is not None:
+            out.nis_sun[k] = step.nis_sun
+            counts["sun_accepted" if step.sun_accepted else "sun_rejected"] += 1
+        state = step.state
         out.q[k], out.bias[k], out.P[k] = state.q, state.b, state.P
         e = attitude_error(truth.q[k], state.q)
         out.error[k] = e
         out.nees[k] = e @ np.linalg.solve(state.P[:3, :3], e)
+    if out.k0 < 0:
+        raise ValueError("the reference field never turned by init_angle: no coarse fix from the magnetometer alone")
     out.bias_error = beta - out.bias
     out.counts, out.lit = counts, s_ok
     return out
@@ -243,29 +226,6 @@ def _empty(truth: Truth, n1: int) -> MekfRun:
     nan = np.full
     return MekfRun(truth.t, nan((n1, 4), np.nan), nan((n1, 3), np.nan), nan((n1, 6, 6), np.nan),
                    nan((n1, 3), np.nan), nan((n1, 3), np.nan), nan(n1, np.nan), nan(n1, np.nan), nan(n1, np.nan))
-
-
-def _coarse_fix(mag, w_m, s_m, s_ok, r_m, field_model, sun_model, ts, suite, bias_std, init_angle):
-    """(k0, initial MekfState): see :func:`run_mekf`."""
-    sig_mag = math.sqrt(suite.magnetometer.covariance[0, 0])
-    b0_ref = field_model(0, r_m[0])
-    if s_m is not None and s_ok[0]:
-        q, P = davenport([mag[0], s_m[0]], [b0_ref, sun_model(0, r_m[0])],
-                         [sig_mag / np.linalg.norm(mag[0]), suite.sun.noise_std])
-        return 0, initial_state(q, P, bias_std)
-    carry = np.array([1.0, 0.0, 0.0, 0.0])
-    g = suite.gyro
-    for k in range(1, len(mag)):
-        carry = quat_mul(carry, rotvec_quat(w_m[k - 1] * ts))
-        b_ref = field_model(k, r_m[k])
-        cosang = b_ref @ b0_ref / (np.linalg.norm(b_ref) * np.linalg.norm(b0_ref))
-        if cosang <= math.cos(init_angle):
-            T = k * ts
-            b_old = rotation_matrix(carry).T @ mag[0]
-            s_old = math.sqrt((sig_mag / np.linalg.norm(mag[0])) ** 2 + (bias_std * T) ** 2 + g.arw**2 * T)
-            q, P = davenport([mag[k], b_old], [b_ref, b0_ref], [sig_mag / np.linalg.norm(mag[k]), s_old])
-            return k, initial_state(q, P, bias_std)
-    raise ValueError("the reference field never turned by init_angle: no coarse fix from the magnetometer alone")
 
 
 # ---------------------------------------------------------------- statistics

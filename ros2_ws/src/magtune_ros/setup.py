@@ -25,6 +25,7 @@ setup(
             "simulator = magtune_ros.simulator:main",
             "attitude_sensors = magtune_ros.attitude_sensors:main",
             "controller = magtune_ros.controller:main",
+            "attitude_estimator = magtune_ros.attitude_estimator:main",
             "mode_manager = magtune_ros.mode_manager:main",
             "recorder = magtune_ros.recorder:main",
             "player = magtune_ros.player:main",

@@ -58,6 +58,7 @@ from magtune_core.base.topics import (  # noqa: E402,F401
     TOPIC_ATTITUDE,
     TOPIC_DIAGNOSTICS,
     TOPIC_DIPOLE,
+    TOPIC_ESTIMATE,
     TOPIC_DIST_TORQUE,
     TOPIC_IMU,
     TOPIC_INERTIAL_RATE,
@@ -198,7 +199,8 @@ def declare_overrides(node: Node, exclude=()):
 # ---------------------------------------------------------------- diagnostics
 #: Counters that report normal operation (the others raise the status to WARN): the sun sensor's
 #: eclipse and field-of-view dropouts are what the sensor does, not faults.
-INFO_COUNTERS = ("steps", "commands", "samples", "published", "sun_samples", "sun_eclipse", "sun_out_of_fov")
+INFO_COUNTERS = ("steps", "commands", "samples", "published", "sun_samples", "sun_eclipse", "sun_out_of_fov",
+                 "estimates", "mag_accepted", "sun_accepted")
 
 class Diagnostics:
     """Counters published on /diagnostics (diagnostic_msgs/DiagnosticArray) every ``period`` wall s."""

@@ -16,14 +16,18 @@ Parameters: the gains file ``config/gains/sigma_*.yaml`` (``gain``: 18 doubles, 
 
 Subscribes (LOCKSTEP_QOS):
   sensors/magnetic_field   sensor_msgs/MagneticField  [T], body axes
-  sensors/attitude         sensor_msgs/Imu            orientation (body w.r.t. orbital), rate [rad/s]
+  sensors/attitude         sensor_msgs/Imu            orientation (body w.r.t. orbital), rate [rad/s];
+                                                      orientation_covariance[0] = -1: no attitude yet
+                                                      (zero dipole, counted no_attitude); ``magtune sil
+                                                      --attitude estimator`` remaps it to estimate/attitude
   mode                     magtune_interfaces/Mode    flight mode (MODE_QOS: reliable, transient-local)
   /clock                   rosgraph_msgs/Clock        (use_sim_time; stamps are checked against it)
 Publishes:
   controller/dipole_command  geometry_msgs/Vector3Stamped [A m^2], stamped with the input stamp;
                              one per input pair; recomputed every ``ts`` of sim time, held between.
   /diagnostics  counters: samples, commands, weak_field, saturated, rejected_nonfinite, rejected_implausible,
-                rejected_quaternion, rejected_stamp, stale_inputs, stale_data, mode_changes, rejected_mode;
+                rejected_quaternion, rejected_stamp, stale_inputs, stale_data, mode_changes, rejected_mode,
+                no_attitude;
                 state (lifecycle), mode
 Inputs are paired by identical stamps. Bad inputs are rejected with a logged reason and
 counted; |b| < min_field gives a zero dipole (counted as weak_field); if no valid input for
@@ -61,7 +65,7 @@ class Controller(c.ManagedNode):
     def __init__(self):
         super().__init__(self.NODE_NAME, ["samples", "commands", "weak_field", "saturated", "rejected_nonfinite",
                                           "rejected_implausible", "rejected_quaternion", "rejected_stamp",
-                                          "stale_inputs", "stale_data", "mode_changes", "rejected_mode"])
+                                          "stale_inputs", "stale_data", "mode_changes", "rejected_mode", "no_attitude"])
         self.m = np.zeros(3)
         self.last_input_ns = None
         self.create_timer(0.1, self.check_stale, clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -147,7 +151,10 @@ class Controller(c.ManagedNode):
             o, w, b = att.orientation, att.angular_velocity, mag.magnetic_field
             bv = np.array([b.x, b.y, b.z])
             self.fstate, bdot = self.filter.step(self.fstate, bv)  # every sample: warm when DETUMBLE starts
-            if self.mode in (ACQUISITION, POINTING):
+            if self.mode in (ACQUISITION, POINTING) and att.orientation_covariance[0] < 0:
+                self.m = np.zeros(3)  # no attitude yet (the estimator before its coarse fix): torquers off
+                self.diag.count("no_attitude")
+            elif self.mode in (ACQUISITION, POINTING):
                 x = linear_state((o.w, o.x, o.y, o.z), (w.x, w.y, w.z), self.w0)
                 out = self.law(x, bv)
                 self.m = out.m

@@ -1,0 +1,169 @@
+"""The on-board attitude estimator, one sample at a time: reference models, coarse fix, MEKF step.
+
+Shared by the offline run (:func:`magtune_core.sim.estimation.run_mekf`) and the
+``attitude_estimator`` node, so both execute the same arithmetic on the same measurements
+(the node's output equals the offline estimate: tests/ros/test_estimator_sil.py). Flight code:
+nothing here knows the truth.
+
+* :class:`OnboardModels`: reference field and Sun direction at sim time t from the position fix,
+  in the filter's reference frame: ECI in the full environment (IGRF of a configurable degree at
+  the measured position, the Sun of date of :func:`magtune_core.env.sun.sun_position` minus the
+  measured position); in the paper environment the orbital axes at t = 0 and the environment's
+  own field (eq. 26), so the filter is not biased by a model the truth does not use.
+* :class:`MekfStream`: the coarse fix (Davenport from magnetometer and Sun at the first sample,
+  else from the magnetometer now and the first one carried by the gyro once the reference field
+  turned by ``init_angle``) then per sample: propagation with the previous gyro sample,
+  magnetometer update, sun update when one is given, each gated (docs/estimation.md).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..base.rotations import matrix_to_quat, quat_mul, rotation_matrix
+from ..env.igrf import IGRF
+from ..env.orbit import eci_to_orbital
+from ..env.sun import sun_position
+from .attitude_fix import davenport
+from .mekf import MekfParams, MekfState, initial_state, propagate, rotvec_quat, update
+from .sensors import Gyro, Magnetometer, PositionFix, SensorSuite, SunSensor
+
+SECONDS_PER_DAY = 86400.0
+
+
+def default_suite(ts: float = 1.0) -> SensorSuite:
+    """The estimator's default sensors (docs/estimation.md#parameters): 100 nT magnetometer, MEMS
+    gyro sigma_v 1e-4 rad/s^0.5 (0.34 deg/h^0.5), sigma_u 1e-6 rad/s^1.5, bias (40, -60, 30) deg/h,
+    whole-sphere coarse sun sensors 0.5 deg per axis, 10 m / 0.01 m/s position fix."""
+    bias = tuple(np.deg2rad(np.array([40.0, -60.0, 30.0])) / 3600.0)
+    return SensorSuite(ts, Magnetometer(100e-9), Gyro(1e-4, 1e-6, bias), 0.0, SunSensor(math.radians(0.5)),
+                       PositionFix(10.0, 0.01))
+
+
+def _rz(angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass
+class OnboardModels:
+    """Reference vectors of the filter at sim time ``t`` [s from the run's origin].
+
+    ``environment`` "full": reference ECI, ``jd0`` the Julian date of t = 0, IGRF of
+    ``igrf_degree``; "paper": reference = orbital axes at t = 0 (they turn at [0, 0, -W0]),
+    ``paper_field`` the environment's b_orb(t) [T] and ``orbit_rate`` W0 [rad/s].
+    """
+
+    environment: str = "full"
+    jd0: float = 0.0
+    igrf_degree: int = 10
+    paper_field: object = None
+    orbit_rate: float = 0.0
+
+    def __post_init__(self):
+        self._igrf = IGRF(self.jd0, self.igrf_degree) if self.environment == "full" else None
+
+    def field(self, t: float, r_meas=None) -> np.ndarray:
+        """Reference field [T] in reference axes (IGRF at the measured ECI position r_meas [m], or eq. 26)."""
+        if self._igrf is not None:
+            return np.asarray(self._igrf.eci(np.asarray(r_meas, dtype=float), self.jd0 + t / SECONDS_PER_DAY), dtype=float)
+        return _rz(-self.orbit_rate * t) @ np.asarray(self.paper_field(t), dtype=float).reshape(3)
+
+    def sun(self, t: float, r_meas) -> np.ndarray:
+        """Unit satellite-Sun vector in ECI from the Sun of date and the measured position [m]."""
+        d = sun_position(self.jd0 + t / SECONDS_PER_DAY) - np.asarray(r_meas, dtype=float)
+        return d / np.linalg.norm(d)
+
+    def sun_eci(self, t: float) -> np.ndarray:
+        """Geocentric Sun position [m] of date (for the on-board eclipse prediction)."""
+        return sun_position(self.jd0 + t / SECONDS_PER_DAY)
+
+    def to_orbital(self, q_ref, t: float, r_meas=None, v_meas=None) -> np.ndarray:
+        """Body w.r.t. the orbital axes from body w.r.t. the reference frame: R_bo = R_oi R_bi with
+        the orbital axes of the position fix (full), or R_z(W0 t) R_bi (paper). The error angle is
+        in body axes either way, so the attitude covariance carries over (the fix's error adds
+        |dr| / |r| ~ 1e-6 rad at 10 m, neglected)."""
+        R_bi = rotation_matrix(np.asarray(q_ref, dtype=float))
+        R_oi = eci_to_orbital(np.asarray(r_meas, dtype=float), np.asarray(v_meas, dtype=float)) \
+            if self.environment == "full" else _rz(self.orbit_rate * t)
+        q = matrix_to_quat(R_oi @ R_bi)
+        return q if q[0] >= 0 else -q
+
+
+@dataclass(frozen=True)
+class StepOutput:
+    """What one :meth:`MekfStream.step` did: the state (None before the coarse fix), the NIS of
+    each update (NaN: none) and whether it passed the gate."""
+
+    state: MekfState | None
+    nis_mag: float = math.nan
+    nis_sun: float = math.nan
+    mag_accepted: bool | None = None
+    sun_accepted: bool | None = None
+    started: bool = False  #: the coarse fix was made at this sample
+
+
+class MekfStream:
+    """The MEKF of :mod:`magtune_core.design.mekf` fed one sample at a time (see the module docstring).
+
+    ``suite`` gives the filter's sensor model (magnetometer covariance, gyro sigma_v/sigma_u, sun
+    std); ``bias_std`` [rad/s] the bias prior; ``init_angle`` [rad] how far the reference field
+    must turn before the magnetometer-only fix.
+    """
+
+    def __init__(self, suite: SensorSuite, *, bias_std: float = 5e-4, gate_probability: float = 0.9999,
+                 init_angle: float = math.radians(10.0)):
+        self.suite, self.ts = suite, suite.ts
+        self.params = MekfParams(suite.gyro.arw, suite.gyro.rrw, gate_probability)
+        self.R_mag = suite.magnetometer.covariance
+        self.R_sun = suite.sun.noise_std**2 * np.eye(3)
+        self.gate_mag, self.gate_sun = self.params.gate(3), self.params.gate(2)
+        self.sig_mag = math.sqrt(self.R_mag[0, 0])
+        self.bias_std, self.init_angle = bias_std, init_angle
+        self.state: MekfState | None = None
+        self.k = -1  # samples seen
+        self._first = None  # (mag_0, b_ref_0) of the magnetometer-only fix
+        self._carry = np.array([1.0, 0.0, 0.0, 0.0])
+
+    def step(self, w_prev, mag, b_ref, sun=None, s_ref=None) -> StepOutput:
+        """Sample k: ``w_prev`` the gyro sample of k-1 [rad/s] (None at k = 0), ``mag`` [T] and its
+        reference ``b_ref``, ``sun``/``s_ref`` the unit Sun vector and its reference (None: no
+        valid sun measurement)."""
+        self.k += 1
+        mag, b_ref = np.asarray(mag, dtype=float), np.asarray(b_ref, dtype=float)
+        started = False
+        if self.state is None:
+            start = self._fix(w_prev, mag, b_ref, sun, s_ref)
+            if start is None:
+                return StepOutput(None)
+            self.state, started = start, True
+        else:
+            self.state = propagate(self.state, w_prev, self.ts, self.params)
+        self.state, _, nis_m, ok_m = update(self.state, mag, b_ref, self.R_mag, self.gate_mag)
+        nis_s, ok_s = math.nan, None
+        if sun is not None:
+            self.state, _, nis_s, ok_s = update(self.state, sun, s_ref, self.R_sun, self.gate_sun)
+        return StepOutput(self.state, nis_m, nis_s, ok_m, ok_s, started)
+
+    def _fix(self, w_prev, mag, b_ref, sun, s_ref) -> MekfState | None:
+        """The coarse fix of this sample, or None while waiting for the field to turn."""
+        if self.k == 0:
+            if sun is not None:
+                q, P = davenport([mag, sun], [b_ref, s_ref], [self.sig_mag / np.linalg.norm(mag),
+                                                             self.suite.sun.noise_std])
+                return initial_state(q, P, self.bias_std)
+            self._first = (mag, b_ref)
+            return None
+        self._carry = quat_mul(self._carry, rotvec_quat(np.asarray(w_prev, dtype=float) * self.ts))
+        mag0, b0_ref = self._first
+        cosang = b_ref @ b0_ref / (np.linalg.norm(b_ref) * np.linalg.norm(b0_ref))
+        if cosang > math.cos(self.init_angle):
+            return None
+        T = self.k * self.ts
+        b_old = rotation_matrix(self._carry).T @ mag0
+        s_old = math.sqrt((self.sig_mag / np.linalg.norm(mag0)) ** 2 + (self.bias_std * T) ** 2
+                          + self.suite.gyro.arw**2 * T)
+        q, P = davenport([mag, b_old], [b_ref, b0_ref], [self.sig_mag / np.linalg.norm(mag), s_old])
+        return initial_state(q, P, self.bias_std)
