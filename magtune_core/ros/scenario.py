@@ -25,14 +25,13 @@ import yaml
 from ..base.ament import ROOT
 from ..base.errors import ConfigError, SilError
 from ..base.paramfile import check_path, check_ros_params, load_ros_params, merge_ros_params
+from ..base.schema import parse
+from ..base.topics import TOPIC_ATTITUDE, TOPIC_ESTIMATE
+from ..design.estimator import default_suite
 from ..design.fitfield import field_for_spacecraft
 from ..design.gains import CONTROLLER_NODE, Gains
 from ..design.modes import DETUMBLE, POINTING, ModeParams
-from ..base.topics import TOPIC_ATTITUDE, TOPIC_ESTIMATE
-from ..design.estimator import default_suite
-from ..design.node_params import (BDOT_FIELDS, ESTIMATOR_FIELDS, INITIAL_RATE_ERROR, MANAGER_FIELDS, MODE_FIELDS,
-                                  MODE_NAMES)
-from ..base.schema import parse
+from ..design.node_params import BDOT_FIELDS, ESTIMATOR_FIELDS, INITIAL_RATE_ERROR, MANAGER_FIELDS, MODE_FIELDS, MODE_NAMES
 from ..design.params import SpacecraftParams, check_sample_period
 from ..sim.fullenv import FullEnvironmentOptions, full_params
 from ..sim.initial import initial_conditions, substeps_for_rate

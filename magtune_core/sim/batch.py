@@ -50,14 +50,13 @@ from scipy.integrate import solve_ivp
 from ..design.bdot import FieldDerivativeFilter, bdot_gain, geomagnetic_inclination
 from ..design.law import DEFAULT_MIN_FIELD
 from ..design.modes import DETUMBLE, MODES, ModeParams
-from ..design.modes_kernel import MODE_CODE, GUARDS, kernel_params
+from ..design.modes_kernel import GUARDS, MODE_CODE, kernel_params
 from ..design.params import SpacecraftParams
 from ..design.sensors import GYRO_U, NORMALS_PER_STEP, Gyro, draw, gyro_bias_walk, gyro_from
 from ..env.environment import Environment
 from ..env.igrf import IGRF
 from ..env.orbit import initial_state, orbital_rate
-from .batch_kernels import (Chunk, Controller, Modes, Outputs, Plant, Sensors, closed_loop, env_rows, igrf_arrays,
-                            orbit_rhs)
+from .batch_kernels import Chunk, Controller, Modes, Outputs, Plant, Sensors, closed_loop, env_rows, igrf_arrays, orbit_rhs
 from .fullenv import FullEnvironmentOptions, _environment, environment_table, nominal_orbit_period
 from .metrics import pointing_error_deg
 

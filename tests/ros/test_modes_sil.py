@@ -4,15 +4,13 @@ by the manager as the node's one line. Every run in its own domain, processes st
 ``finally`` (magtune_core.ros.sil)."""
 from __future__ import annotations
 
-import math
-import subprocess
 import time
 
 import numpy as np
 import pytest
 
-from magtune_core.base.errors import ConfigError
 from magtune_core.bags.reader import iter_messages
+from magtune_core.base.errors import ConfigError
 from magtune_core.design.gains import load_gains
 from magtune_core.design.modes import ACQUISITION, DETUMBLE, POINTING
 from magtune_core.design.params import SpacecraftParams

@@ -39,13 +39,12 @@ import math
 
 import numpy as np
 from geometry_msgs.msg import Vector3Stamped
-from rclpy.clock import Clock, ClockType
 from magtune_interfaces.msg import Mode
+from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import Imu, MagneticField
 
+from magtune_core.design.bdot import BdotController, FieldDerivativeFilter, FilterState, bdot_gain, geomagnetic_inclination
 from magtune_core.design.gains import Gains
-from magtune_core.design.bdot import (BdotController, FieldDerivativeFilter, FilterState, bdot_gain,
-                                      geomagnetic_inclination)
 from magtune_core.design.law import ProjectionController, linear_state
 from magtune_core.design.modes import ACQUISITION, DETUMBLE, MODES, POINTING
 from magtune_core.design.node_params import BDOT_FIELDS, CONTROLLER_FIELDS
