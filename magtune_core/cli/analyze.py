@@ -1,4 +1,5 @@
-"""``magtune analyze``: J, c1, c2, rho of a gains file (paper eqs. 21, 28-30), recomputed."""
+"""``magtune analyze``: J, c1, c2, rho of a gains file (paper eqs. 21, 28-30), recomputed; with
+``--spec``, also the design spec's hard requirements (exit 3 when one is not met, as ``verify``)."""
 from __future__ import annotations
 
 import math
@@ -8,9 +9,9 @@ import numpy as np
 from ..base import jsonout
 from ..base.errors import ConfigError
 from ..design.gains import load_gains
-from ..design.pipeline import ANALYSIS_STEPS, analyze_gains, gain_sensitivity
+from ..design.pipeline import ANALYSIS_STEPS, analyze_gains, gain_sensitivity, requirement_provenance
 from ..design.resolution import resolved_steps
-from .common import CommandError, field_model_argument, load_model
+from .common import CommandError, add_spec_argument, field_model_argument, load_design_spec, load_model
 
 
 def register(sub) -> None:
@@ -27,6 +28,11 @@ def register(sub) -> None:
     a.add_argument("--sensitivity", action="store_true",
                    help="also the exact gradient of J: K_ij dJ/dK_ij / J per gain entry (the %% change of J per %% "
                         "change of the entry) and the worst-case disturbance frequency (magtune_core/ltp/hinf_gradient.py)")
+    a.add_argument("--requirements", action="store_true",
+                   help="also check the hard requirements of the design spec (--spec; default config/design.yaml): "
+                        "hold margin over the sample-period range (dense scan), peak-dipole budget; exit 3 if one "
+                        "is not met")
+    add_spec_argument(a)
     field_model_argument(a)
     a.set_defaults(func=run)
 
@@ -34,8 +40,11 @@ def register(sub) -> None:
 def run(args) -> int:
     if args.robust and args.sensitivity:
         raise ConfigError("--sensitivity", None, "is for the nominal model: leave out --robust (or --sensitivity)")
+    if args.spec and not args.requirements:
+        raise ConfigError("--spec", None, "is read with --requirements only; add --requirements")
     model = load_model(args)
     g = load_gains(args.path)
+    req = load_design_spec(args) if args.requirements else None
     if args.robust:
         return run_robust(args, model, g)
     a = analyze_gains(model, g, steps=args.steps)
@@ -46,10 +55,12 @@ def run(args) -> int:
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:  # e.g. flow not finite at the norm
             raise CommandError(f"--sensitivity: the gradient of J could not be computed ({exc})") from None
     d = fig.as_dict()
+    rp = requirement_provenance(model, g.K, req) if req is not None else None
+    status = 0 if rp is None or rp["requirements_met"] else 3
     if args.json:
         print(jsonout.dumps({**{k: d[k] for k in ("J", "c1", "c2", "rho", "stable")}, "ts": g.ts,
-                          "hold_gain_margin": margin, **(sens or {})}))
-        return 0
+                          "hold_gain_margin": margin, **(sens or {}), **({"requirements": rp} if rp else {})}))
+        return status
     print(f"{args.path}: sigma={g.sigma:g}, field model {model.field.name}, {args.steps} Magnus steps")
     for key, label in (("J", "H-inf T_d -> z"), ("c1", "H-inf T_d -> dq"), ("c2", "H2 T_d -> m"), ("rho", "max |multiplier|")):
         rec = g.provenance.get(key)
@@ -60,6 +71,12 @@ def run(args) -> int:
             f"sample-and-hold at Ts = {g.ts:g} s: gain margin {margin:.3g}"
             + (" or more" if margin >= 16 else f" ({20 * math.log10(margin):.1f} dB)"))
     print(f"  {held}")
+    if rp:
+        print(f"  requirements ({rp['requirements']}): {'met' if rp['requirements_met'] else 'NOT MET'}")
+        print(f"    smallest hold margin of the dense scan {rp['hold_margin_min']:.3f} at Ts = {rp['hold_tightest_ts']:g} s "
+              f"(K and K x margin checked at every scanned period); largest held-loop |multiplier| "
+              f"{rp['hold_multiplier_max']:.3g} at Ts = {rp['hold_multiplier_ts']:g} s; peak-dipole proxy "
+              f"{rp['dipole_peak_proxy']:.4g} of {rp['dipole_budget']:.4g} A m^2")
     if sens:
         print(f"  worst-case disturbance: multiplier angle {sens['worst_multiplier_angle']:.4f} rad, i.e. frequency "
               f"{sens['worst_frequency_mod_orbit']:.4g} rad/s modulo the orbital rate {sens['orbit_rate']:.4g} rad/s")
@@ -67,7 +84,7 @@ def run(args) -> int:
         print("           " + " ".join(f"{c:>8s}" for c in ("dq_x", "dq_y", "dq_z", "dw_x", "dw_y", "dw_z")))
         for i, row in enumerate(sens["elasticity"]):
             print(f"    u_{'xyz'[i]}    " + " ".join(f"{v:8.3f}" for v in row))
-    return 0
+    return status
 
 
 def run_robust(args, model, g) -> int:

@@ -173,13 +173,15 @@ def add_spec_argument(p: argparse.ArgumentParser) -> None:
 def load_design_spec(args, model=None):
     """The requirements of ``--spec`` (default ``config/design.yaml``; the built-in defaults when that
     file is absent), the dipole limit resolved against ``--config``'s: one line and exit 2 if bad."""
+    from dataclasses import replace
+
     from ..design.requirements import Requirements, load_requirements, spacecraft_dipole_limit
 
     limit = spacecraft_dipole_limit(args.config)
     path = args.spec or repo_path("config/design.yaml")
     if args.spec is None and not Path(path).is_file():
         return Requirements.from_mapping({}, limit)
-    return load_requirements(path, limit)
+    return replace(load_requirements(path, limit), source=shown_path(path))  # recorded in files: no checkout path
 
 
 def load_model(args):

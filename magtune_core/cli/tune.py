@@ -178,7 +178,8 @@ def _tune(args, model, out, req, start_K, executor) -> int:
           f"rho={g['rho']:.5f} ({res.analysis_steps} steps); wrote {out}")
     if req is not None:
         print(f"requirements ({req.describe()}): {'met' if g['requirements_met'] else 'NOT met'}; smallest hold margin "
-              f"{g['hold_margin_min']:.3g} at Ts = {g['hold_tightest_ts']:.4g} s, peak dipole (linear) "
+              f"{g['hold_margin_min']:.3g} at Ts = {g['hold_tightest_ts']:.4g} s, largest held-loop |multiplier| "
+              f"{g['hold_multiplier_max']:.3g} at Ts = {g['hold_multiplier_ts']:.4g} s, peak dipole (linear) "
               f"{g['dipole_peak_proxy']:.3g} of {g['dipole_budget']:.3g} A m^2")
     return 130 if res.interrupted else 0
 

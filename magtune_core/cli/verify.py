@@ -19,6 +19,7 @@ from .common import (
     plain_summary,
     repo_path,
     scheduler_options,
+    shown_path,
 )
 
 OUTPUTS = ("verify.md", "verify.json")
@@ -33,6 +34,9 @@ def register(sub) -> None:
                    help="dispersions and environment (default config/campaigns/example.yaml); its gains, ts and "
                         "criteria are replaced by GAINS, the verified periods and the design spec's requirements")
     p.add_argument("--runs", type=int, default=200, help="dispersed runs per sample period (default 200)")
+    p.add_argument("--also-ts", metavar="TS", default="",
+                   help="comma-separated sample periods [s] flown too, e.g. the flight computer's own (in the "
+                        "design spec's range)")
     p.add_argument("--out", required=True, help="report directory (new or empty, unless --force)")
     p.add_argument("--force", action="store_true", help="write into a non-empty --out")
     p.add_argument("--record", action="store_true",
@@ -49,6 +53,10 @@ def _check(args):
         raise ConfigError("--runs", None, f"expected a positive number of runs, got {args.runs}")
     if args.workers is not None and args.workers < 1:
         raise ConfigError("--workers", None, f"expected at least 1, got {args.workers}")
+    try:
+        args.also_ts = [float(t) for t in args.also_ts.split(",") if t.strip()]
+    except ValueError:
+        raise ConfigError("--also-ts", None, f"expected comma-separated periods in seconds, got {args.also_ts!r}") from None
     out = Path(args.out)
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not args.force)):
         raise ConfigError(out, None, "--out exists and is not an empty directory; choose a new one or add --force")
@@ -63,21 +71,27 @@ def run(args) -> int:
     gains = load_gains(args.gains)  # ConfigError -> one line, exit 2, before any run
     req = load_design_spec(args)
     p = load_spacecraft(args.config)
-    campaign = args.campaign or repo_path("config/campaigns/example.yaml")
+    campaign = args.campaign or shown_path(repo_path("config/campaigns/example.yaml"))  # relative: recorded in files
     verify.load_spec(campaign)  # validated before any worker starts
     tightest = gains.provenance.get("hold_tightest_ts")
     if tightest is None and req.gain_margin:
         from ..design.pipeline import requirement_provenance
 
         tightest = requirement_provenance(load_model(args), gains.K, req)["hold_tightest_ts"]
-    periods = verify.verify_periods(req, tightest)
+    lo, hi = req.sampling["ts_min"], req.sampling["ts_max"]
+    bad = [t for t in args.also_ts if not lo <= t <= hi]
+    if bad:
+        raise ConfigError("--also-ts", None, f"{bad[0]:g} s lies outside the design spec's range {lo:g}-{hi:g} s; "
+                          "widen sampling.ts_min/ts_max or drop it")
+    periods = verify.verify_periods(req, tightest, args.also_ts)
     print(f"verify {args.gains}: {args.runs} runs at Ts = {', '.join(f'{t:g}' for t in periods)} s "
-          f"(ends of {req.sampling['ts_min']:g}-{req.sampling['ts_max']:g} s and the tightest hold margin), "
+          f"(ends of {lo:g}-{hi:g} s and the tightest hold margin" + (", asked" if args.also_ts else "") + "), "
           f"dispersions of {campaign} with the design spec's rates, residual dipoles and torquers "
           f"({req.dipole_budget or req.dipole_limit:g}-{req.dipole_limit:g} A m^2)", flush=True)
     try:
         res = verify.run_verify(args.gains, req, campaign, args.runs, args.out, tightest=tightest, p=p,
-                                scheduler=sched, workers=args.workers, progress=not args.no_progress, tls=tls)
+                                scheduler=sched, workers=args.workers, progress=not args.no_progress, tls=tls,
+                                extra_periods=args.also_ts)
     except OSError as exc:
         raise CommandError(f"cannot reach the Dask scheduler {args.scheduler}: {exc}") from None
     md = verify.table(res)

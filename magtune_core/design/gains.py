@@ -56,7 +56,7 @@ class Gains:
                   "robust_spec", "robust_models", "robust_worst_model", "worst_J", "worst_c1", "worst_c2", "worst_rho",
                   "hold_gain_margin_required", "hold_gain_margin",
                   "requirements", "requirements_source", "requirements_met", "hold_margin_min", "hold_tightest_ts",
-                  "hold_ts_range", "dipole_peak_proxy", "dipole_budget", "verification")
+                  "hold_multiplier_max", "hold_multiplier_ts", "hold_ts_range", "dipole_peak_proxy", "dipole_budget", "verification")
 
     @classmethod
     def from_mapping(cls, params: dict, where="gains") -> "Gains":

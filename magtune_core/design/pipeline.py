@@ -169,8 +169,8 @@ def _constrained_search(model, sigma, K0, label, steps, hold, *, seed, workers, 
         if hold is not None:
             try:
                 K0, note = feasible_start(model, K0, hold)
-            except ValueError as exc:  # a start far beyond the requirements
-                raise InfeasibleStart(binding_message(model, K0, hold, str(exc))) from None
+            except ValueError as exc:  # no scaling is feasible: phase 1, else the binding requirement
+                K0, note = _restored_start(model, K0, hold, seed, str(exc))
             if note and round_ == 0:
                 label += f", {note}"
                 notes.append(f"start gain {note} to meet " + (hold.describe() if hasattr(hold, "describe") else
@@ -191,6 +191,18 @@ def _constrained_search(model, sigma, K0, label, steps, hold, *, seed, workers, 
     res.seconds, res.evaluations, res.J0 = seconds, evaluations, J0
     notes.insert(0, label)
     return res, steps
+
+
+def _restored_start(model, K0, hold, seed: int, reason: str):
+    """A feasible start by phase 1 (:func:`.feasibility.restore`) when no scaling of ``K0`` meets a
+    design spec; InfeasibleStart naming the binding requirement when phase 1 fails too."""
+    if isinstance(hold, Requirements):
+        from .feasibility import restore
+
+        K, evals = restore([hold.screen(model)], K0, seed=seed)
+        if K is not None:
+            return K, f"moved to feasibility by phase 1 ({evals} evaluations of the requirements' violation)"
+    raise InfeasibleStart(binding_message(model, K0, hold, reason))
 
 
 def binding_message(model, K0, req, reason: str) -> str:
@@ -228,21 +240,25 @@ def requirement_provenance(model, K, req: Requirements, cache: dict | None = Non
     -------
     dict
         ``requirements`` (one line), ``requirements_met`` (bool), ``hold_margin_min`` and
-        ``hold_tightest_ts`` [s] (dense scan), ``dipole_peak_proxy`` [A m^2] and ``dipole_budget``.
+        ``hold_tightest_ts`` [s] (dense scan), ``hold_multiplier_max`` and its ``hold_multiplier_ts``
+        [s] (the held loop's slowest decay over the scan), ``dipole_peak_proxy`` [A m^2] and
+        ``dipole_budget``.
     """
     loops = SampledLoop.at(model, req.periods(req.sampling["scan_periods"]), cache)
     margins = np.array([hold_gain_margin(loop, K) for loop in loops])
-    i = int(np.argmin(margins))
+    rhos = np.array([loop.spectral_radius(np.asarray(K, dtype=float).reshape(1, 3, 6))[0] for loop in loops])
+    i, j = int(np.argmin(margins)), int(np.argmax(rhos))
     screen = req.screen(model)
-    checks = [c for c in screen.checks(K) if c.kind == "<="]
+    checks = [c for c in screen.checks(K) if c.name.startswith("peak |m_")]
     peak = max((c.value for c in checks), default=float("nan"))
     # met as the tuner decides it (the held loop stable with K and K x margin at every scanned period);
     # hold_gain_margin's first crossing (the margin from K up) is reported beside it: between the two
     # ends stability need not be monotone (the shipped gains: 3.95-3.98 against 4)
-    held_ok = not req.gain_margin or all(held_margin_ok(loop, K, req.gain_margin) for loop in loops)
+    held_ok = not req.gain_margin or all(held_margin_ok(loop, K, req.gain_margin, req.max_multiplier) for loop in loops)
     met = bool(held_ok and (not req.dipole_budget or peak <= req.dipole_budget))
     return {"requirements": req.describe(), "requirements_source": req.source, "requirements_met": met,
             "hold_margin_min": round(float(margins[i]), 3), "hold_tightest_ts": round(float(loops[i].ts), 4),
+            "hold_multiplier_max": float(f"{rhos[j]:.4g}"), "hold_multiplier_ts": round(float(loops[j].ts), 4),
             "hold_ts_range": [float(req.sampling["ts_min"]), float(req.sampling["ts_max"])],
             "dipole_peak_proxy": round(float(peak), 3), "dipole_budget": round(req.dipole_budget, 3)}
 

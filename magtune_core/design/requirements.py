@@ -35,9 +35,12 @@ from .sampled import SampledLoop, hold_gain_margin
 SAMPLING_FIELDS = (
     Field("ts_min", "float", "shortest sample period the flight computer may run [s] (the gains' Ts)", 1.0,
           positive=True, unit="s"),
-    Field("ts_max", "float", "longest sample period the gains must hold at [s]", 20.0, positive=True, unit="s"),
+    Field("ts_max", "float", "longest sample period the gains must hold at [s]", 30.0, positive=True, unit="s"),
     Field("gain_margin", "float", "sample-and-hold gain margin at every Ts of the range (factor; 0: no hold "
           "requirement, the paper's unconstrained problem)", 4.0, nonnegative=True),
+    Field("max_multiplier", "float", "largest |characteristic multiplier| of the held loop with the gain over one "
+          "orbit, at every Ts of the range (the slowest mode's decay per orbit; 1: stable only, the default)", 1.0,
+          positive=True, bounds=(0.0, 1.0)),
     Field("check_periods", "int", "sample periods the tuner checks (geometric in [ts_min, ts_max])", 8, positive=True),
     Field("scan_periods", "int", "sample periods of the final gain's dense scan", 96, positive=True),
 )
@@ -143,6 +146,12 @@ class Requirements:
         return float(self.sampling["gain_margin"])
 
     @property
+    def max_multiplier(self) -> float:
+        """Largest |characteristic multiplier| of the held loop with K (1: stability only); part of the
+        hold requirement, so inactive when ``gain_margin`` is 0."""
+        return float(self.sampling["max_multiplier"])
+
+    @property
     def dipole_budget(self) -> float:
         """Per-axis dipole the linear loop may command [A m^2] (0: no dipole requirement)."""
         return float(self.dipole["budget_fraction"]) * self.dipole_limit
@@ -177,7 +186,8 @@ class Requirements:
     def describe(self) -> str:
         """One line: what the tuner is asked (what a gains file's provenance records)."""
         s = self.sampling
-        parts = [f"hold gain margin {s['gain_margin']:g} at Ts {s['ts_min']:g}-{s['ts_max']:g} s"
+        rho = f", |multiplier| <= {self.max_multiplier:g}" if self.max_multiplier < 1 else ""
+        parts = [f"hold gain margin {s['gain_margin']:g}{rho} at Ts {s['ts_min']:g}-{s['ts_max']:g} s"
                  if self.gain_margin else "no hold requirement"]
         parts.append(f"peak |m_i| <= {self.dipole_budget:.4g} A m^2" if self.dipole_budget else "no dipole budget")
         return "; ".join(parts)
@@ -219,6 +229,7 @@ class FlightScreen:
 
     loops: tuple          # SampledLoop per checked period, longest Ts first
     gain_margin: float
+    max_multiplier: float
     dipole_loops: tuple   # SampledLoop at ts_min (and ts_max)
     case: DipoleCase
     budget: float
@@ -229,7 +240,7 @@ class FlightScreen:
         loops = tuple(SampledLoop.build(model, t) for t in req.periods()[::-1]) if req.gain_margin else ()
         lo, hi = req.sampling["ts_min"], req.sampling["ts_max"]
         dl = tuple(SampledLoop.build(model, t) for t in sorted({lo, hi})) if req.dipole_budget else ()
-        return cls(loops, req.gain_margin, dl, req.dipole_case(), req.dipole_budget)
+        return cls(loops, req.gain_margin, req.max_multiplier, dl, req.dipole_case(), req.dipole_budget)
 
     def __call__(self, Ks) -> np.ndarray:
         """Whether each gain meets every hard requirement (n,): hold margins, then the dipole budget.
@@ -240,10 +251,10 @@ class FlightScreen:
         """
         Ks = np.asarray(Ks, dtype=float).reshape(-1, 3, 6)
         ok = np.ones(len(Ks), dtype=bool)
-        for loop in self.loops:  # the margin's both ends: K x gain_margin, then K itself (module docstring)
-            for g in (self.gain_margin, 1.0):
+        for loop in self.loops:  # the margin's both ends: K x gain_margin stable, K's decay (module docstring)
+            for g, rho in ((self.gain_margin, 1.0), (1.0, self.max_multiplier)):
                 if ok.any():
-                    ok[ok] = loop.spectral_radius(g * Ks[ok]) < 1.0
+                    ok[ok] = loop.spectral_radius(g * Ks[ok]) < rho
         for loop in self.dipole_loops:
             if ok.any():
                 ok[ok] = peak_dipole(loop, Ks[ok], self.case).max(axis=-1) <= self.budget
@@ -255,12 +266,15 @@ class FlightScreen:
         Returns
         -------
         list of Check
-            the hold gain margin at each checked period (``>=`` gain_margin) and the peak
-            dipole per axis at each dipole period (``<=`` budget).
+            the hold gain margin at each checked period (``>=`` gain_margin), the held loop's
+            largest |multiplier| there (``<=`` max_multiplier) and the peak dipole per axis at
+            each dipole period (``<=`` budget).
         """
         K = np.asarray(K, dtype=float).reshape(3, 6)
         out = [Check(f"hold gain margin at Ts = {loop.ts:.4g} s", hold_gain_margin(loop, K), self.gain_margin, ">=")
                for loop in self.loops]
+        out += [Check(f"held-loop |multiplier| at Ts = {loop.ts:.4g} s", float(loop.spectral_radius(K[None])[0]),
+                      self.max_multiplier, "<=") for loop in self.loops if self.max_multiplier < 1.0]
         for loop in self.dipole_loops:
             pk = peak_dipole(loop, K[None], self.case)[0]
             i = int(np.argmax(pk))
@@ -281,11 +295,14 @@ def scan_hold(model: AttitudeLTP, K, req: Requirements, points: int | None = Non
     K = np.asarray(K, dtype=float).reshape(1, 3, 6)
     ts = req.periods(points or req.sampling["scan_periods"])
     loops = SampledLoop.at(model, ts, cache)
-    return np.array([loop.ts for loop in loops]), np.array([held_margin_ok(loop, K, req.gain_margin) for loop in loops])
+    return np.array([loop.ts for loop in loops]), np.array([held_margin_ok(loop, K, req.gain_margin, req.max_multiplier)
+                                                            for loop in loops])
 
 
-def held_margin_ok(loop, K, gain_margin: float) -> bool:
-    """The hold requirement at one period: the held loop stable with K and with K x ``gain_margin``
-    (both ends of the margin: near the nutation limit stability is not monotone in the gain's scale)."""
+def held_margin_ok(loop, K, gain_margin: float, max_multiplier: float = 1.0) -> bool:
+    """The hold requirement at one period: the held loop stable with K x ``gain_margin`` and with K
+    decaying by ``max_multiplier`` per orbit (both ends of the margin: near the nutation limit
+    stability is not monotone in the gain's scale)."""
     K = np.asarray(K, dtype=float).reshape(1, 3, 6)
-    return bool(np.all(loop.spectral_radius(np.concatenate([gain_margin * K, K])) < 1.0))
+    rho = loop.spectral_radius(np.concatenate([gain_margin * K, K]))
+    return bool(rho[0] < 1.0 and rho[1] < max_multiplier)

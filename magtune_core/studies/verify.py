@@ -56,10 +56,11 @@ def criteria_of(req: Requirements) -> dict:
                 max_saturation_fraction=p["max_total_saturation_fraction"], max_peak_dipole=None)
 
 
-def verify_periods(req: Requirements, tightest: float | None) -> list:
-    """ts_min, the tightest period of the hold scan (if inside the range) and ts_max, ascending, distinct."""
+def verify_periods(req: Requirements, tightest: float | None, extra=()) -> list:
+    """ts_min, the tightest period of the hold scan (if inside the range) and ts_max, ascending,
+    distinct, with the ``extra`` periods [s] a user asks for too (e.g. the flight computer's own)."""
     lo, hi = float(req.sampling["ts_min"]), float(req.sampling["ts_max"])
-    ts = {lo, hi}
+    ts = {lo, hi} | {float(t) for t in extra}
     # the tightest period, unless it is an end (within 1 %: T / round(T / Ts) moves Ts by up to Ts / 2T)
     if tightest is not None and lo <= tightest <= hi and min(abs(tightest / t - 1.0) for t in ts) > 0.01:
         ts.add(round(float(tightest), 4))
@@ -118,11 +119,11 @@ def _rows(ts: float, cols: dict, req: Requirements, period: np.ndarray) -> list:
 
 def run_verify(gains_path, req: Requirements, campaign_path, runs: int, out, *, tightest: float | None = None,
                p=None, scheduler: str | None = None, workers: int | None = None, progress: bool = False,
-               tls=None) -> dict:
+               tls=None, extra_periods=()) -> dict:
     """Fly ``gains_path`` on spacecraft ``p`` (:func:`campaign_for`) at :func:`verify_periods` on
     ``runs`` dispersed runs each; write each period's campaign under ``out/ts_<Ts>/``.
     ``scheduler``, ``workers`` and ``tls`` (a :class:`.cluster.TlsFiles` of a tls:// scheduler)
-    are :func:`.campaign.run_campaign`'s.
+    are :func:`.campaign.run_campaign`'s; ``extra_periods`` [s] are flown too.
 
     Returns
     -------
@@ -137,7 +138,8 @@ def run_verify(gains_path, req: Requirements, campaign_path, runs: int, out, *, 
     base = load_spec(campaign_path)
     out = Path(out)
     rows, failed, dirs = [], 0, []
-    for ts in verify_periods(req, tightest):
+    periods = verify_periods(req, tightest, extra_periods)
+    for ts in periods:
         spec = campaign_for(base, gains_path, ts, req, p)
         d = out / f"ts_{ts:g}"
         run_campaign(spec, runs, d, scheduler=scheduler, workers=workers, progress=progress, tls=tls)
@@ -146,7 +148,7 @@ def run_verify(gains_path, req: Requirements, campaign_path, runs: int, out, *, 
         rows += _rows(ts, cols, req, np.asarray(cols["orbit_period"], dtype=float))
         dirs.append(str(d))
     passed = failed == 0 and all(r.ok for r in rows)
-    return dict(rows=rows, passed=passed, failed_runs=failed, periods=verify_periods(req, tightest), runs=runs,
+    return dict(rows=rows, passed=passed, failed_runs=failed, periods=periods, runs=runs,
                 seconds=time.perf_counter() - t0, dirs=dirs, campaign=str(campaign_path))
 
 

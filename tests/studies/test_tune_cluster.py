@@ -127,16 +127,16 @@ def test_verify_takes_the_campaign_tls_options(extra, option, fix, tmp_path, cap
 
 def test_verify_on_the_secured_cluster(secured, tmp_path, capsys):
     """``verify --scheduler tls://... --tls-*`` (campaign's options): every period's campaign runs on
-    the TLS cluster; the paper method's gain passes (as in-process, tests/studies/test_verify.py)."""
+    the TLS cluster; a shipped gain passes (as in-process, tests/studies/test_verify.py)."""
     import json
 
     addr, _, files = secured
     out = tmp_path / "v"
-    rc = main(["verify", str(ROOT / "config/gains/paper_method/sigma_60.yaml"), "--runs", "2", "--out", str(out),
+    rc = main(["verify", str(ROOT / "config/gains/sigma_120.yaml"), "--runs", "2", "--out", str(out),
                "--scheduler", addr, *tls_options(files), "--no-progress"])
     assert rc == 0, capsys.readouterr().err[-800:]
     rec = json.loads((out / "verify.json").read_text())
-    assert rec["passed"] and rec["periods"] == [1.0, 20.0] and rec["runs"] == 2
-    for ts in ("1", "20"):
+    assert rec["passed"] and rec["periods"] == [1.0, 30.0] and rec["runs"] == 2
+    for ts in ("1", "30"):
         meta = json.loads((out / f"ts_{ts}" / "campaign.json").read_text())
         assert meta["scheduler"] == addr and meta["secured"] is True and meta["workers"] == 2
