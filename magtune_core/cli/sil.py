@@ -31,6 +31,9 @@ def register(sub) -> None:
     p.add_argument("--modes", action="store_true",
                    help="fly the flight modes: start the mode manager (lifecycle bring-up, ModeLogic, health "
                         "monitor) in DETUMBLE; without it the controller flies POINTING (the paper's run)")
+    p.add_argument("--initial-mode", default=None, metavar="MODE",
+                   help="with --modes: the first mode (DETUMBLE, ACQUISITION, POINTING, SAFE; default DETUMBLE, a "
+                        "deployment; POINTING starts a settled satellite, e.g. to inject a fault)")
     p.add_argument("--attitude", choices=("truth", "estimator"), default="truth",
                    help="the controller's attitude: truth (sensors/attitude: truth plus attitude_noise_std, the "
                         "default) or estimator (the attitude_estimator node's MEKF on gyro, magnetometer, sun sensor "
@@ -52,6 +55,10 @@ def register(sub) -> None:
                    help="paper environment: simulate this field file (magtune fit-field output) instead of the "
                         "spacecraft's field_model (the full environment keeps IGRF along the orbit)")
     p.add_argument("--rtf", type=float, default=0.0, help="pace at this real-time factor (default 0: max speed)")
+    p.add_argument("--lockstep-timeout", type=float, default=2.0, metavar="S",
+                   help="wall seconds the simulator waits for a step's command before it holds the last one and "
+                        "counts a missed step (default 2; a fault that silences the controller's input, e.g. "
+                        "mag_dropout, costs this per step: 0.25 keeps such runs short)")
     p.add_argument("--bag", default=None, help="record the run to this MCAP bag (needs the recorder node)")
     p.add_argument("--bag-topics", nargs="+", default=None, metavar="TOPIC",
                    help="with --bag: record only these topics (/name or /name:pkg/msg/Type; default: every project topic)")
@@ -94,12 +101,14 @@ def run(args) -> int:
     # every input validated before anything starts (one line and exit 2 for a bad one)
     scenario = SilScenario.build(sats, orbits=args.orbits, steps=args.steps, ts=args.ts, substeps=args.substeps,
                                  spacecraft=_spacecraft(args), real_time_factor=args.rtf, bag=args.bag,
+                                 lockstep_timeout=args.lockstep_timeout,
                                  results=args.results, log_dir=args.log_dir, domain_id=args.domain_id,
                                  timeout=args.timeout, environment=args.environment,
                                  env_options=environment_options(args), field=args.field, epoch_time=args.epoch_time,
                                  foxglove=args.foxglove, bag_topics=args.bag_topics, bag_exclude=args.bag_exclude,
                                  dds_interfaces=args.dds_interfaces, initial_rate_deg=args.initial_rate_deg,
                                  initial_attitude_deg=args.initial_attitude_deg, modes=args.modes,
+                                 initial_mode=args.initial_mode,
                                  attitude=args.attitude, estimator_params=_assignments(args.estimator_param),
                                  faults=faults)
     if not args.quiet:

@@ -79,7 +79,8 @@ def _positive_finite(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
 
 
-def check_run_arguments(*, orbits=None, steps=None, substeps=2, real_time_factor=0.0, timeout=None) -> None:
+def check_run_arguments(*, orbits=None, steps=None, substeps=2, real_time_factor=0.0, timeout=None,
+                        lockstep_timeout=2.0) -> None:
     """ConfigError for a non-physical run length or setting (before any node starts)."""
     if steps is not None and not (isinstance(steps, int) and 0 < steps <= 10**8):
         raise ConfigError("--steps", None, f"expected a positive number of steps (at most 1e8), got {steps!r}")
@@ -91,6 +92,9 @@ def check_run_arguments(*, orbits=None, steps=None, substeps=2, real_time_factor
         raise ConfigError("--rtf", None, f"expected 0 (as fast as possible) or a positive factor, got {real_time_factor!r}")
     if timeout is not None and not _positive_finite(timeout):
         raise ConfigError("--timeout", None, f"expected a positive number of wall seconds, got {timeout!r}")
+    if not (_positive_finite(lockstep_timeout) and lockstep_timeout <= 3600):
+        raise ConfigError("--lockstep-timeout", None, f"expected a positive number of wall seconds (at most 3600), "
+                                                      f"got {lockstep_timeout!r}")
 
 
 def check_writable(path, flag: str, *, directory: bool = False, empty: bool = False) -> None:
@@ -343,7 +347,7 @@ class SilScenario:
         faults = check_fault_arguments(faults, epoch_time)
         sensor_params, eparams = check_attitude_arguments(attitude, sensor_params, estimator_params, modes, field)
         check_run_arguments(orbits=orbits, steps=steps, substeps=substeps, real_time_factor=real_time_factor,
-                            timeout=timeout)
+                            timeout=timeout, lockstep_timeout=lockstep_timeout)
         sat_list = []
         for ns, g in sats.items():
             sat_ts = float(ts if ts is not None else gains[ns].ts)

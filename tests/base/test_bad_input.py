@@ -100,7 +100,7 @@ def test_sample_period_must_resolve_nutation():
 @pytest.mark.parametrize("extra, words", [
     (["--orbits", "-1"], "--orbits"), (["--orbits", "nan"], "--orbits"), (["--steps", "0"], "--steps"),
     (["--ts", "100"], "nutation"), (["--ts", "-1"], "sample period"), (["--substeps", "0"], "--substeps"),
-    (["--timeout", "-5"], "--timeout"), (["--rtf", "inf"], "--rtf"),
+    (["--timeout", "-5"], "--timeout"), (["--rtf", "inf"], "--rtf"), (["--lockstep-timeout", "0"], "--lockstep-timeout"),
     (["--results", "/proc/no/such.npz"], "--results"), (["--log-dir", "/proc/version/logs"], "--log-dir"),
 ])
 def test_sil_rejects_bad_arguments_before_starting(tmp_path, capsys, extra, words):

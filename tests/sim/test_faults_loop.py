@@ -52,7 +52,7 @@ def test_mag_dropout_longer_than_stale_timeout_goes_safe_and_recovers():
 
 def test_short_mag_dropout_is_ridden_through(nominal):
     """2 s without magnetometer (below stale_timeout): no transition; the held dipole for 2 samples costs
-    under 0.01 deg (measured 0.0004 deg)."""
+    under 0.01 deg (measured 3.5e-6 deg)."""
     r = fly(["mag_dropout@1000:2"], 2000.0)
     assert table(r) == []
     assert np.abs(r.pointing_deg - nominal.pointing_deg).max() < 0.01
@@ -61,7 +61,7 @@ def test_short_mag_dropout_is_ridden_through(nominal):
 def test_stuck_magnetometer_detected_by_the_frozen_guard():
     """A stuck magnetometer repeats its sample: SAFE after frozen_time (30 s from the first repeated sample,
     t = 1000 s); back to DETUMBLE 10 s after it moves again (1110 s) for a 100 s fault; a permanent one
-    keeps SAFE to the end (zero dipole: the satellite drifts, measured 0.5 deg in 500 s)."""
+    keeps SAFE to the end (zero dipole: the satellite drifts, measured 11.7 deg at 1500 s, 54 deg at 2000 s)."""
     r = fly(["mag_stuck@1000:100"], 1200.0)
     assert table(r) == [(1030.0, POINTING, SAFE), (1110.0, SAFE, DETUMBLE)]
     assert r.transitions[0].reason == "magnetometer frozen (sample repeated) for 30 s"
@@ -72,7 +72,7 @@ def test_stuck_magnetometer_detected_by_the_frozen_guard():
 
 def test_spike_is_tolerated(nominal):
     """One sample of +5e-4 T (10x the field) on x: eq. 17 divides by |b|^2, so the one wrong dipole is small;
-    no transition, the pointing error within 0.01 deg of the fault-free run (measured 0.001 deg)."""
+    no transition, the pointing error within 0.01 deg of the fault-free run (measured 0.0018 deg)."""
     r = fly(["mag_spike@1000"], 2000.0)
     assert table(r) == []
     assert np.abs(r.pointing_deg - nominal.pointing_deg).max() < 0.01
