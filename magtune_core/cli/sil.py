@@ -2,9 +2,10 @@
 from __future__ import annotations
 
 from ..base import jsonout
+from ..design.faults import parse_spec
 from ..ros import sil
 from ..ros.process import DDS_INTERFACES
-from ..ros.scenario import SilScenario, normalize_namespace
+from ..ros.scenario import SilScenario, load_scenario_file, normalize_namespace
 from .common import CommandError, add_environment_arguments, environment_options, plain_summary
 
 
@@ -30,6 +31,9 @@ def register(sub) -> None:
     p.add_argument("--modes", action="store_true",
                    help="fly the flight modes: start the mode manager (lifecycle bring-up, ModeLogic, health "
                         "monitor) in DETUMBLE; without it the controller flies POINTING (the paper's run)")
+    p.add_argument("--initial-mode", default=None, metavar="MODE",
+                   help="with --modes: the first mode (DETUMBLE, ACQUISITION, POINTING, SAFE; default DETUMBLE, a "
+                        "deployment; POINTING starts a settled satellite, e.g. to inject a fault)")
     p.add_argument("--attitude", choices=("truth", "estimator"), default="truth",
                    help="the controller's attitude: truth (sensors/attitude: truth plus attitude_noise_std, the "
                         "default) or estimator (the attitude_estimator node's MEKF on gyro, magnetometer, sun sensor "
@@ -37,12 +41,24 @@ def register(sub) -> None:
     p.add_argument("--estimator-param", action="append", default=[], metavar="NAME=VALUE",
                    help="with --attitude estimator: an attitude_estimator parameter (ESTIMATOR_FIELDS, YAML value), "
                         "e.g. gate_probability=0.999; repeatable")
+    p.add_argument("--fault", action="append", default=[], metavar="KIND@T[:DURATION][,axis=A][,value=V]",
+                   help="inject a fault at sim time T [s] (repeatable): mag_stuck, mag_spike, mag_bias, mag_dropout "
+                        "(DURATION required), gyro_bias, torquer_dead, torquer_stuck, sensors_killed; e.g. "
+                        "mag_dropout@3000:30, gyro_bias@100,axis=z,value=0.02, torquer_dead@500,axis=y "
+                        "(docs/modes.md#faults)")
+    p.add_argument("--scenario", default=None, metavar="FILE",
+                   help="scenario file: YAML with a 'faults:' list of {kind, t, duration, axis, value} (added to "
+                        "--fault)")
     p.add_argument("--spacecraft", "--config", dest="spacecraft", default=None,
                    help="spacecraft/orbit parameter file (default: the global --config, config/spacecraft.yaml)")
     p.add_argument("--field", metavar="FILE", default=None,
                    help="paper environment: simulate this field file (magtune fit-field output) instead of the "
                         "spacecraft's field_model (the full environment keeps IGRF along the orbit)")
     p.add_argument("--rtf", type=float, default=0.0, help="pace at this real-time factor (default 0: max speed)")
+    p.add_argument("--lockstep-timeout", type=float, default=2.0, metavar="S",
+                   help="wall seconds the simulator waits for a step's command before it holds the last one and "
+                        "counts a missed step (default 2; a fault that silences the controller's input, e.g. "
+                        "mag_dropout, costs this per step: 0.25 keeps such runs short)")
     p.add_argument("--bag", default=None, help="record the run to this MCAP bag (needs the recorder node)")
     p.add_argument("--bag-topics", nargs="+", default=None, metavar="TOPIC",
                    help="with --bag: record only these topics (/name or /name:pkg/msg/Type; default: every project topic)")
@@ -80,16 +96,21 @@ def run(args) -> int:
             print(f"magtune sil: step {k}/{n} ({100 * k // max(n, 1)} %)", file=sys.stderr, flush=True)
 
     sats = satellites(args.gains)
+    faults = list(load_scenario_file(args.scenario)["faults"]) if args.scenario else []
+    faults += [parse_spec(f) for f in args.fault]
     # every input validated before anything starts (one line and exit 2 for a bad one)
     scenario = SilScenario.build(sats, orbits=args.orbits, steps=args.steps, ts=args.ts, substeps=args.substeps,
                                  spacecraft=_spacecraft(args), real_time_factor=args.rtf, bag=args.bag,
+                                 lockstep_timeout=args.lockstep_timeout,
                                  results=args.results, log_dir=args.log_dir, domain_id=args.domain_id,
                                  timeout=args.timeout, environment=args.environment,
                                  env_options=environment_options(args), field=args.field, epoch_time=args.epoch_time,
                                  foxglove=args.foxglove, bag_topics=args.bag_topics, bag_exclude=args.bag_exclude,
                                  dds_interfaces=args.dds_interfaces, initial_rate_deg=args.initial_rate_deg,
                                  initial_attitude_deg=args.initial_attitude_deg, modes=args.modes,
-                                 attitude=args.attitude, estimator_params=_assignments(args.estimator_param))
+                                 initial_mode=args.initial_mode,
+                                 attitude=args.attitude, estimator_params=_assignments(args.estimator_param),
+                                 faults=faults)
     if not args.quiet:
         print("magtune sil: starting the nodes (discovery takes a few seconds)", file=sys.stderr, flush=True)
         if args.foxglove is not None:

@@ -1,4 +1,4 @@
-"""Flight modes as a pure state machine: DETUMBLE -> ACQUISITION -> POINTING, SAFE on stale sensors.
+"""Flight modes as a pure state machine: DETUMBLE -> ACQUISITION -> POINTING, SAFE on stale or frozen sensors.
 
 ``ModeLogic(params).step(state, measurements, t) -> (state, transition or None)``: no clock, no I/O,
 no global state, so the mode manager node, the offline mode simulation
@@ -8,6 +8,12 @@ the attitude estimate's pointing error, the sensors' staleness flag), never the 
 guard holds for a persistence time before it fires, and each entry threshold lies beyond the
 matching exit threshold (hysteresis), as in flight mode managers (e.g. the C2A AOBC mode manager's
 transition conditions). Thresholds and timers: ``node_params.MODE_FIELDS`` (SI units).
+
+A magnetometer that repeats its sample bit for bit (``Measurements.field_step == 0``) for
+``frozen_time`` is frozen: SAFE, as a stale stream (a working magnetometer's noise, or the field's
+motion along the orbit, changes every sample). A SAFE commanded by :meth:`ModeLogic.request` is
+sticky (``ModeState.held``): no automatic recovery until another mode is commanded (flight practice:
+a ground-commanded safe mode waits for the ground, docs/decisions.md).
 """
 from __future__ import annotations
 
@@ -39,6 +45,7 @@ class ModeParams:
     acquisition_entry_angle: float = 0.26
     acquisition_entry_time: float = 120.0
     safe_recovery_time: float = 10.0
+    frozen_time: float = 30.0
 
     @classmethod
     def from_mapping(cls, params: dict, where="mode parameters") -> "ModeParams":
@@ -56,13 +63,15 @@ class Measurements:
     ``rate`` |w_gyro| [rad/s] (inertial body rate norm), ``bdot`` filtered |db/dt| [T/s] (nan if
     unknown: the rate guard alone decides), ``pointing_error`` the attitude estimate's rotation
     angle from the orbital axes [rad] (nan if no estimate), ``stale`` True when a sensor stream is
-    older than its timeout (decided by the caller on sim time).
+    older than its timeout (decided by the caller on sim time), ``field_step`` |b_k - b_(k-1)| of
+    the measured field [T] (0: the sample repeated bit for bit; nan: unknown, never frozen).
     """
 
     rate: float
     bdot: float = math.nan
     pointing_error: float = math.nan
     stale: bool = False
+    field_step: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -74,6 +83,8 @@ class ModeState:
     reason: str = "start"
     #: guard name -> sim time [s] since which its condition has held continuously
     pending: tuple = ()
+    #: a commanded SAFE: no automatic recovery (only another request leaves it)
+    held: bool = False
 
     def held_since(self, guard: str):
         """Start time of ``guard``'s condition, or None."""
@@ -96,14 +107,18 @@ class ModeLogic:
 
     params: ModeParams = ModeParams()
 
-    def guards(self, mode: str, m: Measurements):
-        """(guard name, condition holds, persistence [s], target, reason) of ``mode``, in priority order."""
+    def guards(self, mode: str, m: Measurements, held: bool = False):
+        """(guard name, condition holds, persistence [s], target, reason) of ``mode``, in priority order
+        (``held``: a commanded SAFE, which has none)."""
         p = self.params
-        fresh = not m.stale
+        frozen = m.field_step == 0.0
         if mode == SAFE:
-            return [("fresh", fresh, p.safe_recovery_time, DETUMBLE,
+            if held:
+                return []
+            return [("fresh", not (m.stale or frozen), p.safe_recovery_time, DETUMBLE,
                      f"sensors fresh for {p.safe_recovery_time:g} s")]
-        out = [("stale", m.stale, 0.0, SAFE, "sensor data stale")]
+        out = [("stale", m.stale, 0.0, SAFE, "sensor data stale"),
+               ("frozen", frozen, p.frozen_time, SAFE, f"magnetometer frozen (sample repeated) for {p.frozen_time:g} s")]
         if mode == DETUMBLE:
             bdot_ok = math.isnan(m.bdot) or m.bdot < p.detumble_exit_bdot
             calm = m.rate < p.detumble_exit_rate and bdot_ok
@@ -136,7 +151,7 @@ class ModeLogic:
         """
         pending = dict(state.pending)
         new_pending = {}
-        for name, holds, persist, target, reason in self.guards(state.mode, m):
+        for name, holds, persist, target, reason in self.guards(state.mode, m, state.held):
             if not holds:
                 continue
             start = pending.get(name, t)
@@ -146,8 +161,14 @@ class ModeLogic:
                 return ModeState(target, float(t), reason, ()), tr
         return replace(state, pending=tuple(sorted(new_pending.items()))), None
 
-    def request(self, state: ModeState, mode: str, t: float, reason: str = "commanded") -> tuple[ModeState, Transition]:
-        """A commanded mode change (the mode manager's service); ConfigError naming the field on an unknown mode."""
+    def request(self, state: ModeState, mode: str, t: float, reason: str = "commanded",
+                hold: bool = True) -> tuple[ModeState, Transition]:
+        """A commanded mode change (the mode manager's service); ConfigError naming the field on an unknown mode.
+
+        A commanded SAFE is sticky (``hold``, the default): it stays until another mode is requested. The
+        manager's own SAFE on a lost heartbeat passes ``hold=False`` (it recovers when the data are fresh).
+        """
         if mode not in MODES:
             raise ConfigError("mode request", "mode", f"expected one of {', '.join(MODES)}, got {mode!r}")
-        return ModeState(mode, float(t), reason, ()), Transition(state.mode, mode, float(t), reason)
+        return (ModeState(mode, float(t), reason, (), held=bool(hold and mode == SAFE)),
+                Transition(state.mode, mode, float(t), reason))

@@ -26,9 +26,9 @@ from .modes import ACQUISITION, DETUMBLE, MODES, POINTING, SAFE, ModeParams
 #: Mode codes of the kernel: the index in :data:`~magtune_core.design.modes.MODES`.
 MODE_CODE = {m: i for i, m in enumerate(MODES)}
 _DET, _ACQ, _PNT, _SAFE = (MODE_CODE[m] for m in (DETUMBLE, ACQUISITION, POINTING, SAFE))
-#: Guard slots of the pending timers (ModeLogic's guard names): stale, fresh, calm, tumbling, inside, outside.
-GUARDS = ("stale", "fresh", "calm", "tumbling", "inside", "outside")
-_STALE, _FRESH, _CALM, _TUMBLING, _INSIDE, _OUTSIDE = range(len(GUARDS))
+#: Guard slots of the pending timers (ModeLogic's guard names): stale, fresh, calm, tumbling, inside, outside, frozen.
+GUARDS = ("stale", "fresh", "calm", "tumbling", "inside", "outside", "frozen")
+_STALE, _FRESH, _CALM, _TUMBLING, _INSIDE, _OUTSIDE, _FROZEN = range(len(GUARDS))
 
 
 class KernelModeParams(NamedTuple):
@@ -46,6 +46,7 @@ class KernelModeParams(NamedTuple):
     acquisition_entry_angle: float
     acquisition_entry_time: float
     safe_recovery_time: float
+    frozen_time: float
 
 
 def kernel_params(p: ModeParams) -> KernelModeParams:
@@ -65,19 +66,23 @@ def _hold(holds, g, persist, t, pending, newp):
 
 
 @njit(cache=True, error_model="numpy")
-def mode_step(mode, pending, rate, bdot, err, stale, t, P):
+def mode_step(mode, pending, rate, bdot, err, stale, t, P, fstep=math.nan, held=False):
     """:meth:`ModeLogic.step` on floats: the new mode code (== ``mode``: no transition).
 
-    ``pending`` (6,) the guards' start times [s] (nan: not holding; :data:`GUARDS`), updated in
+    ``pending`` (7,) the guards' start times [s] (nan: not holding; :data:`GUARDS`), updated in
     place (cleared on a transition); ``rate`` |w_gyro| [rad/s], ``bdot`` filtered |db/dt| [T/s] (nan:
-    unknown), ``err`` estimated pointing error [rad] (nan: none), ``stale`` bool, ``t`` sim time [s].
+    unknown), ``err`` estimated pointing error [rad] (nan: none), ``stale`` bool, ``t`` sim time [s],
+    ``fstep`` |b_k - b_(k-1)| [T] (0: frozen sample; nan: unknown), ``held`` a commanded (sticky) SAFE.
     """
     newp = np.full(pending.size, np.nan)
     target = -1
+    frozen = fstep == 0.0
     if mode == _SAFE:
-        if _hold(not stale, _FRESH, P.safe_recovery_time, t, pending, newp):
+        if not held and _hold(not (stale or frozen), _FRESH, P.safe_recovery_time, t, pending, newp):
             target = _DET
     elif _hold(stale, _STALE, 0.0, t, pending, newp):
+        target = _SAFE
+    elif _hold(frozen, _FROZEN, P.frozen_time, t, pending, newp):
         target = _SAFE
     elif mode == _DET:
         bdot_ok = math.isnan(bdot) or bdot < P.detumble_exit_bdot

@@ -71,6 +71,8 @@ MODE_FIELDS = (
           unit="s"),
     Field("safe_recovery_time", "float", "SAFE returns to DETUMBLE when the sensors stay fresh this long [s]", 10.0,
           nonnegative=True, bounds=(0.0, 1e6), unit="s"),
+    Field("frozen_time", "float", "a magnetometer sample repeated bit for bit this long [s] is a frozen sensor "
+          "-> SAFE", 30.0, positive=True, bounds=(1e-3, 1e6), unit="s"),
 )
 
 #: The detumble (B-dot) law's options (design/bdot.py).
@@ -213,8 +215,13 @@ MANAGER_FIELDS = (
           positive=True, bounds=(0.1, 3600.0), unit="s"),
 )
 
+#: Injected faults (design/faults.py): the sensor faults for attitude_sensors, the torquer faults and the
+#: sensors' kill for the simulator (``magtune sil --fault``, a scenario file's ``faults:``).
+FAULTS = Field("faults", "str[]", "injected faults, each KIND@T[:DURATION][,axis=x|y|z][,value=V] "
+               "(magtune_core/design/faults.py; docs/modes.md#faults)", ())
+
 #: The SIL nodes' schemas by node name.
-SIL_NODE_FIELDS = {"simulator": SIMULATOR_FIELDS, "attitude_sensors": SENSOR_FIELDS + (AUTOSTART,),
+SIL_NODE_FIELDS = {"simulator": SIMULATOR_FIELDS + (FAULTS,), "attitude_sensors": SENSOR_FIELDS + (AUTOSTART, FAULTS),
                    "controller": CONTROLLER_FIELDS + BDOT_FIELDS + (AUTOSTART,),
                    "attitude_estimator": ESTIMATOR_FIELDS + (AUTOSTART,),
                    "mode_manager": MANAGER_FIELDS + MODE_FIELDS + BDOT_FIELDS}

@@ -24,9 +24,10 @@ import yaml
 
 from ..base.ament import ROOT
 from ..base.errors import ConfigError, SilError
-from ..base.paramfile import check_path, check_ros_params, load_ros_params, merge_ros_params
+from ..base.paramfile import check_path, check_ros_params, load_ros_params, load_user_yaml, merge_ros_params
 from ..base.schema import parse
 from ..base.topics import TOPIC_ATTITUDE, TOPIC_ESTIMATE
+from ..design import faults as fl
 from ..design.estimator import default_suite
 from ..design.fitfield import field_for_spacecraft
 from ..design.gains import CONTROLLER_NODE, Gains
@@ -78,7 +79,8 @@ def _positive_finite(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
 
 
-def check_run_arguments(*, orbits=None, steps=None, substeps=2, real_time_factor=0.0, timeout=None) -> None:
+def check_run_arguments(*, orbits=None, steps=None, substeps=2, real_time_factor=0.0, timeout=None,
+                        lockstep_timeout=2.0) -> None:
     """ConfigError for a non-physical run length or setting (before any node starts)."""
     if steps is not None and not (isinstance(steps, int) and 0 < steps <= 10**8):
         raise ConfigError("--steps", None, f"expected a positive number of steps (at most 1e8), got {steps!r}")
@@ -90,6 +92,9 @@ def check_run_arguments(*, orbits=None, steps=None, substeps=2, real_time_factor
         raise ConfigError("--rtf", None, f"expected 0 (as fast as possible) or a positive factor, got {real_time_factor!r}")
     if timeout is not None and not _positive_finite(timeout):
         raise ConfigError("--timeout", None, f"expected a positive number of wall seconds, got {timeout!r}")
+    if not (_positive_finite(lockstep_timeout) and lockstep_timeout <= 3600):
+        raise ConfigError("--lockstep-timeout", None, f"expected a positive number of wall seconds (at most 3600), "
+                                                      f"got {lockstep_timeout!r}")
 
 
 def check_writable(path, flag: str, *, directory: bool = False, empty: bool = False) -> None:
@@ -205,6 +210,38 @@ def check_attitude_arguments(attitude: str, sensor_params, estimator_params, mod
     return {**defaults, **sensor_params}, eparams
 
 
+#: The keys of a scenario file (``magtune sil --scenario FILE``), each validated by its schema.
+SCENARIO_KEYS = ("faults",)
+
+
+def load_scenario_file(path) -> dict:
+    """A scenario file: YAML with ``faults:``, a list of mappings of
+    :data:`magtune_core.design.faults.FAULT_FIELDS` (``{kind: mag_dropout, t: 3000, duration: 30}``).
+
+    Returns
+    -------
+    dict
+        ``{"faults": (Fault, ...)}``; ConfigError naming the file, the entry and the field otherwise.
+    """
+    doc = load_user_yaml(path, "expected a scenario YAML file with a 'faults:' list")
+    if doc is None:
+        doc = {}
+    if not isinstance(doc, dict):
+        raise ConfigError(path, None, f"expected a mapping with {', '.join(SCENARIO_KEYS)}, got {type(doc).__name__}")
+    from ..base.schema import check_names
+
+    check_names(doc, (), path, allowed=SCENARIO_KEYS)
+    return {"faults": fl.from_list(doc.get("faults"), f"{path}: faults")}
+
+
+def check_fault_arguments(faults, epoch_time: bool) -> tuple:
+    """The injected faults (Fault objects, spec strings or mappings), validated (ConfigError: one line)."""
+    out = fl.from_list(list(faults or ()), "--fault")
+    if out and epoch_time:
+        raise ConfigError("--fault", None, "fault times are sim time from 0: not with --epoch-time")
+    return out
+
+
 @dataclass(frozen=True)
 class Satellite:
     """One satellite of a scenario: its namespace, gains file and the controller's parameters."""
@@ -256,6 +293,8 @@ class SilScenario:
     mode_params: dict = _field(default_factory=dict)
     #: the controller's attitude: "truth" (sensors/attitude, truth plus noise) or "estimator"
     attitude: str = "truth"
+    #: injected faults (design.faults.Fault), every satellite
+    faults: tuple = ()
 
     @classmethod
     def build(cls, satellites: dict, *, orbits: float = 5.0, steps: int | None = None, ts: float | None = None,
@@ -268,7 +307,7 @@ class SilScenario:
               epoch_time: bool = False, foxglove: int | None = None, bag_topics=None,
               bag_exclude: str | None = None, initial_attitude_deg=None, initial_rate_deg=None,
               modes: bool = False, initial_mode: str | None = None, mode_params: dict | None = None,
-              attitude: str = "truth", estimator_params: dict | None = None) -> "SilScenario":
+              attitude: str = "truth", estimator_params: dict | None = None, faults=()) -> "SilScenario":
         """Read and validate every input of a run (``satellites``: namespace -> gains file).
 
         ``ts`` overrides each gains file's ``ts``; ``environment`` "paper" or "full" (with
@@ -283,7 +322,8 @@ class SilScenario:
         POINTING without; ``mode_params`` its parameters, validated here). ``attitude``
         "estimator": start the attitude_estimator (``estimator_params``, validated here by
         ESTIMATOR_FIELDS) and fly on its estimate; the sensors get the estimator's default suite
-        (design.estimator.default_suite) unless ``sensor_params`` set them.
+        (design.estimator.default_suite) unless ``sensor_params`` set them. ``faults``: injected faults
+        (:mod:`magtune_core.design.faults`: Fault objects, ``KIND@T...`` specs or mappings), validated here.
 
         Returns
         -------
@@ -304,9 +344,10 @@ class SilScenario:
             sc, dict(simulator_params or {}), initial_attitude_deg, initial_rate_deg, substeps,
             float(ts if ts is not None else min(g.ts for g in gains.values())))
         mode, mparams = check_modes_arguments(modes, initial_mode, mode_params)
+        faults = check_fault_arguments(faults, epoch_time)
         sensor_params, eparams = check_attitude_arguments(attitude, sensor_params, estimator_params, modes, field)
         check_run_arguments(orbits=orbits, steps=steps, substeps=substeps, real_time_factor=real_time_factor,
-                            timeout=timeout)
+                            timeout=timeout, lockstep_timeout=lockstep_timeout)
         sat_list = []
         for ns, g in sats.items():
             sat_ts = float(ts if ts is not None else gains[ns].ts)
@@ -355,7 +396,7 @@ class SilScenario:
                    results=Path(results) if results else None, dds_interfaces=dds_interfaces,
                    node_params={"simulator": simulator_params, "attitude_sensors": dict(sensor_params or {}),
                                 "controller": dict(controller_params or {}), ESTIMATOR: eparams},
-                   modes=bool(modes), initial_mode=mode, mode_params=mparams, attitude=attitude)
+                   modes=bool(modes), initial_mode=mode, mode_params=mparams, attitude=attitude, faults=faults)
 
     # ------------------------------------------------------------------ derived
     @property
@@ -417,6 +458,12 @@ class SilScenario:
                ESTIMATOR: dict(common, environment=self.environment, time_origin_ns=int(self.time_origin_ns))}
         if self.environment == "full":
             own[ESTIMATOR]["igrf_degree"] = int(self.env_options.igrf_degree)
+        sensor_faults = [f.spec for f in self.faults if f.kind in fl.SENSOR_KINDS]
+        sim_faults = [f.spec for f in self.faults if f.kind not in fl.SENSOR_KINDS]  # torquers, the kill
+        if sensor_faults:
+            own["attitude_sensors"]["faults"] = sensor_faults
+        if sim_faults:
+            sim["faults"] = sim_faults
         if self.modes:  # the managed nodes wait for the mode manager's transitions
             bd = {k: v for k, v in self.mode_params.items() if k in {f.name for f in BDOT_FIELDS}}
             own["attitude_sensors"]["autostart"] = own["controller"]["autostart"] = False

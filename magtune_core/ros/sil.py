@@ -17,6 +17,7 @@ import json
 import os
 import re
 import shutil
+import signal
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -24,6 +25,7 @@ from pathlib import Path
 
 from ..base.errors import ConfigError, SilError
 from ..base.topics import topic_specs
+from ..design.faults import kill_time
 from ..sim.metrics import format_figures
 from ..sim.simulate import DIVERGED_EXIT, SimResult
 from .process import PACKAGE, DomainLock, NodeProcess, StopSignals, child_env, package_prefix, resolve_executable, start_node, stop_nodes
@@ -94,6 +96,8 @@ class SilRun:
     domain_id: int
     log_dir: Path | None  # None: temporary logs removed after success
     diagnostics: dict = field(default_factory=dict)
+    #: faults the runner injected itself: (kind, sim time [s], wall time.time() [s]) (sensors_killed)
+    faults_injected: list = field(default_factory=list)
 
     @property
     def real_time_factor(self) -> float:
@@ -182,19 +186,55 @@ def _launch(scenario: SilScenario, exes: dict, pfiles: dict, env: dict, log_dir:
         remap = ["-r", f"__ns:={ns}", "-r", f"/clock:={ns}/clock"] if ns else []
         prefix = f"{tag(ns)}_" if ns else ""
         for node in scenario.nodes:
+            # a sensors kill is timed by the simulator's log line: unbuffered, so the runner sees it at once
+            nenv = dict(env, RCUTILS_LOGGING_BUFFERED_STREAM="0") if node == "simulator" and \
+                kill_time(scenario.faults) is not None else env
             procs.append(start_node(f"{prefix}{node}", exes[node], ["--params-file", str(pfiles[ns][node])] + remap
                                     + scenario.remaps(node),
-                                    env, log_dir, fds))
+                                    nenv, log_dir, fds))
             if node == "simulator":
                 sims[ns] = procs[-1]
     return sims
 
 
 # ------------------------------------------------------------------ wait
-def _wait(scenario: SilScenario, procs: list[NodeProcess], sims: dict, res_paths: dict, progress, t0: float) -> None:
+class KillWatch:
+    """The ``sensors_killed`` fault of one satellite: follows its simulator's log for the line
+    ``fault sensors_killed at t=T s`` (the simulator holds that step 1 s) and sends SIGKILL to the
+    process group of the satellite's attitude_sensors at once; ``events`` (kind, T, wall time)."""
+
+    PATTERN = re.compile(rb"fault sensors_killed at t=([0-9.]+) s")
+
+    def __init__(self, sim: NodeProcess, victim: NodeProcess):
+        self.sim, self.victim, self.offset, self.events = sim, victim, 0, []
+
+    def poll(self) -> None:
+        if self.events:
+            return
+        try:
+            with open(self.sim.log, "rb") as fh:
+                fh.seek(self.offset)
+                data = fh.read()
+        except OSError:
+            return
+        end = data.rfind(b"\n") + 1
+        self.offset += end
+        m = self.PATTERN.search(data[:end])
+        if m:
+            try:
+                os.killpg(self.victim.popen.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            self.events.append(("sensors_killed", float(m.group(1)), time.time()))
+
+
+def _wait(scenario: SilScenario, procs: list[NodeProcess], sims: dict, res_paths: dict, progress, t0: float,
+          kills: dict | None = None) -> None:
     """Poll until every simulator (``sims``: namespace -> process) exited with its trajectory
     written; SilError on a failed node, a diverged simulation or the run's timeout.
-    ``progress(k, n)``: summed step lines."""
+    ``progress(k, n)``: summed step lines; ``kills`` namespace -> :class:`KillWatch` (its victim's
+    exit is the fault, not a failure)."""
+    kills = kills or {}
     deadline = time.monotonic() + (scenario.timeout if scenario.timeout else
                                    scenario.startup_timeout + 60.0 + 0.05 * scenario.n_steps * len(sims))
     watches = {ns: LogProgress(p.log, (lambda k, n: None) if progress else None) for ns, p in sims.items()}
@@ -218,8 +258,11 @@ def _wait(scenario: SilScenario, procs: list[NodeProcess], sims: dict, res_paths
                 rcs[ns] = rc
                 _check_simulator_exit(p, rc, res_paths[ns])
         report()
+        for w in kills.values():
+            w.poll()
+        victims = [w.victim for w in kills.values() if w.events]
         for p in procs:
-            if p not in sims.values() and p.popen.poll() is not None:
+            if p not in sims.values() and p not in victims and p.popen.poll() is not None:
                 if p.name.endswith(MODE_MANAGER) and p.popen.returncode == 2:  # a node's one-line reason
                     raise ConfigError(p.name, None, p.tail(1).removeprefix(f"{MODE_MANAGER}: "))
                 raise SilError(f"node '{p.name}' exited with status {p.popen.returncode}:\n{p.tail()}")
@@ -274,6 +317,7 @@ def run_fleet(scenario: SilScenario, *, on_start=None, progress=None) -> dict[st
     pfiles = {s.namespace: scenario.write_parameter_files(s, log_dir, res_paths[s.namespace])
               for s in scenario.satellites}
     procs: list[NodeProcess] = []
+    kills: dict[str, KillWatch] = {}
     lock = DomainLock(scenario.domain_id)
     t0 = time.perf_counter()
     stops = StopSignals().__enter__()
@@ -281,9 +325,13 @@ def run_fleet(scenario: SilScenario, *, on_start=None, progress=None) -> dict[st
         env = child_env(lock.domain_id, prefix, *([exes["recorder"].parents[2]] if "recorder" in exes else []),
                         interfaces=scenario.dds_interfaces)
         sims = _launch(scenario, exes, pfiles, env, log_dir, (lock.fh.fileno(),), procs)
+        if kill_time(scenario.faults) is not None:
+            by_name = {p.name: p for p in procs}
+            kills = {ns: KillWatch(sim, by_name[f"{tag(ns)}_attitude_sensors" if ns else "attitude_sensors"])
+                     for ns, sim in sims.items()}
         if on_start:
             on_start(lock.domain_id, procs)
-        _wait(scenario, procs, sims, res_paths, progress, t0)
+        _wait(scenario, procs, sims, res_paths, progress, t0, kills)
     except SilError as exc:
         raise SilError(f"{exc}\n(node logs in {log_dir})") from None
     finally:
@@ -302,7 +350,8 @@ def run_fleet(scenario: SilScenario, *, on_start=None, progress=None) -> dict[st
         res = SimResult.from_npz(path)
         counters = json.loads(str(res.info.get("counters", "{}")))
         out[ns] = SilRun(res, res.figures_of_merit(), counters, float(res.info.get("wall_time", total)), total,
-                         lock.domain_id, None if own_dir else log_dir)
+                         lock.domain_id, None if own_dir else log_dir,
+                         faults_injected=list(kills[ns].events) if ns in kills else [])
     if own_dir:
         shutil.rmtree(log_dir, ignore_errors=True)
     return out

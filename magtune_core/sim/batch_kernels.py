@@ -514,7 +514,7 @@ class Modes(NamedTuple):
     a: float  #: derivative-filter pole exp(-cutoff Ts)
     ts: float  #: controller period [s] (sim time t_k = k ts)
     mode: np.ndarray  #: (B,) int64 current mode code (design.modes_kernel.MODE_CODE)
-    pending: np.ndarray  #: (B, 6) guard start times [s] (nan: not holding)
+    pending: np.ndarray  #: (B, 7) guard start times [s] (nan: not holding)
     fb: np.ndarray  #: (B, 3) previous measured field [T] (filter memory)
     fy: np.ndarray  #: (B, 3) previous filter output [T/s]
     first: np.ndarray  #: (B,) bool: no field sample yet
@@ -622,13 +622,16 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes):
             md = -1
             d0 = d1 = d2 = 0.0
             if mon:  # the mode machine on the measurements (modes_loop.simulate_modes' order: decide, then command)
+                fp = modes.fb[b]  # the previous sample: the frozen-magnetometer guard's |b_k - b_(k-1)|
+                fst = math.nan if modes.first[b] else math.sqrt((bm0 - fp[0]) ** 2 + (bm1 - fp[1]) ** 2
+                                                                + (bm2 - fp[2]) ** 2)
                 d0, d1, d2 = filter_step(fa, mts, modes.first[b], modes.fb[b], modes.fy[b], bm0, bm1, bm2)
                 modes.first[b] = False
                 t = k * mts
                 old = modes.mode[b]
                 md = mode_step(old, modes.pending[b], math.sqrt(wm0 * wm0 + wm1 * wm1 + wm2 * wm2),
                                math.sqrt(d0 * d0 + d1 * d1 + d2 * d2),
-                               2.0 * math.asin(min(math.sqrt(x0 * x0 + x1 * x1 + x2 * x2), 1.0)), False, t, MP)
+                               2.0 * math.asin(min(math.sqrt(x0 * x0 + x1 * x1 + x2 * x2), 1.0)), False, t, MP, fst)
                 if md != old:
                     modes.n_tr[b] += 1
                     if old == _DET and math.isnan(modes.t_detumble[b]):

@@ -7,6 +7,14 @@ the truth): :class:`magtune_core.design.modes.ModeLogic` picks the law each cont
 (:class:`~magtune_core.design.law.ProjectionController`) in ACQUISITION and POINTING (the measured
 region of attraction covers every attitude, docs/modes.md), zero dipole in SAFE. The RK4 sub-steps
 come from the initial rate (:func:`magtune_core.sim.initial.substeps_for_rate`).
+
+Injected faults (:mod:`magtune_core.design.faults`) act as in the SIL: the sensor faults on the
+measured field and gyro rate (:func:`~magtune_core.design.faults.measure`; the law and the mode
+logic read the measurements), the torquer faults on the applied dipole
+(:func:`~magtune_core.design.faults.actuate`). A magnetometer dropout is what the nodes see: the
+mode logic and the filters take no sample while no field arrives, the stream is stale once its last
+sample lags by more than ``stale_timeout`` (the mode manager's stamp check), and the controller holds
+its dipole for 2 Ts, then zeroes it (its stale_data rule).
 """
 from __future__ import annotations
 
@@ -15,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..base.errors import ConfigError
+from ..design import faults as fl
 from ..design.bdot import BdotController, FieldDerivativeFilter, FilterState, bdot_gain, geomagnetic_inclination
 from ..design.law import DEFAULT_DIPOLE_LIMIT, ProjectionController, linear_state
 from ..design.modes import DETUMBLE, SAFE, Measurements, ModeLogic, ModeParams, ModeState, Transition
@@ -44,13 +54,15 @@ def simulate_modes(K, p: SpacecraftParams | None = None, *, q0=(1.0, 0.0, 0.0, 0
                    ts: float = 1.0, orbits: float = 6.0, mode_params: ModeParams | None = None,
                    bdot_k: float = 0.0, bdot_cutoff: float = 0.2, dipole_limit=DEFAULT_DIPOLE_LIMIT,
                    residual_dipole=(1.0, 1.0, 1.0), initial_mode: str = DETUMBLE,
-                   stale=None) -> ModeRun:
+                   stale=None, faults=(), stale_timeout: float = 3.0) -> ModeRun:
     """Fly the mode logic from ``(q0, dw0)`` (:func:`magtune_core.sim.initial.initial_conditions`)
     for ``orbits``, paper environment (eq. 26 field, gravity gradient, residual dipole, section 5).
 
     ``bdot_k`` 0 = the Avanzini-Giulietti rule (:func:`~magtune_core.design.bdot.bdot_gain`);
     ``stale`` an optional function t -> bool (a sensor-outage script; the loop then holds SAFE's
-    zero dipole and the logic recovers by itself).
+    zero dipole and the logic recovers by itself); ``faults`` injected faults (a sequence of
+    :class:`~magtune_core.design.faults.Fault` or spec strings; ``sensors_killed`` is SIL only);
+    ``stale_timeout`` [s] the mode manager's staleness limit of a silent magnetometer.
 
     Returns
     -------
@@ -58,6 +70,10 @@ def simulate_modes(K, p: SpacecraftParams | None = None, *, q0=(1.0, 0.0, 0.0, 0
         Histories, the transitions (time, from, to, reason) and the sub-steps.
     """
     p = p or SpacecraftParams()
+    faults = fl.from_list(list(faults))
+    if fl.kill_time(faults) is not None:
+        raise ConfigError("faults", "kind", "sensors_killed is a SIL fault (a killed process); the offline loop "
+                                            "has no processes")
     logic = ModeLogic(mode_params or ModeParams())
     dyn = AttitudeDynamics.from_params(p, residual_dipole=residual_dipole)
     k = bdot_k or bdot_gain(p.orbit_rate, geomagnetic_inclination(math.radians(p.inclination_deg)), p.inertia)
@@ -69,29 +85,45 @@ def simulate_modes(K, p: SpacecraftParams | None = None, *, q0=(1.0, 0.0, 0.0, 0
     n = int(round(orbits * p.orbit_period / ts))
     Y, M, modes = np.zeros((n + 1, 7)), np.zeros((n + 1, 3)), []
     state, fstate, transitions = ModeState(initial_mode, 0.0, "start"), FilterState(), []
+    fault_state, b_prev, t_field, m = fl.FaultState(), None, None, np.zeros(3)
     for i in range(n + 1):
         t = i * ts
         Y[i] = y
-        b = dyn.body_field(t, y[:4])
-        fstate, bdot = filt.step(fstate, b)
-        x = linear_state(y[:4], y[4:], dyn.orbit_rate)
-        err = 2.0 * math.asin(min(float(np.linalg.norm(x[:3])), 1.0))
-        is_stale = bool(stale(t)) if stale is not None else False
-        meas = Measurements(rate=float(np.linalg.norm(y[4:])), bdot=float(np.linalg.norm(bdot)),
-                            pointing_error=err, stale=is_stale)
-        state, tr = logic.step(state, meas, t)
+        b_true = dyn.body_field(t, y[:4])
+        b, w, fault_state = fl.measure(faults, t, ts, b_true, y[4:], fault_state) if faults else (b_true, y[4:], None)
+        if b is not None:  # a field sample: the filter, the logic and the law step on it
+            t_field = t
+            fstate, bdot = filt.step(fstate, b)
+            step = math.nan if b_prev is None else float(np.linalg.norm(b - b_prev))
+            b_prev = b
+            x = linear_state(y[:4], w, dyn.orbit_rate)
+            err = 2.0 * math.asin(min(float(np.linalg.norm(x[:3])), 1.0))
+            is_stale = bool(stale(t)) if stale is not None else False
+            meas = Measurements(rate=float(np.linalg.norm(w)), bdot=float(np.linalg.norm(bdot)),
+                                pointing_error=err, stale=is_stale, field_step=step)
+            state, tr = logic.step(state, meas, t)
+        elif t_field is not None and t - t_field > stale_timeout:  # the manager's stamp check: stale, no sample
+            state, tr = logic.step(state, Measurements(rate=math.nan, stale=True), t)
+        else:
+            tr = None
         if tr is not None:
             transitions.append(tr)
-        if state.mode == SAFE:
+        if b is None:  # no field: the controller holds its dipole for 2 Ts, then zeroes it
+            if t_field is None or t - t_field > 2.0 * ts:
+                m = np.zeros(3)
+        elif state.mode == SAFE:
             m = np.zeros(3)
         elif state.mode == DETUMBLE:
             m = bdot_law.dipole(b, bdot)
         else:
             m = point(x, b).m
-        M[i] = m
+        applied = m
+        if faults:
+            applied, fault_state = fl.actuate(faults, t, m, fault_state)
+        M[i] = applied
         modes.append(state.mode)
         if i < n:
-            y = dyn.step(t, y, ts, m, S)
+            y = dyn.step(t, y, ts, applied, S)
     qv = np.linalg.norm(Y[:, 1:4], axis=1)
     return ModeRun(np.arange(n + 1) * ts, Y[:, :4], Y[:, 4:], M, np.array(modes), pointing_error_deg(qv),
                    transitions, S)

@@ -13,7 +13,9 @@ Everything comes from the bags (CDR decoded with rosbags; no rclpy, no simulator
 * ``summary.md`` (+ ``summary.json``): figures of merit per run (same definitions as
   ``magtune_core.sim.metrics.figures_of_merit``: pointing error and |dq_R| final, peak and RMS
   over the stated window, peak and RMS |m|) plus the bag's integrity (complete / recovered);
-* ``report.html``: one self-contained file (figures embedded) with the summary table.
+* ``report.html``: one self-contained file (figures embedded) with the summary table;
+* flight modes (a bag with the ``mode`` topic, ``magtune sil --modes``): coloured bands per mode on
+  the pointing-error plots and the transitions in the text (:mod:`.report_modes`).
 
 Signals: truth attitude from ``/sim/truth`` (nav_msgs/Odometry: pose.orientation), inertial
 body rate w from ``/sim/inertial_rate`` (else from the Odometry twist, see :func:`load_run`),
@@ -28,7 +30,7 @@ from __future__ import annotations
 
 import base64
 import html
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +45,7 @@ from ..base.topics import DIPOLE, TOPIC_DIPOLE, TOPIC_INERTIAL_RATE, TOPIC_TRUTH
 from ..design.law import DEFAULT_DIPOLE_LIMIT, linear_state
 from ..design.params import SpacecraftParams
 from ..sim.metrics import figures_of_merit, pointing_error_deg
+from . import report_modes
 
 #: ROS order and names of the quaternion components (geometry_msgs/Quaternion).
 QUAT_NAMES = ("x", "y", "z", "w")
@@ -61,6 +64,7 @@ class Run:
     tm: np.ndarray       # dipole times
     m: np.ndarray        # (k, 3)
     integrity: dict
+    modes: list = field(default_factory=list)  # report_modes.ModeChange of the mode topic (none: no band)
 
     @property
     def dq_norm(self):
@@ -215,6 +219,7 @@ def plot_norms(runs: list[Run], T: float, lo_orbit: float, hi_orbit: float, titl
         if len(r.tm):
             sm = _window(r.tm, lo_orbit * T, hi_orbit * T)
             ax[1].plot(r.tm[sm] / T, r.m_norm[sm], label=r.label, lw=1)
+        report_modes.draw_bands(ax[0], report_modes.spans(r.modes, float(r.t[-1])), T, lo_orbit * T, hi_orbit * T)
     ax[0].set_ylabel("pointing error [deg]")
     ax[1].set_ylabel("|m| [A m^2]")
     ax[1].set_xlabel("time [orbits]")
@@ -320,7 +325,8 @@ def make_report(bags, out, *, run: str | None = None, truth=TRUTH, dipole=DIPOLE
     T = orbit_period or SpacecraftParams().orbit_period
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    runs = [r for b in bags for r in load_runs(b, truth=truth, dipole=dipole, orbit_rate=2 * np.pi / T, twist=twist)]
+    runs = [r for b in bags for r in report_modes.attach(load_runs(b, truth=truth, dipole=dipole,
+                                                                   orbit_rate=2 * np.pi / T, twist=twist), b)]
     if labels:
         if len(labels) != len(runs):
             raise ValueError(f"{len(labels)} labels for {len(runs)} runs")
@@ -341,7 +347,8 @@ def make_report(bags, out, *, run: str | None = None, truth=TRUTH, dipole=DIPOLE
         (out / FIGURES[1]).unlink(missing_ok=True)  # no stale figure from an earlier report
     plot_quaternion(detail, T, out / FIGURES[2])
     plot_rates_dipoles(detail, T, out / FIGURES[3], dipole_limit)
-    summary = {r.name: {"label": r.label, **run_figures(r, T), "integrity": r.integrity}
+    summary = {r.name: {"label": r.label, **run_figures(r, T), "integrity": r.integrity,
+                        **({"modes": report_modes.summary_entry(r.modes, float(r.t[-1]))} if r.modes else {})}
                for r in runs}
     atomic_write(out / "summary.json", jsonout.dumps(summary, indent=1))
     md = _markdown(summary, [r.name for r in detail], T, win, dipole_limit)
@@ -395,6 +402,7 @@ def _markdown(summary: dict, detail: list[str], T: float, win: dict, dipole_limi
     lines = ["# magtune run report", "", *[n + "\n" for n in _notes(T, win, detail, dipole_limit)],
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
+    lines += report_modes.markdown(summary)
     figs = ", ".join(f"`{f}`" for f in FIGURES if f != FIGURES[1] or win["fig3"])
     lines += ["", f"Figures: {figs} (Figs. 2-5); all in one file: `report.html`.", ""]
     return "\n".join(lines)
@@ -420,5 +428,6 @@ def _html(summary: dict, out: Path, T: float, win: dict, detail: list[str], dipo
              "font-size:13px}th,td{border:1px solid #bbb;padding:3px 6px;text-align:right}"
              "th{background:#eee}td:nth-child(-n+2){text-align:left}img{max-width:100%}")
     return (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>magtune run report</title>"
-            f"<style>{style}</style></head><body><h1>magtune run report</h1>{notes}{table}{''.join(figs)}"
+            f"<style>{style}</style></head><body><h1>magtune run report</h1>{notes}{table}"
+            f"{report_modes.html_section(summary)}{''.join(figs)}"
             "</body></html>\n")

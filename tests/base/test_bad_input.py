@@ -100,7 +100,7 @@ def test_sample_period_must_resolve_nutation():
 @pytest.mark.parametrize("extra, words", [
     (["--orbits", "-1"], "--orbits"), (["--orbits", "nan"], "--orbits"), (["--steps", "0"], "--steps"),
     (["--ts", "100"], "nutation"), (["--ts", "-1"], "sample period"), (["--substeps", "0"], "--substeps"),
-    (["--timeout", "-5"], "--timeout"), (["--rtf", "inf"], "--rtf"),
+    (["--timeout", "-5"], "--timeout"), (["--rtf", "inf"], "--rtf"), (["--lockstep-timeout", "0"], "--lockstep-timeout"),
     (["--results", "/proc/no/such.npz"], "--results"), (["--log-dir", "/proc/version/logs"], "--log-dir"),
 ])
 def test_sil_rejects_bad_arguments_before_starting(tmp_path, capsys, extra, words):
@@ -160,8 +160,8 @@ def test_node_parameters_come_from_the_schemas():
     # what the hand-kept list held before it was derived (37), plus the 8 sensor-model fields of issue 31,
     # plus issue 30's: 12 mode fields, 2 B-dot fields, initial_mode, 4 mode-manager fields, autostart,
     # plus the estimator's own 4 (gate_probability, init_angle, initial_bias_std, sun_wait; its other
-    # fields are the other nodes' names)
-    assert len(NODE_PARAMETERS) == 37 + 8 + 12 + 2 + 1 + 4 + 1 + 4 and {"initial_quaternion", "mag_quantum", "min_field", "seed"} <= names
+    # fields are the other nodes' names), plus the faults of issue 30 (frozen_time, faults)
+    assert len(NODE_PARAMETERS) == 37 + 8 + 12 + 2 + 1 + 4 + 1 + 4 + 2 and {"initial_quaternion", "mag_quantum", "min_field", "seed"} <= names
 
 
 def test_example_files_pass_the_strict_checks():
@@ -293,3 +293,50 @@ def test_inertia_violating_the_triangle_inequality_is_rejected(tmp_path, capsys,
     assert _message(s) == _message(a)
     SpacecraftParams.from_mapping({**yaml.safe_load(SPACECRAFT.read_text())["/**"]["ros__parameters"],
                                    "inertia": [2.0, 1.0, 1.0]}, "flat plate")  # equality: a flat plate is allowed
+
+
+@pytest.mark.parametrize("extra, words", [
+    (["--fault", "mag_dropout@10"], "--fault mag_dropout@10: field 'duration': required for mag_dropout"),
+    (["--fault", "mag_stuk@10"], "field 'kind': expected one of mag_stuck"),
+    (["--fault", "gyro_bias@1,axis=w"], "field 'axis': expected one of x, y, z"),
+    (["--fault", "mag_bias@1,value=1"], "field 'value': expected a nonzero number within +-0.001 T"),
+    (["--fault", "torquer_dead"], "expected KIND@T[:DURATION]"),
+    (["--fault", "mag_stuck@10", "--epoch-time"], "not with --epoch-time"),
+])
+def test_sil_rejects_bad_faults_before_starting(tmp_path, capsys, extra, words):
+    """A bad --fault: one line naming the field and the fix, exit 2, no log directory created."""
+    err = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--log-dir", str(tmp_path / "logs"), *extra])
+    assert words in err, err
+    assert not (tmp_path / "logs").exists()
+
+
+@pytest.mark.parametrize("text, words", [
+    ("faults:\n  - {kind: mag_stuck, t: 10}\n  - {kind: mag_dropout, t: 20}\n",
+     "faults[1]: field 'duration': required for mag_dropout"),
+    ("faults:\n  - {kind: mag_stuck, t: 10, when: 3}\n", "faults[0]: field 'when': unknown parameter"),
+    ("faults: mag_stuck@10\n", "expected a list of faults"),
+    ("fault:\n  - {kind: mag_stuck, t: 10}\n", "field 'fault': unknown parameter; did you mean 'faults'"),
+    ("- 1\n", "expected a mapping with faults"),
+])
+def test_sil_rejects_bad_scenario_files(tmp_path, capsys, text, words):
+    scen = tmp_path / "scenario.yaml"
+    scen.write_text(text)
+    err = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--scenario", str(scen)])
+    assert words in err and str(scen) in err, err
+    err = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--scenario", str(tmp_path / "no.yaml")])
+    assert "file not found" in err
+
+
+def test_scenario_file_and_cli_faults_reach_the_nodes(tmp_path):
+    """A valid scenario file and --fault specs become the nodes' ``faults`` parameters: sensor faults for
+    attitude_sensors, torquer faults and the kill for the simulator (exact specs)."""
+    from magtune_core.ros.scenario import SilScenario, load_scenario_file
+
+    scen = tmp_path / "scenario.yaml"
+    scen.write_text("faults:\n  - {kind: mag_dropout, t: 3000, duration: 30}\n  - {kind: torquer_dead, t: 5, axis: y}\n")
+    faults = list(load_scenario_file(scen)["faults"]) + ["sensors_killed@200"]
+    sc = SilScenario.build({"": GAINS}, steps=10, faults=faults)
+    params = sc.node_parameters(sc.satellites[0], tmp_path / "r.npz")
+    assert params["attitude_sensors"]["faults"] == ["mag_dropout@3000.0:30.0"]
+    assert params["simulator"]["faults"] == ["torquer_dead@5.0,axis=y", "sensors_killed@200.0"]
+    assert "faults" not in params["controller"]

@@ -111,3 +111,35 @@ def test_request_and_bad_values():
         ModeParams.from_mapping({"handover_angle": 0.5})
     with pytest.raises(ConfigError, match="field 'handover_time': expected a finite number"):
         ModeParams.from_mapping({"handover_time": "long"})
+
+
+def test_commanded_safe_is_sticky_and_a_lost_heartbeat_is_not():
+    """A commanded SAFE (set_mode) stays while the sensors are fresh, until another mode is commanded
+    (docs/decisions.md); the manager's own SAFE on a lost heartbeat (hold=False) recovers as a stale one."""
+    logic = ModeLogic(P)
+    good = Measurements(rate=1e-3, pointing_error=0.01, field_step=1e-8)
+    state, _ = logic.request(ModeState(POINTING, 0.0, "test"), SAFE, 5.0, "commanded: operator")
+    assert state.held
+    state, trs, t = fly(logic, state, [good] * 1000, t0=6.0)
+    assert trs == [] and state.mode == SAFE
+    state, tr = logic.request(state, DETUMBLE, t, "commanded: out of safe")
+    assert not state.held and tr.source == SAFE
+    state, _ = logic.request(ModeState(POINTING, 0.0, "test"), SAFE, 5.0, "heartbeat lost", hold=False)
+    _, trs, _ = fly(logic, state, [good] * 11, t0=6.0)
+    assert [(tr.target, tr.t) for tr in trs] == [(DETUMBLE, 16.0)]
+
+
+def test_frozen_magnetometer_goes_safe_after_its_persistence():
+    """field_step == 0 (the sample repeated bit for bit) for frozen_time -> SAFE; a moving sample restarts the
+    timer; nan (no previous sample) is never frozen; in SAFE a frozen sample is not fresh."""
+    logic = ModeLogic(ModeParams(frozen_time=5.0))
+    frozen, moving = (Measurements(rate=1e-3, pointing_error=0.01, field_step=s) for s in (0.0, 1e-9))
+    s0 = ModeState(POINTING, 0.0, "test")
+    _, trs, _ = fly(logic, s0, [frozen] * 4 + [moving] + [frozen] * 6)
+    assert [(tr.target, tr.t) for tr in trs] == [(SAFE, 10.0)]
+    assert trs[0].reason == "magnetometer frozen (sample repeated) for 5 s"
+    _, trs, _ = fly(logic, s0, [Measurements(rate=1e-3, pointing_error=0.01)] * 20)
+    assert trs == []
+    state, _ = logic.request(s0, SAFE, 0.0, "x", hold=False)
+    _, trs, _ = fly(logic, state, [frozen] * 30)
+    assert trs == []

@@ -70,9 +70,9 @@ def test_tumble_detumbles_and_hands_over_like_the_offline_loop(tmp_path):
 
 def test_lifecycle_state_and_set_mode_while_running(gains60, tmp_path):
     """While a run is active, lifecycle_msgs/GetState on the controller answers 'active'; a
-    SetMode request to SAFE is applied (the controller's dipole is zero until the logic leaves SAFE
-    by itself after safe_recovery_time = 10 s of fresh data, then B-dot) and a bad mode id is
-    refused with the mode unchanged."""
+    SetMode request to SAFE is applied and sticky (a commanded SAFE waits to be commanded out,
+    docs/decisions.md: the controller's dipole is zero from the next sample to the end of the run)
+    and a bad mode id is refused with the mode unchanged."""
     import rclpy
     from lifecycle_msgs.srv import GetState
     from magtune_interfaces.msg import Mode
@@ -125,9 +125,10 @@ def test_lifecycle_state_and_set_mode_while_running(gains60, tmp_path):
     assert seen["state"] == "active"
     assert not seen["bad"].success and seen["bad"].mode == 2 and "unknown mode id 7" in seen["bad"].message
     assert seen["safe"].success and seen["safe"].mode == 3
-    zero = ~np.any(run.result.m != 0.0, axis=1)
-    longest = max((len(r) for r in "".join("1" if z else "0" for z in zero).split("0")), default=0)
-    assert longest >= 9, longest  # SAFE's 10 s, less the sample the controller takes to see it
+    moving = np.nonzero(np.any(run.result.m != 0.0, axis=1))[0]
+    # sticky: zero from the first SAFE sample to the end (the default logic's recovery would leave after 10 s
+    # and fly B-dot); the request comes within the first seconds of wall time, hundreds of steps before the end
+    assert len(moving) and len(run.result.m) - 1 - moving[-1] >= 100, (moving[-1], len(run.result.m))
 
 
 def test_bad_controller_parameter_reported_by_the_manager(gains60, tmp_path):

@@ -24,7 +24,9 @@ Publishes (stamp = truth stamp):
   sensors/position       nav_msgs/Odometry, frame and child 'eci': position fix r [m] and v [m/s] with
                          pose/twist covariance diag(std^2) (rotational entries -1: not measured)
   /diagnostics           counters: samples, rejected_nonfinite, rejected_quaternion, rejected_stamp,
-                         stale_inputs, sun_samples, sun_eclipse, sun_out_of_fov
+                         stale_inputs, sun_samples, sun_eclipse, sun_out_of_fov, faulted_samples, mag_dropped
+Faults (parameter ``faults``, magtune_core.design.faults): the magnetometer and gyro faults act on
+the samples of their sim time (``faults.measure``); a dropped magnetometer sample is not published.
 QoS: magtune_ros.common.LOCKSTEP_QOS. Noise: one row of design.sensors.NORMALS_PER_STEP standard
 normals per sample from numpy default_rng(seed), drawn only when some noise or bias is set (so
 zero-noise runs pass the truth through bit for bit); sun and position from sensors.aux_rng(seed).
@@ -38,8 +40,10 @@ from geometry_msgs.msg import Vector3Stamped
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, MagneticField
 
+from magtune_core.base.errors import ConfigError
+from magtune_core.design import faults as fl
 from magtune_core.design import sensors as s
-from magtune_core.design.node_params import SENSOR_FIELDS, check_sensors
+from magtune_core.design.node_params import FAULTS, SENSOR_FIELDS, check_sensors
 
 from . import common as c
 
@@ -53,7 +57,8 @@ class AttitudeSensors(c.ManagedNode):
 
     def __init__(self):
         super().__init__(self.NODE_NAME, ["samples", "rejected_nonfinite", "rejected_quaternion", "rejected_stamp",
-                                          "stale_inputs", "sun_samples", "sun_eclipse", "sun_out_of_fov"])
+                                          "stale_inputs", "sun_samples", "sun_eclipse", "sun_out_of_fov", "faulted_samples",
+                                          "mag_dropped"])
 
     # ---------------------------------------------------------------- lifecycle
     def configure(self):
@@ -62,6 +67,10 @@ class AttitudeSensors(c.ManagedNode):
         c.check(check_sensors, v, self)
         self.values = v
         self.suite = s.SensorSuite.from_values(v)
+        try:
+            self.faults = fl.from_list(c.parse_fields(self, (FAULTS,))["faults"], "faults")
+        except ConfigError as exc:
+            raise c._param_error(exc) from None
         self.make_messages()
 
     def activate(self):
@@ -70,6 +79,7 @@ class AttitudeSensors(c.ManagedNode):
         v = self.values
         self.rng, self.aux = np.random.default_rng(v["seed"]), s.aux_rng(v["seed"])
         self.beta = np.asarray(self.suite.gyro.bias, dtype=float)  # gyro bias before the next sample
+        self.fault_state = fl.FaultState()
         self.gate = c.StampGate(self, 2 * c.sec_to_ns(self.suite.ts), n=5)
         self.sync = c.PairSync(3)  # field, truth (attitude), inertial rate: same stamp t_k
         self.sync_orbit = c.PairSync(3)  # truth, orbit, Sun (full environment)
@@ -167,16 +177,27 @@ class AttitudeSensors(c.ManagedNode):
         wm, beta = s.gyro(su.gyro, [[w.x, w.y, w.z]], su.ts, self.beta, n[None, s.GYRO_V], n[None, s.GYRO_U])
         self.beta = beta[-1]
         q = s.noisy_attitude([o.w, o.x, o.y, o.z], su.attitude_std, n[s.ATT])
+        w_out = wm[0]
+        if self.faults:
+            b0, w0 = b, w_out
+            b, w_out, self.fault_state = fl.measure(self.faults, c.stamp_to_ns(stamp) * 1e-9, su.ts, b, w_out,
+                                                    self.fault_state)
+            if b is None or np.any(b != b0) or np.any(w_out != w0):
+                self.diag.count("faulted_samples")
         m, imu, att = self.msg_mag, self.msg_imu, self.msg_att
         m.header.stamp = imu.header.stamp = att.header.stamp = stamp
-        m.magnetic_field.x, m.magnetic_field.y, m.magnetic_field.z = (float(x) for x in b)
+        if b is not None:
+            m.magnetic_field.x, m.magnetic_field.y, m.magnetic_field.z = (float(x) for x in b)
         r = imu.angular_velocity
-        r.x, r.y, r.z = (float(x) for x in wm[0])
+        r.x, r.y, r.z = (float(x) for x in w_out)
         att.angular_velocity = r
         a = att.orientation
         a.w, a.x, a.y, a.z = (float(x) for x in q)
         self.diag.count("samples")
-        self.pub_mag.publish(m)
+        if b is not None:
+            self.pub_mag.publish(m)
+        else:  # a magnetometer dropout: no message
+            self.diag.count("mag_dropped")
         self.pub_att.publish(att)
         self.pub_imu.publish(imu)
 

@@ -10,7 +10,9 @@ The manager itself is a plain node: it manages, as Nav2's lifecycle_manager does
 Mode logic (magtune_core.design.modes.ModeLogic, parameters MODE_FIELDS): stepped at each sensor
 sample t_k (sensors/imu, sensors/magnetic_field and sensors/attitude paired by stamp) with the
 measured quantities only: |w_gyro| from sensors/imu, the filtered |db/dt| of sensors/magnetic_field
-(design.bdot.FieldDerivativeFilter, bdot_cutoff) and the pointing error of the attitude estimate.
+(design.bdot.FieldDerivativeFilter, bdot_cutoff), |b_k - b_(k-1)| of sensors/magnetic_field (a
+sample repeated for frozen_time: a frozen magnetometer -> SAFE) and the pointing error of the
+attitude estimate.
 
 Health, two clocks:
   liveness   steady wall-clock time: every managed node publishes its /diagnostics status (its
@@ -32,7 +34,8 @@ Publishes:
   /diagnostics   counters: samples, transitions, requests, rejected_nonfinite, rejected_stamp,
                  stale, heartbeat_lost; mode; ERROR naming the node whose heartbeat is missing
 Service:
-  set_mode       magtune_interfaces/SetMode: a commanded mode (reason recorded)
+  set_mode       magtune_interfaces/SetMode: a commanded mode (reason recorded); a commanded SAFE
+                 is sticky: it holds until another mode is commanded (docs/decisions.md)
 """
 from __future__ import annotations
 
@@ -86,6 +89,7 @@ class ModeManager(Node):
         self.state = ModeState(v["initial_mode"], 0.0, "start")
         self.previous = self.state.mode
         self.last = None            # last Measurements
+        self.b_prev = None          # last magnetometer sample (the frozen-sensor guard's |b_k - b_(k-1)|)
         self.last_sample_ns = None  # stamp of the last sensor sample
         self.beats: dict[str, float] = {}      # node -> steady time [s] of its last heartbeat
         self.errors: dict[str, str] = {}       # node -> its ERROR status message (failed configure)
@@ -204,7 +208,7 @@ class ModeManager(Node):
                 self.diag.status = (DiagnosticStatus.ERROR, reason)
                 self.diag.extra["lost"] = ",".join(sorted(self.lost))
                 if self.state.mode != SAFE:
-                    self.apply(*self.logic.request(self.state, SAFE, self.now_s(), reason))
+                    self.apply(*self.logic.request(self.state, SAFE, self.now_s(), reason, hold=False))
                 self.diag.publish()
 
     def check_stale(self):
@@ -219,7 +223,8 @@ class ModeManager(Node):
             self.diag.count("stale", f"{('sensors/imu', 'sensors/magnetic_field', 'sensors/attitude')[slot]} "
                                      f"{lag * 1e-9:.1f} s behind the other sensor streams")
             m = self.last or Measurements(rate=math.nan)
-            self.step(Measurements(m.rate, m.bdot, m.pointing_error, stale=True), max(last) * 1e-9)
+            self.step(Measurements(m.rate, m.bdot, m.pointing_error, stale=True, field_step=m.field_step),
+                      max(last) * 1e-9)
 
     # ---------------------------------------------------------------- mode logic
     def on_sensor(self, slot: int, msg):
@@ -245,15 +250,18 @@ class ModeManager(Node):
         self.fstate, bdot = self.filter.step(self.fstate, [b.x, b.y, b.z])
         qv = math.sqrt(o.x * o.x + o.y * o.y + o.z * o.z) / max(math.sqrt(o.w * o.w + o.x * o.x + o.y * o.y
                                                                           + o.z * o.z), 1e-300)
+        bv = (b.x, b.y, b.z)
+        step = math.nan if self.b_prev is None else math.dist(bv, self.b_prev)
+        self.b_prev = bv
         m = Measurements(rate=math.sqrt(w.x * w.x + w.y * w.y + w.z * w.z), bdot=float(np.linalg.norm(bdot)),
-                         pointing_error=2.0 * math.asin(min(qv, 1.0)))
+                         pointing_error=2.0 * math.asin(min(qv, 1.0)), field_step=step)
         self.last, self.last_sample_ns = m, ns
         self.diag.count("samples")
         self.step(m, ns * 1e-9)
 
     def step(self, m: Measurements, t: float):
         if self.lost:  # a silent node: SAFE holds (the logic's only health input is ``stale``)
-            m = Measurements(m.rate, m.bdot, m.pointing_error, stale=True)
+            m = Measurements(m.rate, m.bdot, m.pointing_error, stale=True, field_step=m.field_step)
         state, tr = self.logic.step(self.state, m, t)
         self.apply(state, tr)
 

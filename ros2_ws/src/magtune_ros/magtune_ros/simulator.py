@@ -37,6 +37,11 @@ Publishes (all stamped with simulated time t_k = k * ts):
 Subscribes:
   controller/dipole_command    geometry_msgs/Vector3Stamped [A m^2], body axes; saturated per axis.
 
+Faults (parameter ``faults``, magtune_core.design.faults): the torquer faults act on the applied
+dipole (``faults.actuate``: the truth side, recorded in the results); at a ``sensors_killed`` fault's
+time the simulator logs ``fault sensors_killed at t=...`` and holds that step 1 s of wall time, so
+the runner's SIGKILL of attitude_sensors lands at that sim time.
+
 Lockstep (default): the state at t_k is published, then the simulator waits for the command
 stamped t_k before integrating to t_k+1; after ``lockstep_timeout`` wall seconds it holds the
 last command and counts a missed step. ``real_time_factor`` > 0 paces against the wall clock
@@ -62,9 +67,10 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from magtune_core.base.errors import ConfigError
 from magtune_core.base.rotations import cross, matrix_to_quat
+from magtune_core.design import faults as fl
 from magtune_core.design.fitfield import field_for_spacecraft
 from magtune_core.design.law import linear_state, saturate
-from magtune_core.design.node_params import SIMULATOR_FIELDS, check_simulator
+from magtune_core.design.node_params import FAULTS, SIMULATOR_FIELDS, check_simulator
 from magtune_core.design.params import SpacecraftParams
 from magtune_core.sim.fullenv import FullEnvironmentOptions, make_dynamics
 from magtune_core.sim.simulate import DIVERGED_EXIT, SimResult, divergence, initial_state
@@ -110,6 +116,11 @@ class Simulator(Node):
         self.time_origin_ns, self.min_subs = v["time_origin_ns"], v["min_truth_subscribers"]
         self.environment = v["environment"]
         self.n = v["steps"] if v["steps"] > 0 else int(round(v["orbits"] * self.p.orbit_period / self.ts))
+        try:
+            self.faults = fl.from_list(c.parse_fields(self, (FAULTS,))["faults"], "faults")
+        except ConfigError as exc:
+            raise c._param_error(exc) from None
+        self.fault_state, self.kill_t = fl.FaultState(), fl.kill_time(self.faults)
         return v
 
     def build_plant(self, v: dict) -> None:
@@ -246,6 +257,10 @@ class Simulator(Node):
     def publish_state(self):
         """Publish /clock, truth and true field at t_k, then wait for the command (lockstep)."""
         k, y = self.k, self.y
+        if self.kill_t is not None and k * self.ts >= self.kill_t:
+            self.get_logger().warning(f"fault sensors_killed at t={k * self.ts:.3f} s: step held 1 s for the runner")
+            self.kill_t = None
+            time.sleep(1.0)  # the runner polls this log every 0.05 s and kills attitude_sensors meanwhile
         stamp = c.ns_to_stamp(self.t_ns[k])
         b = self.dyn.body_field(k * self.ts, y[:4])
         self.Y[k], self.B[k] = y, b
@@ -309,6 +324,9 @@ class Simulator(Node):
         k = self.k
         self.awaiting = False
         m = self.m_cmd
+        if self.faults:  # a dead or stuck torquer: the dipole the body gets
+            m, self.fault_state = fl.actuate(self.faults, k * self.ts, m, self.fault_state)
+            m = saturate(m, self.m_max)
         self.M[k] = m
         self.diag.count("steps")
         if k and k % self.progress_every == 0:

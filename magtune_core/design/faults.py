@@ -1,0 +1,228 @@
+"""Injected faults: what a sensor or a torquer does wrong from a sim time on, as pure functions on arrays.
+
+A :class:`Fault` is one kind, its onset ``t`` [s of sim time], a ``duration`` (inf: to the end of
+the run), an ``axis`` and a ``value``. The kinds follow the fault catalogues of simulation
+frameworks (Basilisk's sensor fault states: a signal that is off, stuck at its current value,
+spiking; an actuator that is off or stuck), named for this satellite's hardware:
+
+=================  ==============================================================================
+``mag_stuck``      the magnetometer repeats its last sample before ``t`` (a frozen register)
+``mag_spike``      one sample (the first at or after ``t``) with ``value`` [T] added on ``axis`` (at most
+                   1e-3 T: the controller's plausibility bound; a larger one is rejected there)
+``mag_bias``       ``value`` [T] added on ``axis`` from ``t`` (a bias jump: a new residual field)
+``mag_dropout``    no magnetometer message for ``duration`` s (``duration`` required)
+``gyro_bias``      ``value`` [rad/s] added on ``axis`` of the gyro from ``t``
+``torquer_dead``   the torquer of ``axis`` produces no dipole from ``t``
+``torquer_stuck``  the torquer of ``axis`` holds its dipole of the step before ``t`` (or ``value``)
+``sensors_killed`` the SIL runner sends SIGKILL to the attitude_sensors process at ``t`` (SIL only)
+=================  ==============================================================================
+
+One schema, :data:`FAULT_FIELDS`, for both spellings: a scenario file's ``faults:`` entries
+(mappings) and the command line's ``KIND@T[:DURATION][,axis=x][,value=V]`` (:func:`parse_spec`);
+a bad one is a ConfigError naming the field and the fix. :func:`measure` applies the sensor
+faults to one sample (the attitude_sensors node and :func:`magtune_core.sim.modes_loop.simulate_modes`
+call it), :func:`actuate` the torquer faults to the applied dipole (the simulator node, the truth
+side, and the offline loop), so the SIL and the offline loop fly the same faults.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..base.errors import ConfigError
+from ..base.schema import Field, parse
+
+MAG_STUCK, MAG_SPIKE, MAG_BIAS, MAG_DROPOUT = "mag_stuck", "mag_spike", "mag_bias", "mag_dropout"
+GYRO_BIAS, TORQUER_DEAD, TORQUER_STUCK, SENSORS_KILLED = "gyro_bias", "torquer_dead", "torquer_stuck", "sensors_killed"
+#: Every fault kind.
+KINDS = (MAG_STUCK, MAG_SPIKE, MAG_BIAS, MAG_DROPOUT, GYRO_BIAS, TORQUER_DEAD, TORQUER_STUCK, SENSORS_KILLED)
+#: Kinds that act on the sensors' samples / on the applied dipole.
+SENSOR_KINDS = (MAG_STUCK, MAG_SPIKE, MAG_BIAS, MAG_DROPOUT, GYRO_BIAS)
+TORQUER_KINDS = (TORQUER_DEAD, TORQUER_STUCK)
+AXES = ("x", "y", "z")
+
+#: kind -> (default value, largest |value|, unit) of the kinds that take a value.
+VALUES = {MAG_SPIKE: (5e-4, 1e-3, "T"), MAG_BIAS: (1e-5, 1e-3, "T"), GYRO_BIAS: (1e-2, 1.0, "rad/s"),
+          TORQUER_STUCK: (math.nan, 1e4, "A m^2")}
+
+#: The one schema of a fault (a scenario file's ``faults:`` entry; the CLI's spec parses into it).
+FAULT_FIELDS = (
+    Field("kind", "str", "what fails: " + ", ".join(KINDS), choices=KINDS),
+    Field("t", "float", "onset [s of sim time from the start of the run]", nonnegative=True, bounds=(0.0, 1e8),
+          unit="s"),
+    Field("duration", "float", "how long [s] (default: to the end of the run; mag_dropout: required)", None,
+          positive=True, bounds=(1e-9, 1e8), unit="s"),
+    Field("axis", "str", "body axis of a bias, a spike or a torquer (x, y, z)", "x", choices=AXES),
+    Field("value", "float", "size of a bias [T, rad/s], a spike [T] or a stuck dipole [A m^2] (default per kind)",
+          None),
+)
+
+
+@dataclass(frozen=True)
+class Fault:
+    """One injected fault (see the module docstring); ``axis`` 0, 1, 2; ``value`` nan where the kind has none
+    (``torquer_stuck``: nan holds the dipole of the step before ``t``)."""
+
+    kind: str
+    t: float
+    duration: float = math.inf
+    axis: int = 0
+    value: float = math.nan
+
+    def active(self, t: float) -> bool:
+        """True while the fault acts at sim time ``t`` [s]."""
+        return self.t <= t < self.t + self.duration
+
+    @property
+    def spec(self) -> str:
+        """The command-line spelling, exact (float repr): what the nodes are given and parse back."""
+        out = f"{self.kind}@{self.t!r}" + (f":{self.duration!r}" if math.isfinite(self.duration) else "")
+        if self.kind not in (MAG_STUCK, MAG_DROPOUT, SENSORS_KILLED):
+            out += f",axis={AXES[self.axis]}"
+        return out + (f",value={self.value!r}" if not math.isnan(self.value) else "")
+
+
+def from_mapping(m, where: str = "fault") -> Fault:
+    """A fault from a mapping of :data:`FAULT_FIELDS` (unknown keys, bad values and combinations a kind does not
+    take: ConfigError naming the field and the fix)."""
+    if not isinstance(m, dict):
+        raise ConfigError(where, None, f"expected a mapping with kind and t (e.g. {{kind: mag_dropout, t: 100, "
+                                       f"duration: 30}}), got {m!r}")
+    v = parse(m, FAULT_FIELDS, where, allowed=())
+    kind = v["kind"]
+    if kind == MAG_DROPOUT and v["duration"] is None:
+        raise ConfigError(where, "duration", "required for mag_dropout (how long no message arrives [s]), "
+                                             "e.g. mag_dropout@100:30")
+    if kind in (MAG_SPIKE, SENSORS_KILLED) and v["duration"] is not None:
+        raise ConfigError(where, "duration", f"{kind} takes no duration ("
+                          + ("one sample" if kind == MAG_SPIKE else "the process stays dead") + "); remove it")
+    if kind in (MAG_STUCK, MAG_DROPOUT, SENSORS_KILLED) and "axis" in m:
+        raise ConfigError(where, "axis", f"{kind} takes no axis (it acts on the whole sensor); remove it")
+    value = v["value"]
+    if kind in VALUES:
+        default, limit, unit = VALUES[kind]
+        if value is None:
+            value = default
+        elif not (value != 0.0 and abs(value) <= limit):
+            raise ConfigError(where, "value", f"expected a nonzero number within +-{limit:g} {unit} for {kind}, "
+                                              f"got {value!r}")
+    elif value is not None:
+        raise ConfigError(where, "value", f"{kind} takes no value; remove it")
+    duration = math.inf if v["duration"] is None else v["duration"]
+    return Fault(kind, v["t"], duration, AXES.index(v["axis"]), math.nan if value is None else float(value))
+
+
+def parse_spec(text: str, where: str | None = None) -> Fault:
+    """``KIND@T[:DURATION][,axis=A][,value=V]`` (e.g. ``mag_dropout@3000:30``, ``gyro_bias@100,axis=z,value=0.02``)
+    -> :class:`Fault` through :data:`FAULT_FIELDS`; ConfigError naming the field otherwise."""
+    where = where or f"--fault {text}"
+    head, *params = str(text).strip().split(",")
+    kind, at, when = head.partition("@")
+    if not at or not kind:
+        raise ConfigError(where, None, "expected KIND@T[:DURATION][,axis=x|y|z][,value=V], e.g. mag_dropout@3000:30 "
+                                       f"(kinds: {', '.join(KINDS)})")
+    t, colon, dur = when.partition(":")
+    m: dict = {"kind": kind.strip(), "t": _number(t, "t", where)}
+    if colon:
+        m["duration"] = _number(dur, "duration", where)
+    for item in params:
+        name, eq, val = item.partition("=")
+        name = name.strip()
+        if not eq or not name:
+            raise ConfigError(where, None, f"expected name=value after a comma, got {item!r}")
+        if name in m:
+            raise ConfigError(where, name, "given twice")
+        m[name] = _number(val, name, where) if name == "value" else val.strip()
+    return from_mapping(m, where)
+
+
+def _number(text: str, name: str, where: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise ConfigError(where, name, f"expected a number, got {text.strip()!r}") from None
+
+
+def from_list(items, where: str = "faults") -> tuple[Fault, ...]:
+    """A scenario file's ``faults:`` list (mappings) or spec strings, each validated; ``where[i]`` names the entry."""
+    if items is None:
+        return ()
+    if isinstance(items, (str, dict)) or not isinstance(items, (list, tuple)):
+        raise ConfigError(where, None, f"expected a list of faults, got {items!r}")
+    return tuple(f if isinstance(f, Fault) else parse_spec(f, f"{where}[{i}]") if isinstance(f, str)
+                 else from_mapping(f, f"{where}[{i}]") for i, f in enumerate(items))
+
+
+def kill_time(faults) -> float | None:
+    """Sim time [s] of the first ``sensors_killed`` fault, or None."""
+    ts = [f.t for f in faults if f.kind == SENSORS_KILLED]
+    return min(ts) if ts else None
+
+
+@dataclass(frozen=True)
+class FaultState:
+    """What the faults remember: the last magnetometer sample put out and the last dipole applied (None: none yet)."""
+
+    last_field: tuple | None = None
+    last_dipole: tuple | None = None
+
+
+def measure(faults, t: float, ts: float, b, w, state: FaultState = FaultState()):
+    """The sensor faults active at sample ``t`` [s] (period ``ts``) on the measured field ``b`` [T] and gyro rate
+    ``w`` [rad/s] (body axes).
+
+    Order: biases and a spike add to the sample, a stuck magnetometer then repeats its last output, a dropout
+    suppresses it. A spike acts on the one sample in [t0, t0 + ts).
+
+    Returns
+    -------
+    tuple
+        (field or None when dropped, gyro rate, new :class:`FaultState`); without active faults the inputs
+        unchanged (the same objects' values, bit for bit).
+    """
+    b = np.array(b, dtype=float)
+    w = np.array(w, dtype=float)
+    stuck = dropped = False
+    for f in faults:
+        if f.kind == MAG_SPIKE:
+            if f.t <= t < f.t + ts:
+                b[f.axis] += f.value
+        elif not f.active(t):
+            continue
+        elif f.kind == MAG_BIAS:
+            b[f.axis] += f.value
+        elif f.kind == GYRO_BIAS:
+            w[f.axis] += f.value
+        elif f.kind == MAG_STUCK:
+            stuck = True
+        elif f.kind == MAG_DROPOUT:
+            dropped = True
+    if stuck and state.last_field is not None:
+        b = np.array(state.last_field)
+    if dropped:
+        return None, w, state
+    return b, w, FaultState(tuple(float(x) for x in b), state.last_dipole)
+
+
+def actuate(faults, t: float, m, state: FaultState = FaultState()):
+    """The torquer faults active at step ``t`` [s] on the dipole ``m`` [A m^2] the torquers are commanded.
+
+    Returns
+    -------
+    tuple
+        (applied dipole, new :class:`FaultState`): a dead axis gives 0, a stuck axis its ``value`` or the dipole it
+        applied the step before (the commanded one at the first step).
+    """
+    m = np.array(m, dtype=float)
+    for f in faults:
+        if f.kind not in TORQUER_KINDS or not f.active(t):
+            continue
+        if f.kind == TORQUER_DEAD:
+            m[f.axis] = 0.0
+        elif not math.isnan(f.value):
+            m[f.axis] = f.value
+        elif state.last_dipole is not None:
+            m[f.axis] = state.last_dipole[f.axis]
+    return m, FaultState(state.last_field, tuple(float(x) for x in m))

@@ -1,0 +1,109 @@
+"""Injected faults under the mode manager, over real DDS (issue 30): the sensors node killed during
+POINTING puts the manager in SAFE within its heartbeat_timeout, naming the node, and leaves no process
+behind; a magnetometer dropout goes SAFE on stale data and recovers to DETUMBLE. Each run starts in
+POINTING (aligned, the paper's dw(0)), in its own ROS domain (magtune_core.ros.sil: process groups,
+localhost discovery, every process stopped in a finally). Lockstep timeout 0.25 s: a step without a
+command (the controller has no input while a sensor is silent) costs that much wall time."""
+from __future__ import annotations
+
+import os
+import re
+
+import numpy as np
+import psutil
+import pytest
+
+from magtune_core import bags as bag
+from magtune_core.bags.decode import Decoder
+from magtune_core.design.modes import DETUMBLE, POINTING, SAFE
+from magtune_core.ros import sil
+from magtune_core.studies.report_modes import load_modes
+
+pytestmark = [pytest.mark.ros, pytest.mark.fault]
+
+GAINS = "config/gains/sigma_60.yaml"
+HEARTBEAT_TIMEOUT = 3.0  # MANAGER_FIELDS' default [steady s]
+
+
+def _modes(bag_dir) -> list[tuple[float, str, str]]:
+    return [(c.t, c.mode, c.reason) for c in load_modes(bag_dir)]
+
+
+def _diag(bag_dir, node: str) -> list[tuple[int, str, dict]]:
+    """Every /diagnostics status of ``magtune/<node>`` in the bag: (level, message, values)."""
+    d = Decoder()
+    out = []
+    for m in bag.iter_messages(bag_dir, topics=["/diagnostics"]):
+        for st in d.decode(m.data, m.type).status:
+            if st.name == f"magtune/{node}":
+                out.append((st.level, st.message, {kv.key: kv.value for kv in st.values}))
+    return out
+
+
+def test_sensors_killed_in_pointing_goes_safe_within_the_heartbeat_timeout(tmp_path):
+    """SIGKILL of attitude_sensors at t = 200 s (POINTING): the manager's SAFE names the node, comes within
+    heartbeat_timeout of the kill (steady time: the last heartbeat is at most 1 s before the kill, the
+    check runs every 0.25 s, so SAFE lands 2-3.25 s after the kill; 0.5 s more for the log's own latency)
+    and no process of the run outlives the runner."""
+    pids = []
+    logs = tmp_path / "logs"
+    run = sil.run_sil(GAINS, steps=230, ts=1.0, modes=True, initial_mode=POINTING, faults=["sensors_killed@200"],
+                      lockstep_timeout=0.25, bag=tmp_path / "bag", log_dir=logs, timeout=150,
+                      on_start=lambda domain, procs: pids.extend(p.popen.pid for p in procs))
+    # no orphan: every node process, and every process of its group, is gone
+    assert pids and not [c for c in psutil.Process().children(recursive=True) if c.pid in pids]
+    for pid in pids:
+        with pytest.raises(ProcessLookupError):
+            os.killpg(pid, 0)
+    [(kind, t_kill, wall_kill)] = run.faults_injected
+    assert kind == "sensors_killed" and t_kill == 200.0
+    modes = _modes(tmp_path / "bag")
+    assert [m[1] for m in modes] == [POINTING, SAFE], modes
+    reason = modes[-1][2]
+    age = float(re.search(r"heartbeat of attitude_sensors missed for ([0-9.]+) s", reason).group(1))
+    assert HEARTBEAT_TIMEOUT <= age <= HEARTBEAT_TIMEOUT + 0.5, reason
+    # the wall time of the transition in the manager's log against the runner's kill
+    line = next(ln for ln in (logs / "mode_manager.log").read_text().splitlines() if "-> SAFE" in ln)
+    wall_safe = float(re.search(r"\[(\d+\.\d+)\]", line).group(1))
+    assert 1.5 <= wall_safe - wall_kill <= HEARTBEAT_TIMEOUT + 0.5, (wall_safe - wall_kill, line)
+    # the manager's /diagnostics turned ERROR naming the node
+    errors = [s for s in _diag(tmp_path / "bag", "mode_manager") if s[0] == 2]
+    assert errors and "attitude_sensors" in errors[-1][1] and errors[-1][2].get("lost") == "attitude_sensors"
+    # the controller, without input, zeroed the held dipole (its stale_data rule: 2 Ts of sim time)
+    m = run.result.m
+    assert np.all(m[205:] == 0.0) and np.any(m[:200] != 0.0)
+
+
+def test_mag_dropout_goes_safe_then_detumble(tmp_path, monkeypatch):
+    """No magnetometer message for 30 s from t = 100 s: SAFE at 103 s (the last field is stamped 99 s and lags
+    the other streams by more than stale_timeout = 3 s from 103 s, as offline: tests/sim/test_faults_loop.py),
+    DETUMBLE at 140 s (fresh from 130 s for safe_recovery_time = 10 s). The manager's stale check runs on a
+    sim-time timer outside the lockstep: within one sample (1 s) of those times (measured 103 s and 140 s).
+    ``magtune report`` on the bag draws the three mode bands on the pointing-error plot and lists the
+    transitions in summary.md."""
+    run = sil.run_sil(GAINS, steps=160, ts=1.0, modes=True, initial_mode=POINTING, faults=["mag_dropout@100:30"],
+                      lockstep_timeout=0.25, bag=tmp_path / "bag", log_dir=tmp_path / "logs", timeout=120)
+    modes = _modes(tmp_path / "bag")
+    assert [m[1] for m in modes] == [POINTING, SAFE, DETUMBLE], modes
+    assert abs(modes[1][0] - 103.0) <= 1.0 and modes[1][2] == "sensor data stale"
+    assert abs(modes[2][0] - 140.0) <= 1.0 and "fresh for 10 s" in modes[2][2]
+    counters = _diag(tmp_path / "bag", "attitude_sensors")[-1][2]
+    assert int(counters["mag_dropped"]) == 30
+    assert np.all(run.result.m[104:140] == 0.0)  # no field, then SAFE: torquers off
+
+    # the report of the bag: bands on Fig. 2 (captured from the drawing call) and the transitions in the text
+    from magtune_core.studies import report, report_modes
+
+    drawn = []
+    real = report_modes.draw_bands
+    monkeypatch.setattr(report_modes, "draw_bands", lambda *a, **k: drawn.append(real(*a, **k)) or drawn[-1])
+    summary = report.make_report([tmp_path / "bag"], tmp_path / "report")
+    T = report.SpacecraftParams().orbit_period  # the report's default orbit period (x axis in orbits)
+    bands = drawn[0]  # Fig. 2: the whole 160-s run (shorter than an orbit)
+    assert [b[2] for b in bands] == [POINTING, SAFE, DETUMBLE]
+    assert [round(b[0] * T, 6) for b in bands] == [0.0, modes[1][0], modes[2][0]] and round(bands[-1][1] * T, 6) == 160.0
+    assert [b[3] for b in bands] == [report_modes.MODE_COLORS[m] for m in (POINTING, SAFE, DETUMBLE)]
+    md = (tmp_path / "report" / "summary.md").read_text()
+    assert "## Flight modes" in md and "| POINTING | SAFE | sensor data stale |" in md
+    assert "| SAFE | DETUMBLE | sensors fresh for 10 s |" in md
+    assert summary["bag"]["modes"]["spans"][1][2] == SAFE
