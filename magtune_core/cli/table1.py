@@ -74,7 +74,7 @@ def run(args) -> int:
             f"c1 = H-inf norm T_d -> dq_R, c2 = H2 norm T_d -> m, rho = max |characteristic multiplier|, "
             f"J = H-inf norm T_d -> z (the tuned cost, not in the paper's table), hold gain margin = largest factor "
             f"on K keeping the sample-and-hold loop at the file's ts stable (design/sampled.py; the design spec "
-            f"asks for 4 at every Ts of 1-20 s, docs/requirements.md). Method cma: the shipped "
+            f"asks for 4 at every Ts of 1-30 s, docs/requirements.md). Method cma: the shipped "
             f"gains (`magtune tune` under config/design.yaml); method paper: `magtune tune --method paper`, kept in "
             f"`config/gains/paper_method/`.\n\n{table}\n\n{TABLE1_MARKER}{notes}")
     out.parent.mkdir(parents=True, exist_ok=True)
