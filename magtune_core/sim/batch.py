@@ -578,18 +578,13 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
         if noisy and kc % NOISE_CHUNK == 0:
             noise, gyro_avg = block()
             sens = sens._replace(noise=noise, gyro_avg=gyro_avg, noise_k0=kc)
-            if est.on:
-                eio = eio._replace(aux=aux_block())
-        if est.on:
-            eio = eio._replace(cols=_estimator_cols(tables, kc, k1, ts))
+        eio = _estimator_chunk(est, eio, tables, kc, k1, ts, aux_block)
         closed_loop(y, Chunk(table, index, kc, kc, k1, n, per, S, h), plant, ctrl, sens, out, mstate, est, eio)
     res = BatchResult(np.asarray(rec, dtype=float) * ts, Q, W, X, M, Bb, T, sat, weak, diverged, n,
                       dict(ts=ts, substeps=S, environment=runs.environment, record_every=int(record_every)),
                       pointing_error_deg(ang_all) if full_series else None, mn_all if full_series else None,
                       np.asarray(rec), sat_all if full_series else None)
-    if est.on:
-        _with_estimator(res, est, eio, full_series)
-    return _with_modes(res, mstate, full_series) if modes is not None else res
+    return _with_modes(_with_estimator(res, est, eio, full_series), mstate, full_series)
 
 
 def _estimator_state(estimator: BatchEstimator | None, sensors: SensorNoise, B: int, n: int, R: int, ts: float,
@@ -614,16 +609,32 @@ def _estimator_state(estimator: BatchEstimator | None, sensors: SensorNoise, B: 
     return est, eio, _aux_blocks(sensors)
 
 
-def _with_estimator(res: BatchResult, est, eio: EstimatorIO, full: bool) -> None:
-    """``res`` with the estimator's outputs (BatchResult.est_error and the rest)."""
+def _estimator_chunk(est, eio: EstimatorIO, tables: _EnvTables, kc: int, k1: int, ts: float, aux_block) -> EstimatorIO:
+    """The estimator's inputs of the chunk kc .. k1-1: reference rows, and a new block of auxiliary normals
+    at every NOISE_CHUNK (unchanged without an estimator)."""
+    if not est.on:
+        return eio
+    if kc % NOISE_CHUNK == 0:
+        eio = eio._replace(aux=aux_block())
+    return eio._replace(cols=_estimator_cols(tables, kc, k1, ts))
+
+
+def _with_estimator(res: BatchResult, est, eio: EstimatorIO, full: bool) -> BatchResult:
+    """``res`` with the estimator's outputs (BatchResult.est_error and the rest; none without an estimator)."""
+    if not est.on:
+        return res
     if full:
         res.est_error, res.est_sigma, res.est_nees = eio.err, eio.sig, eio.nees
     res.est_k0, res.no_attitude_steps, res.est_counts = est.k0.copy(), eio.no_att.copy(), est.counts.copy()
     res.est_q, res.est_bias, res.est_P = eio.Qe, eio.be, eio.Pe
+    return res
 
 
 def _with_modes(res: BatchResult, mstate: Modes, full: bool) -> BatchResult:
-    """``res`` with the mode outputs of the kernel state ``mstate`` (BatchResult.mode and the rest)."""
+    """``res`` with the mode outputs of the kernel state ``mstate`` (BatchResult.mode and the rest; none
+    when the modes are off)."""
+    if not mstate.on:
+        return res
     res.mode = mstate.mode_all if full else None
     res.transitions, res.detumble_time, res.pointing_time = mstate.n_tr, mstate.t_detumble, mstate.t_pointing
     res.final_mode = mstate.mode.copy()
