@@ -49,14 +49,28 @@ from scipy.integrate import solve_ivp
 
 from ..design.bdot import FieldDerivativeFilter, bdot_gain, geomagnetic_inclination
 from ..design.law import DEFAULT_MIN_FIELD
+from ..design.mekf_kernel import kernel_state
 from ..design.modes import DETUMBLE, MODES, ModeParams
 from ..design.modes_kernel import GUARDS, MODE_CODE, kernel_params
 from ..design.params import SpacecraftParams
-from ..design.sensors import GYRO_U, NORMALS_PER_STEP, Gyro, draw, gyro_bias_walk, gyro_from
+from ..design.sensors import AUX_NORMALS, GYRO_U, NORMALS_PER_STEP, Gyro, aux_rng, draw, gyro_bias_walk, gyro_from
 from ..env.environment import Environment
 from ..env.igrf import IGRF
-from ..env.orbit import initial_state, orbital_rate
-from .batch_kernels import Chunk, Controller, Modes, Outputs, Plant, Sensors, closed_loop, env_rows, igrf_arrays, orbit_rhs
+from ..env.orbit import eci_to_orbital, initial_state, orbital_rate
+from ..env.sun import shadow_cylindrical
+from .batch_kernels import (
+    Chunk,
+    Controller,
+    EstimatorIO,
+    Modes,
+    Outputs,
+    Plant,
+    Sensors,
+    closed_loop,
+    env_rows,
+    igrf_arrays,
+    orbit_rhs,
+)
 from .fullenv import FullEnvironmentOptions, _environment, environment_table, nominal_orbit_period
 from .metrics import pointing_error_deg
 
@@ -131,6 +145,30 @@ class BatchModes:
                                                  p.inertia))
 
 
+@dataclass(frozen=True)
+class BatchEstimator:
+    """Fly the attitude estimator in the batch: the controller reads the MEKF's estimate
+    (:mod:`magtune_core.design.mekf_kernel`, equal to :class:`magtune_core.design.estimator.MekfStream`)
+    instead of the truth plus attitude noise, as ``magtune sil --attitude estimator`` does.
+
+    The filter's model of the sensors (``mag_noise_std`` [T], ``gyro_arw`` sigma_v, ``gyro_rrw`` sigma_u,
+    ``sun_noise_std`` [rad]) and tuning are the fields of the node's ``ESTIMATOR_FIELDS``; the truth's sun
+    sensor (whole sphere, lit by the cylindrical shadow) has ``sun_sensor_std`` [rad]. On-board reference
+    vectors: the environment's field and Sun of date at the true position (the node takes them at the
+    position fix: 10 m moves the IGRF field by ~1e-10 T, 1e-3 of the magnetometer noise), the orbital
+    axes of the true orbit state.
+    """
+
+    mag_noise_std: float = 100e-9
+    gyro_arw: float = 1e-4
+    gyro_rrw: float = 1e-6
+    sun_noise_std: float = math.radians(0.5)
+    gate_probability: float = 0.9999
+    initial_bias_std: float = 5e-4
+    init_angle: float = math.radians(10.0)
+    sun_sensor_std: float = math.radians(0.5)
+
+
 @dataclass
 class BatchRuns:
     """The B runs of one batch: per-run plant, controller, initial state and environment.
@@ -200,6 +238,20 @@ class BatchResult:
     detumble_time: np.ndarray | None = None
     pointing_time: np.ndarray | None = None
     final_mode: np.ndarray | None = None
+    #: with an estimator (:class:`BatchEstimator`): ``est_error``, ``est_sigma`` (B, N+1, 3) float32 estimation error
+    #: dtheta and sqrt(P_ii) [rad] and ``est_nees`` (B, N+1) (with ``full_series``; nan before the fix), ``est_k0``
+    #: (B,) the coarse fix's step, ``no_attitude_steps`` (B,), ``est_counts`` (B, 4) mag accepted / rejected,
+    #: sun accepted / rejected; at the recorded instants ``est_q`` (B, R, 4) body w.r.t. the filter's reference
+    #: (ECI; paper: orbital axes at t = 0), ``est_bias`` (B, R, 3), ``est_P`` (B, R, 6, 6)
+    est_error: np.ndarray | None = None
+    est_sigma: np.ndarray | None = None
+    est_nees: np.ndarray | None = None
+    est_k0: np.ndarray | None = None
+    no_attitude_steps: np.ndarray | None = None
+    est_counts: np.ndarray | None = None
+    est_q: np.ndarray | None = None
+    est_bias: np.ndarray | None = None
+    est_P: np.ndarray | None = None
 
 
 def _as3x3(I: np.ndarray, n: int) -> np.ndarray:
@@ -360,6 +412,28 @@ class _EnvTables:
         return out
 
 
+def _estimator_cols(tables: "_EnvTables", k0: int, k1: int, ts: float) -> np.ndarray:
+    """(U, k1 - k0, 13) the estimator's rows at the controller instants k0 .. k1-1 (batch_kernels.EstimatorIO.cols):
+    R_oi row-major, unit satellite->Sun in ECI and lit (cylindrical shadow, env.sun) of every distinct
+    environment; in the paper environment R_oi = R_z(W0 t) (reference: the orbital axes at t = 0), no Sun."""
+    t = np.arange(k0, k1) * ts
+    runs = tables.runs
+    if runs.environment != "full":
+        c, s = np.cos(runs.p.orbit_rate * t), np.sin(runs.p.orbit_rate * t)
+        out = np.zeros((1, t.size, 13))
+        out[0, :, 0], out[0, :, 1], out[0, :, 3], out[0, :, 4], out[0, :, 8] = c, -s, s, c, 1.0
+        return out
+    out = np.empty((len(tables.envs), t.size, 13))
+    for i, env in enumerate(tables.envs):
+        r, v = env.orbit.state(t)
+        sun = env.sun_eci(t)
+        d = sun - r
+        out[i, :, :9] = eci_to_orbital(r, v).reshape(t.size, 9)
+        out[i, :, 9:12] = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        out[i, :, 12] = shadow_cylindrical(r, sun) > 0.5
+    return out
+
+
 def _nominal_period(env, orbits: int = 5) -> float:
     """:func:`magtune_core.env.orbit.mean_frame_period` evaluated on the run's own ephemeris without a
     second propagation (the single-run Orbit: the same number; a batched one: equal to ~1e-12)."""
@@ -404,9 +478,16 @@ def _noise_blocks(sensors: SensorNoise, ts: float):
     return block
 
 
+def _aux_blocks(sensors: SensorNoise):
+    """Generator of the auxiliary sensors' normals (B, CHUNK, 9) per block, from design.sensors.aux_rng(seed)
+    of every run (the node's second generator: the sun sensor reads columns 0-2)."""
+    gens = [aux_rng(s) for s in sensors.seeds]
+    return lambda: np.stack([draw(g, NOISE_CHUNK, AUX_NORMALS) for g in gens])
+
+
 def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: int = 2,
                    record_every: int = 1, orbit_periods=None, full_series: bool = False,
-                   modes: BatchModes | None = None) -> BatchResult:
+                   modes: BatchModes | None = None, estimator: BatchEstimator | None = None) -> BatchResult:
     """Closed loop of B runs of the nonlinear model with the sample-and-hold projection controller.
 
     Same loop as :func:`magtune_core.sim.simulate.simulate` (``steps`` controller periods of
@@ -456,7 +537,7 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
     y = np.ascontiguousarray(np.vstack([q0.T, (np.array([0.0, 0.0, -1.0])[:, None] * W0[None, :])
                                         + np.asarray(runs.dw0, float).T]))
     sensors = runs.sensors if runs.sensors is not None else SensorNoise.none(B)
-    noisy = sensors.any
+    noisy = sensors.any or estimator is not None  # the estimator draws the rows even for perfect sensors
     mag_bias = np.ascontiguousarray(np.asarray(sensors.mag_bias, float).reshape(B, 3).T)
     mag_std, att_std = (np.ascontiguousarray(np.broadcast_to(np.asarray(v, float), (B,)))
                         for v in (sensors.mag_std, sensors.attitude_std))
@@ -490,22 +571,70 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
     mstate = _modes_state(modes, runs, B, n, ts, bool(full_series))
     # controller steps in chunks of ENV_CHUNK (a divisor of NOISE_CHUNK): one environment table and one
     # compiled call per chunk (batch_kernels.closed_loop: sensors, controller, S RK4 steps per period)
+    est, eio, aux_block = _estimator_state(estimator, sensors, B, n, R, ts, bool(full_series))
     for kc in range(0, n + 1, ENV_CHUNK):
         k1 = min(kc + ENV_CHUNK, n + 1)
         table = tables.chunk(kc, k1)
         if noisy and kc % NOISE_CHUNK == 0:
             noise, gyro_avg = block()
             sens = sens._replace(noise=noise, gyro_avg=gyro_avg, noise_k0=kc)
-        closed_loop(y, Chunk(table, index, kc, kc, k1, n, per, S, h), plant, ctrl, sens, out, mstate)
+        eio = _estimator_chunk(est, eio, tables, kc, k1, ts, aux_block)
+        closed_loop(y, Chunk(table, index, kc, kc, k1, n, per, S, h), plant, ctrl, sens, out, mstate, est, eio)
     res = BatchResult(np.asarray(rec, dtype=float) * ts, Q, W, X, M, Bb, T, sat, weak, diverged, n,
                       dict(ts=ts, substeps=S, environment=runs.environment, record_every=int(record_every)),
                       pointing_error_deg(ang_all) if full_series else None, mn_all if full_series else None,
                       np.asarray(rec), sat_all if full_series else None)
-    return _with_modes(res, mstate, full_series) if modes is not None else res
+    return _with_modes(_with_estimator(res, est, eio, full_series), mstate, full_series)
+
+
+def _estimator_state(estimator: BatchEstimator | None, sensors: SensorNoise, B: int, n: int, R: int, ts: float,
+                     full: bool):
+    """The kernel's filters and EstimatorIO (placeholders the kernel does not read without an estimator)
+    and the auxiliary normals' block generator."""
+    e = estimator
+    if e is None:
+        z1, z3 = np.zeros((1, 1, 13)), np.zeros((1, 1, 9))
+        est = kernel_state(1, ts, arw=1.0, rrw=1.0, mag_cov=np.eye(3), sun_std=1.0, on=False)
+        return est, EstimatorIO(z1, z3, np.zeros(1), np.zeros((1, 1, 3), np.float32), np.zeros((1, 1, 3), np.float32),
+                                np.zeros((1, 1), np.float32), np.zeros(1, np.int64), np.zeros((1, 1, 4)),
+                                np.zeros((1, 1, 3)), np.zeros((1, 1, 6, 6))), None
+    est = kernel_state(B, ts, arw=e.gyro_arw, rrw=e.gyro_rrw, mag_cov=e.mag_noise_std**2 * np.eye(3),
+                       sun_std=e.sun_noise_std, gate_probability=e.gate_probability, bias_std=e.initial_bias_std,
+                       init_angle=e.init_angle)
+    shape = (B, n + 1) if full else (B, 1)
+    eio = EstimatorIO(np.zeros((1, 1, 13)), np.zeros((B, 1, 9)), np.full(B, float(e.sun_sensor_std)),
+                      np.full(shape + (3,), np.nan, np.float32), np.full(shape + (3,), np.nan, np.float32),
+                      np.full(shape, np.nan, np.float32), np.zeros(B, np.int64), np.full((B, R, 4), np.nan),
+                      np.full((B, R, 3), np.nan), np.full((B, R, 6, 6), np.nan))
+    return est, eio, _aux_blocks(sensors)
+
+
+def _estimator_chunk(est, eio: EstimatorIO, tables: _EnvTables, kc: int, k1: int, ts: float, aux_block) -> EstimatorIO:
+    """The estimator's inputs of the chunk kc .. k1-1: reference rows, and a new block of auxiliary normals
+    at every NOISE_CHUNK (unchanged without an estimator)."""
+    if not est.on:
+        return eio
+    if kc % NOISE_CHUNK == 0:
+        eio = eio._replace(aux=aux_block())
+    return eio._replace(cols=_estimator_cols(tables, kc, k1, ts))
+
+
+def _with_estimator(res: BatchResult, est, eio: EstimatorIO, full: bool) -> BatchResult:
+    """``res`` with the estimator's outputs (BatchResult.est_error and the rest; none without an estimator)."""
+    if not est.on:
+        return res
+    if full:
+        res.est_error, res.est_sigma, res.est_nees = eio.err, eio.sig, eio.nees
+    res.est_k0, res.no_attitude_steps, res.est_counts = est.k0.copy(), eio.no_att.copy(), est.counts.copy()
+    res.est_q, res.est_bias, res.est_P = eio.Qe, eio.be, eio.Pe
+    return res
 
 
 def _with_modes(res: BatchResult, mstate: Modes, full: bool) -> BatchResult:
-    """``res`` with the mode outputs of the kernel state ``mstate`` (BatchResult.mode and the rest)."""
+    """``res`` with the mode outputs of the kernel state ``mstate`` (BatchResult.mode and the rest; none
+    when the modes are off)."""
+    if not mstate.on:
+        return res
     res.mode = mstate.mode_all if full else None
     res.transitions, res.detumble_time, res.pointing_time = mstate.n_tr, mstate.t_detumble, mstate.t_pointing
     res.final_mode = mstate.mode.copy()

@@ -34,6 +34,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from ..design.mekf_kernel import matrix_quat, rotation, stream_step
 from ..design.modes_kernel import MODE_CODE, KernelModeParams, bdot_dipole, filter_step, mode_step
 from ..env.atmosphere import HP_HEIGHT_KM, HP_RHO_MAX, HP_RHO_MIN, RA_LAG
 from ..env.earth import F_WGS84, GM_EARTH, J2, J3, J4, JD_J2000, OMEGA_EARTH, R_EARTH, R_WGS84, SECONDS_PER_DAY
@@ -524,8 +525,101 @@ class Modes(NamedTuple):
     mode_all: np.ndarray  #: (B, n + 1) int8 mode code after each step's decision (with ``Outputs.full``)
 
 
+class EstimatorIO(NamedTuple):
+    """What the estimator in the loop reads besides the sensors' normals (:class:`~magtune_core.design.mekf_kernel.KernelMekf`
+    holds the filters) and what it writes."""
+
+    #: (U, steps of the chunk, 13) at the controller instants: R_oi (ECI -> orbital, row-major 9), unit
+    #: satellite->Sun in ECI (3), lit (1)
+    cols: np.ndarray
+    aux: np.ndarray  #: (B, CHUNK, 9) auxiliary normals (design.sensors.AUX_NORMALS layout); step k reads row k - noise_k0
+    sun_std: np.ndarray  #: (B,) the sun sensor's angle error std per axis [rad] (the truth's sensor)
+    err: np.ndarray  #: (B, n + 1, 3) float32 estimation error dtheta [rad], body axes (with Outputs.full; nan: no estimate)
+    sig: np.ndarray  #: (B, n + 1, 3) float32 sqrt of the attitude variances [rad] (with Outputs.full)
+    nees: np.ndarray  #: (B, n + 1) float32 dtheta^T P_tt^-1 dtheta (with Outputs.full)
+    no_att: np.ndarray  #: (B,) int64 steps without an estimate (before the coarse fix: zero dipole)
+    Qe: np.ndarray  #: (B, R, 4) recorded estimate, body w.r.t. orbital axes
+    be: np.ndarray  #: (B, R, 3) recorded bias estimate [rad/s]
+    Pe: np.ndarray  #: (B, R, 6, 6) recorded covariance
+
+
 @njit(cache=True, error_model="numpy")
-def closed_loop(y, chunk, plant, ctrl, sens, out, modes):
+def _estimate(est, eio, u, b, r, k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1, fo2, bm0, bm1, bm2, wm0, wm1, wm2, full):
+    """The estimator of run ``b`` (environment rows ``u``) at step ``k`` (the attitude_estimator node's sample): the sun sensor on the
+    true attitude (a0..a3, body w.r.t. orbital), the MEKF step (design.mekf_kernel.stream_step) on the
+    measured field and the previous gyro sample against the reference vectors in ECI (the field of the
+    table rotated back with R_oi^T, the Sun of date), the estimate in orbital axes. Returns (have, q_bo (4,),
+    rate (3,)): the controller's attitude and rate (gyro minus the estimated bias)."""
+    ec = eio.cols[u, k - kc]
+    Roi = ec[:9].reshape(3, 3)
+    bref = np.empty(3)
+    for i in range(3):
+        bref[i] = Roi[0, i] * fo0 + Roi[1, i] * fo1 + Roi[2, i] * fo2
+    mag = np.array([bm0, bm1, bm2])
+    lit = ec[12] > 0.5
+    sref = ec[9:12].copy()
+    sm = np.zeros(3)
+    if lit:
+        so0 = Roi[0, 0] * sref[0] + Roi[0, 1] * sref[1] + Roi[0, 2] * sref[2]
+        so1 = Roi[1, 0] * sref[0] + Roi[1, 1] * sref[1] + Roi[1, 2] * sref[2]
+        so2 = Roi[2, 0] * sref[0] + Roi[2, 1] * sref[1] + Roi[2, 2] * sref[2]
+        s0 = (a0 * a0 + a1 * a1 - a2 * a2 - a3 * a3) * so0 + 2 * (a1 * a2 + a0 * a3) * so1 + 2 * (a1 * a3 - a0 * a2) * so2
+        s1 = 2 * (a1 * a2 - a0 * a3) * so0 + (a0 * a0 - a1 * a1 + a2 * a2 - a3 * a3) * so1 + 2 * (a2 * a3 + a0 * a1) * so2
+        s2 = 2 * (a1 * a3 + a0 * a2) * so0 + 2 * (a2 * a3 - a0 * a1) * so1 + (a0 * a0 - a1 * a1 - a2 * a2 + a3 * a3) * so2
+        ns = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+        s0, s1, s2 = s0 / ns, s1 / ns, s2 / ns
+        sd = eio.sun_std[b]
+        if sd > 0:  # exp([std n]x) s, Rodrigues (design.sensors.sun_sensor)
+            nz = eio.aux[b, k - noise_k0]
+            t0, t1, t2 = sd * nz[0], sd * nz[1], sd * nz[2]
+            ang = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+            d = ang if ang > 0 else 1.0
+            k0, k1, k2 = t0 / d, t1 / d, t2 / d
+            c, sn = math.cos(ang), math.sin(ang)
+            ks = k0 * s0 + k1 * s1 + k2 * s2
+            r0 = s0 * c + (k1 * s2 - k2 * s1) * sn + k0 * ks * (1.0 - c)
+            r1 = s1 * c + (k2 * s0 - k0 * s2) * sn + k1 * ks * (1.0 - c)
+            r2 = s2 * c + (k0 * s1 - k1 * s0) * sn + k2 * ks * (1.0 - c)
+            nr = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+            s0, s1, s2 = r0 / nr, r1 / nr, r2 / nr
+        sm[0], sm[1], sm[2] = s0, s1, s2
+    stream_step(est, b, mag, bref, lit, sm, sref)
+    est.w_prev[b, 0], est.w_prev[b, 1], est.w_prev[b, 2] = wm0, wm1, wm2
+    qe = np.zeros(4)
+    rate = np.zeros(3)
+    if not est.started[b]:
+        eio.no_att[b] += 1
+        return False, qe, rate
+    qe = matrix_quat(Roi @ rotation(est.q[b]))
+    rate[0], rate[1], rate[2] = wm0 - est.b[b, 0], wm1 - est.b[b, 1], wm2 - est.b[b, 2]
+    if full:  # dtheta with q_true = q_est (x) exp(dtheta/2) (design.mekf.attitude_error)
+        e0 = qe[0] * a0 + qe[1] * a1 + qe[2] * a2 + qe[3] * a3
+        e1 = qe[0] * a1 - qe[1] * a0 - qe[2] * a3 + qe[3] * a2
+        e2 = qe[0] * a2 + qe[1] * a3 - qe[2] * a0 - qe[3] * a1
+        e3 = qe[0] * a3 - qe[1] * a2 + qe[2] * a1 - qe[3] * a0
+        if e0 < 0:
+            e0, e1, e2, e3 = -e0, -e1, -e2, -e3
+        sv = math.sqrt(e1 * e1 + e2 * e2 + e3 * e3)
+        f = 2.0 if sv < 1e-12 else 2.0 * math.atan2(sv, e0) / sv
+        dth = np.array([f * e1, f * e2, f * e3])
+        Ptt = est.P[b, :3, :3].copy()
+        for i in range(3):
+            eio.err[b, k, i] = dth[i]
+            eio.sig[b, k, i] = math.sqrt(Ptt[i, i])
+        eio.nees[b, k] = dth @ np.linalg.solve(Ptt, dth)
+    if r >= 0:
+        for i in range(4):
+            eio.Qe[b, r, i] = est.q[b, i]
+        for i in range(3):
+            eio.be[b, r, i] = est.b[b, i]
+        for i in range(6):
+            for j in range(6):
+                eio.Pe[b, r, i, j] = est.P[b, i, j]
+    return True, qe, rate
+
+
+@njit(cache=True, error_model="numpy")
+def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio):
     """Controller steps ``chunk.ka .. chunk.kb-1`` (<= n) of every run (the loop of ``batch.simulate_batch``).
 
     Parameters
@@ -543,6 +637,11 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes):
     modes : Modes
         With ``on``: the mode machine's state per run (updated), the law per mode (DETUMBLE: B-dot,
         ACQUISITION and POINTING: eq. 17, SAFE: zero dipole) and the mode series (``full``).
+    est : design.mekf_kernel.KernelMekf
+        With ``on``: the MEKF of every run (updated); the controller reads its estimate (zero dipole before
+        the coarse fix) instead of the truth plus attitude noise.
+    eio : EstimatorIO
+        The estimator's reference rows, auxiliary normals and outputs.
     """
     table, idx, kc, ka, kb, n, per, S, h = chunk
     I, J, hw, mres, gg, drag, srp, A, cp, cd, es, ed = plant
@@ -604,6 +703,12 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes):
                 wm0 = ys[4] + ga[0] + gyro_white[b] * nz[6]
                 wm1 = ys[5] + ga[1] + gyro_white[b] * nz[7]
                 wm2 = ys[6] + ga[2] + gyro_white[b] * nz[8]
+            have = True
+            if est.on:  # the controller flies the estimate (attitude_estimator node), not the truth plus noise
+                have, qe, re = _estimate(est, eio, idx[b], b, rec_slot[k], k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1,
+                                         fo2, bm0, bm1, bm2, wm0, wm1, wm2, full)
+                qm0, qm1, qm2, qm3 = qe[0], qe[1], qe[2], qe[3]
+                wm0, wm1, wm2 = re[0], re[1], re[2]
             sg = -1.0 if qm0 < 0.0 else 1.0
             x0, x1, x2, x3, x4, x5 = sg * qm1, sg * qm2, sg * qm3, wm0, wm1, wm2 + W0[b]
             # projection controller m = sat(S(b)^T K x / |b|^2) (paper eq. 17), weak-field guard
@@ -651,6 +756,8 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes):
                     if full:
                         sat_all[b, k] = True
             elif md == _SAFE:
+                s0 = s1 = s2 = 0.0
+            elif not have:  # no estimate yet: zero dipole (the controller node's no_attitude)
                 s0 = s1 = s2 = 0.0
             elif ok:
                 if s0 != m0 or s1 != m1 or s2 != m2:

@@ -66,9 +66,9 @@ from ..base.paramfile import load_user_yaml
 from ..base.schema import Field, parse
 from ..design.gains import load_gains
 from ..design.modes import MODES, POINTING, ModeParams
-from ..design.node_params import BDOT_FIELDS, MODE_FIELDS, check_modes
+from ..design.node_params import BDOT_FIELDS, ESTIMATOR_FIELDS, MODE_FIELDS, check_modes
 from ..design.params import SpacecraftParams, load_spacecraft
-from ..sim.batch import BatchModes, BatchRuns, SensorNoise, simulate_batch
+from ..sim.batch import BatchEstimator, BatchModes, BatchRuns, SensorNoise, simulate_batch
 from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions, nominal_orbit_period, substeps_for
 from ..sim.initial import substeps_for_rate
 from ..sim.metrics import settling_time
@@ -97,6 +97,8 @@ CAMPAIGN_FIELDS = (
     Field("min_field", "float", "weak-field guard of the controller [T]", 1e-7, positive=True),
     Field("modes", "bool", "fly the flight modes from deployment (DETUMBLE: B-dot, ACQUISITION, POINTING: eq. 17; "
           "thresholds in section modes): a deployment campaign", False),
+    Field("attitude", "str", "the controller's attitude: truth (the truth plus attitude_noise_std) or estimator "
+          "(the MEKF on magnetometer, gyro and sun sensor, section estimator)", "truth", choices=("truth", "estimator")),
 )
 
 #: Section ``dispersions``.
@@ -125,6 +127,11 @@ DISPERSION_FIELDS = (
           positive=True),
     Field("attitude_uniform", "bool", "initial attitude uniformly distributed over all rotations (a normalized "
           "4-D normal quaternion; replaces attitude_max_deg)", False),
+    Field("gyro_arw", "float", "gyro angle random walk sigma_v [rad/s^0.5] (adds to gyro_noise_std^2 ts)", 0.0,
+          nonnegative=True),
+    Field("gyro_rrw", "float", "gyro rate random walk sigma_u [rad/s^1.5]", 0.0, nonnegative=True),
+    Field("sun_noise_std", "float", "sun sensor angle error std per axis [rad] (campaign.attitude: estimator)", 0.0,
+          nonnegative=True),
 )
 
 #: Section ``criteria`` (a run passes when it is ok and meets every criterion given).
@@ -147,9 +154,12 @@ CRITERIA_FIELDS = (
 #: Section ``modes`` (with ``campaign.modes``): the mode machine's and the B-dot law's schema, the one the
 #: mode manager node, the controller and the offline mode loop read (design/node_params.py).
 MODES_SECTION_FIELDS = MODE_FIELDS + BDOT_FIELDS
+#: Section ``estimator`` (with ``campaign.attitude: estimator``): the filter's fields of the attitude_estimator
+#: node's schema (design/node_params.py ESTIMATOR_FIELDS, the same Field objects: names, defaults, bounds).
+ESTIMATOR_SECTION_FIELDS = tuple(f for f in ESTIMATOR_FIELDS if f.name in BatchEstimator.__dataclass_fields__)
 
 SECTIONS = {"campaign": CAMPAIGN_FIELDS, "dispersions": DISPERSION_FIELDS, "criteria": CRITERIA_FIELDS,
-            "modes": MODES_SECTION_FIELDS}
+            "modes": MODES_SECTION_FIELDS, "estimator": ESTIMATOR_SECTION_FIELDS}
 STATUSES = ("ok", "diverged", "failed")
 #: Figures of merit (columns of runs.parquet) and their units, in report order.
 FIGURES = (("settling_time", "s"), ("max_pointing_deg", "deg"), ("rms_pointing_deg", "deg"),
@@ -159,6 +169,11 @@ FIGURES = (("settling_time", "s"), ("max_pointing_deg", "deg"), ("rms_pointing_d
 #: to POINTING (first entry), to settled pointing (from then on in POINTING with the error below
 #: ``settle_threshold_deg``), the number of mode transitions.
 MODE_FIGURES = (("detumble_time", "s"), ("pointing_time", "s"), ("settled_time", "s"), ("transitions", "-"))
+#: Figures of a campaign with the estimator in the loop (``campaign.attitude: estimator``), over the steady-state
+#: window: RMS estimation error per body axis, the fraction of samples inside 3 sigma per axis, mean NEES (3 for
+#: a consistent filter), the coarse fix's time.
+ESTIMATION_FIGURES = tuple((f"est_rms_{a}_deg", "deg") for a in "xyz") + tuple(
+    (f"est_inside_3sigma_{a}", "-") for a in "xyz") + (("est_nees_mean", "-"), ("est_fix_time", "s"))
 
 
 @dataclass
@@ -177,6 +192,7 @@ class CampaignSpec:
     epoch_max: datetime
     raw: dict = field(default_factory=dict)
     modes: dict = field(default_factory=dict)  #: section ``modes`` (parsed; used with ``campaign.modes``)
+    estimator: dict = field(default_factory=dict)  #: section ``estimator`` (parsed; with ``campaign.attitude: estimator``)
 
     @property
     def seed(self) -> int:
@@ -202,6 +218,13 @@ class CampaignSpec:
         v = self.modes
         return BatchModes(ModeParams(**{f.name: v[f.name] for f in MODE_FIELDS}), bdot_gain=v["bdot_gain"],
                           bdot_cutoff=v["bdot_cutoff"])
+
+    def batch_estimator(self) -> BatchEstimator | None:
+        """The estimator every run flies (``campaign.attitude: estimator``; section ``estimator``), else None."""
+        if self.campaign["attitude"] != "estimator":
+            return None
+        return BatchEstimator(**{f.name: self.estimator[f.name] for f in ESTIMATOR_SECTION_FIELDS},
+                              sun_sensor_std=self.dispersions["sun_noise_std"])
 
     def env_options(self, epoch: datetime, raan_deg: float) -> FullEnvironmentOptions:
         c = self.campaign
@@ -308,6 +331,11 @@ def load_spec(path) -> CampaignSpec:
     if raw.get("modes") and not c["modes"]:
         raise ConfigError(path, "modes", "a modes section needs campaign.modes: true")
     check_modes(values["modes"], path)
+    if raw.get("estimator") and c["attitude"] != "estimator":
+        raise ConfigError(path, "estimator", "an estimator section needs campaign.attitude: estimator")
+    if c["attitude"] == "estimator" and c["modes"]:
+        raise ConfigError(path, "campaign.attitude", "estimator is not available with campaign.modes (the mode "
+                          "machine reads the measured attitude)")
     Ks, files = [], []
     for g in c["gains"]:
         gp = _resolve(g, path)
@@ -315,7 +343,8 @@ def load_spec(path) -> CampaignSpec:
             raise ConfigError(path, "campaign.gains", f"file not found: {g}")
         Ks.append(load_gains(gp).K)
         files.append(str(g))
-    return CampaignSpec(str(path), c, d, values["criteria"], files, np.array(Ks), p, e0, e1, raw, values["modes"])
+    return CampaignSpec(str(path), c, d, values["criteria"], files, np.array(Ks), p, e0, e1, raw, values["modes"],
+                        values["estimator"])
 
 
 # --- per-run parameters ------------------------------------------------------------------------
@@ -358,7 +387,8 @@ def _batch_runs(spec: CampaignSpec, draws: list, gains_index: list) -> BatchRuns
     full = c["environment"] == "full"
     sensors = SensorNoise(np.full(n, d["mag_noise_std"]), np.array([r["mag_bias"] for r in draws]),
                           np.full(n, d["gyro_noise_std"]), np.array([r["gyro_bias"] for r in draws]),
-                          np.full(n, d["attitude_noise_std"]), [r["noise_seed"] for r in draws])
+                          np.full(n, d["attitude_noise_std"]), [r["noise_seed"] for r in draws],
+                          gyro_arw=np.full(n, d["gyro_arw"]), gyro_rrw=np.full(n, d["gyro_rrw"]))
     return BatchRuns(K=spec.K[np.asarray(gains_index)], inertia=np.array([r["inertia"] for r in draws]),
                      residual_dipole=np.array([r["residual_dipole"] for r in draws]),
                      dipole_limit=np.array([r["dipole_limit"] for r in draws]),
@@ -414,6 +444,25 @@ def deployment_figures(t, err_deg, mode_codes, criteria: dict) -> dict:
     return dict(settled_time=settled, final_mode=MODES[int(code[-1])], reached_pointing=bool(np.any(code == pnt)))
 
 
+def estimation_figures(t, err, sigma, nees, orbit_period: float, criteria: dict) -> dict:
+    """Estimation figures of one run over the steady-state window ``t >= max_settling_orbits T`` (the pointing
+    figures' window): RMS error per body axis [deg], fraction inside 3 sigma per axis, mean NEES.
+
+    Returns
+    -------
+    dict
+        est_rms_{x,y,z}_deg, est_inside_3sigma_{x,y,z}, est_nees_mean (nan: no estimate in the window).
+    """
+    after = (np.asarray(t) >= criteria["max_settling_orbits"] * orbit_period) & np.isfinite(np.asarray(nees))
+    e, s = np.asarray(err, dtype=float)[after], np.asarray(sigma, dtype=float)[after]
+    out = {}
+    for i, a in enumerate("xyz"):
+        out[f"est_rms_{a}_deg"] = math.degrees(float(np.sqrt(np.mean(e[:, i] ** 2)))) if after.any() else math.nan
+        out[f"est_inside_3sigma_{a}"] = float(np.mean(np.abs(e[:, i]) <= 3 * s[:, i])) if after.any() else math.nan
+    out["est_nees_mean"] = float(np.mean(np.asarray(nees, dtype=float)[after])) if after.any() else math.nan
+    return out
+
+
 def verdict(row: dict, criteria: dict, orbit_period: float) -> tuple[bool, str]:
     """(pass, reasons) of one run against the spec's criteria (a deployment: also reached and settled POINTING)."""
     if row["status"] != "ok":
@@ -454,7 +503,7 @@ def _simulate_rows(spec: CampaignSpec, jobs: list, steps: int, record_every: int
     draws = [draw_run(spec, i) for _, i in jobs]
     runs = _batch_runs(spec, draws, [g for g, _ in jobs])
     res = simulate_batch(runs, ts=spec.campaign["ts"], steps=steps, substeps=spec.substeps, record_every=record_every,
-                         full_series=True, modes=spec.batch_modes())
+                         full_series=True, modes=spec.batch_modes(), estimator=spec.batch_estimator())
     t_all = np.arange(steps + 1) * spec.campaign["ts"]
     rows = []
     for b, ((g, i), r) in enumerate(zip(jobs, draws)):
@@ -468,6 +517,10 @@ def _simulate_rows(spec: CampaignSpec, jobs: list, steps: int, record_every: int
             row.update(detumble_time=float(res.detumble_time[b]), pointing_time=float(res.pointing_time[b]),
                        transitions=int(res.transitions[b]),
                        **deployment_figures(t_all, res.pointing_deg[b], res.mode[b], spec.criteria))
+        if res.est_error is not None:
+            row.update(estimation_figures(t_all, res.est_error[b], res.est_sigma[b], res.est_nees[b], res.orbit_period[b],
+                                          spec.criteria), est_fix_time=float(t_all[res.est_k0[b]]) if res.est_k0[b] >= 0
+                       else math.nan, est_mag_rejected=int(res.est_counts[b, 1]), est_sun_rejected=int(res.est_counts[b, 3]))
         rows.append(row)
     hist = dict(t=res.t.astype(np.float32), pointing_deg=res.pointing_deg[:, res.record_index].astype(np.float32),
                 dipole=np.linalg.norm(res.m, axis=2).astype(np.float32),
@@ -486,6 +539,8 @@ def _failed_row(spec: CampaignSpec, g: int, i: int, exc: BaseException) -> dict:
     row.update({k: math.nan for k, _ in FIGURES})
     if spec.campaign["modes"]:
         row.update({k: math.nan for k, _ in MODE_FIGURES}, transitions=-1, final_mode="", reached_pointing=False)
+    if spec.campaign["attitude"] == "estimator":
+        row.update({k: math.nan for k, _ in ESTIMATION_FIGURES}, est_mag_rejected=-1, est_sun_rejected=-1)
     return row
 
 

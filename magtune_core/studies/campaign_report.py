@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..base.atomic import atomic_savefig, atomic_write
-from .campaign import FIGURES, MODE_FIGURES, STATUSES, read_histories, read_runs
+from .campaign import ESTIMATION_FIGURES, FIGURES, MODE_FIGURES, STATUSES, read_histories, read_runs
 
 PERCENTILES = (5.0, 50.0, 95.0)
 #: Worst runs listed in summary.md (ranked by max pointing error after settling; not settled first).
@@ -36,8 +36,9 @@ def envelopes(h: dict, key: str, ok: np.ndarray) -> np.ndarray:
 
 
 def figures_of(cols: dict) -> tuple:
-    """(name, unit) of the figures the campaign's rows carry: FIGURES, and MODE_FIGURES for a deployment campaign."""
-    return FIGURES + tuple(f for f in MODE_FIGURES if f[0] in cols)
+    """(name, unit) of the figures the campaign's rows carry: FIGURES, MODE_FIGURES for a deployment campaign,
+    ESTIMATION_FIGURES with the estimator in the loop."""
+    return FIGURES + tuple(f for f in MODE_FIGURES + ESTIMATION_FIGURES if f[0] in cols)
 
 
 def deployment_failures(cols: dict) -> np.ndarray:

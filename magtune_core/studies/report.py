@@ -45,7 +45,7 @@ from ..base.topics import DIPOLE, TOPIC_DIPOLE, TOPIC_INERTIAL_RATE, TOPIC_TRUTH
 from ..design.law import DEFAULT_DIPOLE_LIMIT, linear_state
 from ..design.params import SpacecraftParams
 from ..sim.metrics import figures_of_merit, pointing_error_deg
-from . import report_modes
+from . import report_estimation, report_modes
 
 #: ROS order and names of the quaternion components (geometry_msgs/Quaternion).
 QUAT_NAMES = ("x", "y", "z", "w")
@@ -351,9 +351,12 @@ def make_report(bags, out, *, run: str | None = None, truth=TRUTH, dipole=DIPOLE
                         **({"modes": report_modes.summary_entry(r.modes, float(r.t[-1]))} if r.modes else {})}
                for r in runs}
     atomic_write(out / "summary.json", jsonout.dumps(summary, indent=1))
-    md = _markdown(summary, [r.name for r in detail], T, win, dipole_limit)
+    # bags flown on the estimator (--attitude estimator): fig6 and estimation.json (studies/report_estimation.py)
+    est = report_estimation.write(bags, out, T, lambda b: bag_namespaces(b, truth) if truth == TRUTH else [""])
+    md = _markdown(summary, [r.name for r in detail], T, win, dipole_limit) + report_estimation.markdown(est)
     atomic_write(out / "summary.md", md)
-    atomic_write(out / "report.html", _html(summary, out, T, win, [r.name for r in detail], dipole_limit))
+    atomic_write(out / "report.html", _html(summary, out, T, win, [r.name for r in detail], dipole_limit,
+                                            tuple(r["figure"] for r in est.values())))
     return summary
 
 
@@ -408,7 +411,8 @@ def _markdown(summary: dict, detail: list[str], T: float, win: dict, dipole_limi
     return "\n".join(lines)
 
 
-def _html(summary: dict, out: Path, T: float, win: dict, detail: list[str], dipole_limit: float) -> str:
+def _html(summary: dict, out: Path, T: float, win: dict, detail: list[str], dipole_limit: float,
+          extra: tuple = ()) -> str:
     """One self-contained HTML page: the notes, the summary table and the figures inlined as
     base64 PNG (no external file, script or style sheet)."""
     head, rows = _rows(summary)
@@ -417,7 +421,7 @@ def _html(summary: dict, out: Path, T: float, win: dict, detail: list[str], dipo
              + "".join("<tr>" + "".join(f"<td>{esc(c)}</td>" for c in r) + "</tr>" for r in rows)
              + "</tbody></table>")
     figs = []
-    for f in FIGURES:
+    for f in FIGURES + extra:
         path = out / f
         if path.is_file():
             data = base64.b64encode(path.read_bytes()).decode("ascii")

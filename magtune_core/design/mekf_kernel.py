@@ -1,0 +1,327 @@
+"""The MEKF of :mod:`magtune_core.design.mekf` and the sample logic of
+:class:`magtune_core.design.estimator.MekfStream` on floats, compiled (numba), for the batched simulation.
+
+The batched closed loop (:func:`magtune_core.sim.batch_kernels.closed_loop`) is a numba kernel and
+cannot call the Python filter; this module is the same filter written on scalars and small arrays
+(Lefferts, Markley & Shuster 1982; Markley & Crassidis 2014, sec. 6.2): the closed-form Phi
+(M&C eqs. 6.83-6.84) and exact Q with the same Taylor-series switch and the same 8-point
+Gauss-Legendre rule, the vector update with the same Joseph form, multiplicative reset and
+chi-square gate, the Davenport fix (M&C sec. 5.3.1, ``numpy.linalg.eigh`` as in
+:func:`magtune_core.design.attitude_fix.davenport`) and MekfStream's start (Davenport of magnetometer
+and Sun at the first sample, else the magnetometer carried by the gyro once the reference field has
+turned by ``init_angle``). tests/design/test_mekf_kernel.py runs both on the same measurements: equal
+to 1e-12 (attitude, rad) over a run with a start in sunlight and one in eclipse.
+
+State of one filter (:class:`KernelMekf` holds B of them): ``q`` (4,) body w.r.t. the reference frame,
+``b`` (3,) gyro bias, ``P`` (6, 6), plus the start's memory (first magnetometer sample, its reference,
+the carried quaternion).
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from .mekf import _GL_W, _GL_X
+
+GL_X = np.ascontiguousarray(_GL_X)
+GL_W = np.ascontiguousarray(_GL_W)
+
+
+class KernelMekf(NamedTuple):
+    """B filters' parameters and states (arrays written in place by :func:`stream_step`)."""
+
+    on: bool  #: the estimator is in the loop
+    ts: float  #: sample period [s]
+    sv2: np.ndarray  #: (B,) sigma_v^2 of the filter's gyro model [rad^2/s]
+    su2: np.ndarray  #: (B,) sigma_u^2 [rad^2/s^3]
+    R_mag: np.ndarray  #: (B, 3, 3) magnetometer measurement covariance [T^2]
+    sig_mag: np.ndarray  #: (B,) sqrt(R_mag[0, 0]) (the coarse fix's weight)
+    sun_std: np.ndarray  #: (B,) sun sensor std [rad] (R_sun = sun_std^2 I)
+    gate_mag: float  #: chi-square gate of the magnetometer NIS (3 dof; inf: none)
+    gate_sun: float  #: chi-square gate of the sun NIS (2 dof)
+    bias_std: float  #: bias prior std [rad/s]
+    cos_init: float  #: cos(init_angle) of the magnetometer-only fix
+    q: np.ndarray  #: (B, 4) estimate
+    b: np.ndarray  #: (B, 3) estimated bias [rad/s]
+    P: np.ndarray  #: (B, 6, 6)
+    started: np.ndarray  #: (B,) bool: the coarse fix is made
+    k: np.ndarray  #: (B,) int64 samples seen minus one (MekfStream.k)
+    first: np.ndarray  #: (B, 6) first magnetometer sample and its reference (the magnetometer-only fix)
+    carry: np.ndarray  #: (B, 4) gyro-carried quaternion since the first sample
+    w_prev: np.ndarray  #: (B, 3) previous gyro sample [rad/s]
+    counts: np.ndarray  #: (B, 4) int64 mag accepted, mag rejected, sun accepted, sun rejected
+    k0: np.ndarray  #: (B,) int64 sample of the coarse fix (-1: not yet)
+
+
+@njit(cache=True, inline="always")
+def _qmul(p0, p1, p2, p3, q0, q1, q2, q3):
+    """Hamilton product (:func:`magtune_core.base.rotations.quat_mul`)."""
+    return (p0 * q0 - p1 * q1 - p2 * q2 - p3 * q3, p0 * q1 + p1 * q0 + p2 * q3 - p3 * q2,
+            p0 * q2 - p1 * q3 + p2 * q0 + p3 * q1, p0 * q3 + p1 * q2 - p2 * q1 + p3 * q0)
+
+
+@njit(cache=True, inline="always")
+def _rotvec_quat(x, y, z):
+    """exp(phi/2) (:func:`magtune_core.design.mekf.rotvec_quat`)."""
+    a = math.sqrt(x * x + y * y + z * z)
+    s = 0.5 - a * a / 48.0 if a < 1e-6 else math.sin(a / 2) / a
+    return math.cos(a / 2), s * x, s * y, s * z
+
+
+@njit(cache=True)
+def rotation(q):
+    """R(q) (3, 3) of a (not necessarily unit) quaternion (:func:`magtune_core.base.rotations.rotation_matrix`)."""
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    q0, q1, q2, q3 = q[0] / n, q[1] / n, q[2] / n, q[3] / n
+    R = np.empty((3, 3))
+    R[0, 0], R[0, 1], R[0, 2] = q0 * q0 + q1 * q1 - q2 * q2 - q3 * q3, 2 * (q1 * q2 - q0 * q3), 2 * (q1 * q3 + q0 * q2)
+    R[1, 0], R[1, 1], R[1, 2] = 2 * (q1 * q2 + q0 * q3), q0 * q0 - q1 * q1 + q2 * q2 - q3 * q3, 2 * (q2 * q3 - q0 * q1)
+    R[2, 0], R[2, 1], R[2, 2] = 2 * (q1 * q3 - q0 * q2), 2 * (q2 * q3 + q0 * q1), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3
+    return R
+
+
+@njit(cache=True)
+def matrix_quat(R):
+    """Shepperd's quaternion of R, q0 >= 0 (:func:`magtune_core.base.rotations.matrix_to_quat`)."""
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    i, best = 0, tr
+    for j in range(3):
+        if R[j, j] > best:
+            i, best = j + 1, R[j, j]
+    q = np.empty(4)
+    if i == 0:
+        s = 2.0 * math.sqrt(1.0 + tr)
+        q[0], q[1], q[2], q[3] = s / 4, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s
+    elif i == 1:
+        s = 2.0 * math.sqrt(1.0 + 2 * R[0, 0] - tr)
+        q[0], q[1], q[2], q[3] = (R[2, 1] - R[1, 2]) / s, s / 4, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s
+    elif i == 2:
+        s = 2.0 * math.sqrt(1.0 + 2 * R[1, 1] - tr)
+        q[0], q[1], q[2], q[3] = (R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, s / 4, (R[1, 2] + R[2, 1]) / s
+    else:
+        s = 2.0 * math.sqrt(1.0 + 2 * R[2, 2] - tr)
+        q[0], q[1], q[2], q[3] = (R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, s / 4
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    sg = -1.0 if q[0] < 0 else 1.0
+    for j in range(4):
+        q[j] = sg * q[j] / n
+    return q
+
+
+@njit(cache=True, inline="always")
+def _coef(n, s, series):
+    """c1, c2, c3 of :func:`magtune_core.design.mekf._coefficients` at one s (``series``: the Taylor branch)."""
+    x2 = (n * s) ** 2
+    if series:
+        return (s * (1 - x2 / 6 + x2**2 / 120 - x2**3 / 5040), s**2 * (0.5 - x2 / 24 + x2**2 / 720 - x2**3 / 40320),
+                s**3 * (1.0 / 6 - x2 / 120 + x2**2 / 5040 - x2**3 / 362880))
+    x = n * s
+    return math.sin(x) / n, (1 - math.cos(x)) / n**2, (x - math.sin(x)) / n**3
+
+
+@njit(cache=True)
+def propagate(q, b, P, wm, dt, sv2, su2, glx, glw):
+    """:func:`magtune_core.design.mekf.propagate` in place: q (x) exp((wm - b) dt/2), P = Phi P Phi^T + Q
+    (closed-form Phi and Q of :func:`~magtune_core.design.mekf.transition` and
+    :func:`~magtune_core.design.mekf.process_noise`)."""
+    w0, w1, w2 = wm[0] - b[0], wm[1] - b[1], wm[2] - b[2]
+    p0, p1, p2, p3 = _rotvec_quat(w0 * dt, w1 * dt, w2 * dt)
+    r0, r1, r2, r3 = _qmul(q[0], q[1], q[2], q[3], p0, p1, p2, p3)
+    W = np.zeros((3, 3))
+    W[0, 1], W[0, 2], W[1, 0], W[1, 2], W[2, 0], W[2, 1] = -w2, w1, w2, -w0, -w1, w0
+    W2 = W @ W
+    n = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    c1, c2, c3 = _coef(n, dt, n * dt < 1e-2)
+    Phi = np.eye(6)
+    for i in range(3):
+        for j in range(3):
+            e = 1.0 if i == j else 0.0
+            Phi[i, j] = e - c1 * W[i, j] + c2 * W2[i, j]
+            Phi[i, 3 + j] = -dt * e + c2 * W[i, j] - c3 * W2[i, j]
+    s_max = glx[glx.size - 1] * dt
+    series = n * s_max < 1e-2
+    f = 0.0
+    ic3 = 0.0
+    for g in range(glx.size):
+        s = glx[g] * dt
+        _, d2, d3 = _coef(n, s, series)
+        f += glw[g] * (2 * s * d3 - d2**2 - n * n * d3**2)
+        ic3 += glw[g] * d3
+    f *= dt
+    ic3 *= dt
+    ic2 = c3
+    Q = np.zeros((6, 6))
+    for i in range(3):
+        for j in range(3):
+            e = 1.0 if i == j else 0.0
+            Q[i, j] = (sv2 * dt + su2 * dt**3 / 3) * e + su2 * f * W2[i, j]
+            Q[i, 3 + j] = su2 * (-0.5 * dt * dt * e + ic2 * W[i, j] - ic3 * W2[i, j])
+            Q[3 + i, 3 + j] = su2 * dt * e
+    for i in range(3):
+        for j in range(3):
+            Q[3 + j, i] = Q[i, 3 + j]
+    Pn = Phi @ P @ Phi.T + Q
+    nq = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2 + r3 * r3)
+    q[0], q[1], q[2], q[3] = r0 / nq, r1 / nq, r2 / nq, r3 / nq
+    for i in range(6):
+        for j in range(6):
+            P[i, j] = 0.5 * (Pn[i, j] + Pn[j, i])
+
+
+@njit(cache=True)
+def update(q, b, P, bm, bref, R, gate):
+    """:func:`magtune_core.design.mekf.update` in place; returns (nis, accepted)."""
+    A = rotation(q)
+    h = np.empty(3)
+    for i in range(3):
+        h[i] = A[0, i] * bref[0] + A[1, i] * bref[1] + A[2, i] * bref[2]
+    y = np.empty(3)
+    for i in range(3):
+        y[i] = bm[i] - h[i]
+    H = np.zeros((3, 6))
+    H[0, 1], H[0, 2], H[1, 0], H[1, 2], H[2, 0], H[2, 1] = -h[2], h[1], h[2], -h[0], -h[1], h[0]
+    PHt = P @ H.T
+    S = H @ PHt + R
+    nis = float(y @ np.linalg.solve(S, y))
+    if not nis <= gate:
+        return nis, False
+    K = np.linalg.solve(S, PHt.T).T
+    dx = K @ y
+    IKH = np.eye(6) - K @ H
+    Pn = IKH @ P @ IKH.T + K @ R @ K.T
+    r0, r1, r2, r3 = _qmul(q[0], q[1], q[2], q[3], 1.0, 0.5 * dx[0], 0.5 * dx[1], 0.5 * dx[2])
+    nq = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2 + r3 * r3)
+    q[0], q[1], q[2], q[3] = r0 / nq, r1 / nq, r2 / nq, r3 / nq
+    for i in range(3):
+        b[i] += dx[3 + i]
+    for i in range(6):
+        for j in range(6):
+            P[i, j] = 0.5 * (Pn[i, j] + Pn[j, i])
+    return nis, True
+
+
+@njit(cache=True)
+def davenport2(b1, r1, s1, b2, r2, s2):
+    """:func:`magtune_core.design.attitude_fix.davenport` of two pairs (q, P_fix (3, 3))."""
+    bu = np.empty((2, 3))
+    ru = np.empty((2, 3))
+    nb1, nb2 = math.sqrt(b1 @ b1), math.sqrt(b2 @ b2)
+    nr1, nr2 = math.sqrt(r1 @ r1), math.sqrt(r2 @ r2)
+    for j in range(3):
+        bu[0, j], bu[1, j], ru[0, j], ru[1, j] = b1[j] / nb1, b2[j] / nb2, r1[j] / nr1, r2[j] / nr2
+    a = np.array([s1**-2.0, s2**-2.0])
+    B = np.zeros((3, 3))
+    for i in range(2):
+        for j in range(3):
+            for k in range(3):
+                B[j, k] += a[i] * bu[i, j] * ru[i, k]
+    z = np.array([B[1, 2] - B[2, 1], B[2, 0] - B[0, 2], B[0, 1] - B[1, 0]])
+    tr = B[0, 0] + B[1, 1] + B[2, 2]
+    K = np.zeros((4, 4))
+    for i in range(3):
+        for j in range(3):
+            K[i, j] = B[i, j] + B[j, i] - (tr if i == j else 0.0)
+        K[i, 3] = K[3, i] = z[i]
+    K[3, 3] = tr
+    _, V = np.linalg.eigh(K)
+    qv0, qv1, qv2, q4 = V[0, 3], V[1, 3], V[2, 3], V[3, 3]
+    qv = np.array([qv0, qv1, qv2])
+    sk = np.array([[0.0, -qv2, qv1], [qv2, 0.0, -qv0], [-qv1, qv0, 0.0]])
+    At = np.empty((3, 3))
+    d = q4 * q4 - (qv0 * qv0 + qv1 * qv1 + qv2 * qv2)
+    for i in range(3):
+        for j in range(3):
+            At[j, i] = (d if i == j else 0.0) + 2.0 * qv[i] * qv[j] - 2.0 * q4 * sk[i, j]
+    F = np.zeros((3, 3))
+    for i in range(2):
+        for j in range(3):
+            for k in range(3):
+                F[j, k] += a[i] * ((1.0 if j == k else 0.0) - bu[i, j] * bu[i, k])
+    return matrix_quat(At), np.linalg.inv(F)
+
+
+@njit(cache=True)
+def _start(m, i, q, P):
+    """MekfStream's initial_state: q, P_fix and the bias prior (bias 0)."""
+    for j in range(4):
+        m.q[i, j] = q[j]
+    for j in range(6):
+        for k in range(6):
+            m.P[i, j, k] = 0.0
+    for j in range(3):
+        m.b[i, j] = 0.0
+        for k in range(3):
+            m.P[i, j, k] = P[j, k]
+        m.P[i, 3 + j, 3 + j] = m.bias_std**2
+    m.started[i] = True
+
+
+@njit(cache=True)
+def stream_step(m, i, mag, bref, sun_ok, sun, sref):
+    """One sample of filter ``i`` (:meth:`magtune_core.design.estimator.MekfStream.step`): the coarse fix
+    or the propagation with ``m.w_prev[i]``, then the magnetometer update and, when ``sun_ok``, the
+    sun's. Returns (nis_mag, nis_sun) (nan: none). The caller stores the gyro sample in ``m.w_prev[i]``
+    afterwards."""
+    m.k[i] += 1
+    k = m.k[i]
+    if not m.started[i]:
+        if k == 0:
+            if sun_ok:
+                q, Pf = davenport2(mag, bref, m.sig_mag[i] / math.sqrt(mag @ mag), sun, sref, m.sun_std[i])
+                _start(m, i, q, Pf)
+                m.k0[i] = k
+            else:
+                for j in range(3):
+                    m.first[i, j], m.first[i, 3 + j] = mag[j], bref[j]
+                return math.nan, math.nan
+        else:
+            w = m.w_prev[i]
+            c = m.carry[i]
+            p0, p1, p2, p3 = _rotvec_quat(w[0] * m.ts, w[1] * m.ts, w[2] * m.ts)
+            c[0], c[1], c[2], c[3] = _qmul(c[0], c[1], c[2], c[3], p0, p1, p2, p3)
+            mag0, b0 = m.first[i, :3], m.first[i, 3:]
+            cosang = (bref @ b0) / (math.sqrt(bref @ bref) * math.sqrt(b0 @ b0))
+            if cosang > m.cos_init:
+                return math.nan, math.nan
+            T = k * m.ts
+            A = rotation(c)
+            b_old = A.T @ mag0
+            s_old = math.sqrt((m.sig_mag[i] / math.sqrt(mag0 @ mag0)) ** 2 + (m.bias_std * T) ** 2 + m.sv2[i] * T)
+            q, Pf = davenport2(mag, bref, m.sig_mag[i] / math.sqrt(mag @ mag), b_old, b0, s_old)
+            _start(m, i, q, Pf)
+            m.k0[i] = k
+    else:
+        propagate(m.q[i], m.b[i], m.P[i], m.w_prev[i], m.ts, m.sv2[i], m.su2[i], GL_X, GL_W)
+    nis_m, ok = update(m.q[i], m.b[i], m.P[i], mag, bref, m.R_mag[i], m.gate_mag)
+    m.counts[i, 0 if ok else 1] += 1
+    nis_s = math.nan
+    if sun_ok:
+        Rs = m.sun_std[i] ** 2 * np.eye(3)
+        nis_s, ok = update(m.q[i], m.b[i], m.P[i], sun, sref, Rs, m.gate_sun)
+        m.counts[i, 2 if ok else 3] += 1
+    return nis_m, nis_s
+
+
+def kernel_state(B: int, ts: float, *, arw, rrw, mag_cov, sun_std, gate_probability: float = 0.9999,
+                 bias_std: float = 5e-4, init_angle: float = math.radians(10.0), on: bool = True) -> KernelMekf:
+    """B fresh filters (MekfStream's start state) with the filter's model: ``arw`` sigma_v, ``rrw`` sigma_u
+    (scalars or (B,)), ``mag_cov`` (3, 3) or (B, 3, 3) [T^2], ``sun_std`` [rad] (scalar or (B,)); the
+    chi-square gates of :class:`magtune_core.design.mekf.MekfParams`. ``on`` False: a placeholder the
+    kernel does not read."""
+    from .mekf import MekfParams
+
+    def per_run(v):
+        return np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=float), (B,)))
+
+    gp = MekfParams(1.0, 1.0, gate_probability)
+    R = np.ascontiguousarray(np.broadcast_to(np.asarray(mag_cov, dtype=float), (B, 3, 3)))
+    carry = np.zeros((B, 4))
+    carry[:, 0] = 1.0
+    return KernelMekf(bool(on), float(ts), per_run(arw) ** 2, per_run(rrw) ** 2, R, np.sqrt(R[:, 0, 0]).copy(),
+                      per_run(sun_std), gp.gate(3), gp.gate(2), float(bias_std), math.cos(init_angle),
+                      np.zeros((B, 4)), np.zeros((B, 3)), np.zeros((B, 6, 6)), np.zeros(B, dtype=np.bool_),
+                      np.full(B, -1, dtype=np.int64), np.zeros((B, 6)), carry, np.zeros((B, 3)),
+                      np.zeros((B, 4), dtype=np.int64), np.full(B, -1, dtype=np.int64))
