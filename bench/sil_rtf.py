@@ -1,11 +1,15 @@
 """SIL real-time factor: lockstep run of the three magtune_ros nodes over DDS at Ts = 1 s.
 
     python bench/sil_rtf.py [--orbits 5] [--gains FILE] [--environment paper|full]
+    python bench/sil_rtf.py --compare modes|estimator [--orbits 5] [--environment full]
 
 Prints the real-time factor (simulated seconds / wall seconds of the stepping phase, i.e.
 after discovery), the missed steps, and the largest deviation from the offline simulation.
 Target (issue 3): >= 470x for 5 orbits with zero missed steps; with ``--environment full``
-(J2 orbit, IGRF degree 10, drag, SRP; issue 5): >= 200x.
+(J2 orbit, IGRF degree 10, drag, SRP; issue 5): >= 200x. ``--compare`` flies the same run twice,
+side by side in one invocation: without and with the mode manager (started in POINTING, so both
+fly the same law; target: within 10 %), or with truth feedback and with the attitude estimator
+(target: >= 70 %), and prints the ratio and the machine load.
 """
 import argparse
 import sys
@@ -33,8 +37,12 @@ def main():
     ap.add_argument("--environment", choices=("paper", "full"), default="paper")
     ap.add_argument("--no-visuals", action="store_true",
                     help="simulator without /tf and sim/markers (publish_tf/publish_markers false): their cost")
+    ap.add_argument("--compare", choices=("modes", "estimator"), default=None,
+                    help="the same run without and with the mode manager / the attitude estimator")
     a = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="magtune_bench_"))
+    if a.compare:
+        return compare(a, tmp)
     gains = a.gains
     if gains is None:
         gains = tmp / "sigma_60.yaml"
@@ -54,6 +62,25 @@ def main():
         err = max(np.max(np.abs(run.result.q - off.q)), np.max(np.abs(run.result.w - off.w)),
                   np.max(np.abs(run.result.m - off.m)))
         print(f"max |SIL - offline| = {err:.3g} (offline run {dt:.1f} s)")
+
+
+def compare(a, tmp: Path) -> None:
+    """Baseline and variant, each run once after a warm-up run, in this invocation; RTF ratio."""
+    import os
+
+    gains = a.gains or str(Path(__file__).resolve().parents[1] / "config" / "gains" / "sigma_120.yaml")
+    variant = (dict(modes=True, initial_mode="POINTING") if a.compare == "modes" else dict(attitude="estimator"))
+    names = ("without mode manager", "with mode manager") if a.compare == "modes" else ("truth feedback", "estimator")
+    print(f"load before: {os.getloadavg()[0]:.2f}; {a.orbits:g} orbits, environment {a.environment}, gains {gains}")
+    sil.run_sil(gains, orbits=0.1, ts=1.0, log_dir=tmp / "warm", environment=a.environment)  # caches, discovery
+    rtf = []
+    for name, extra in zip(names, ({}, variant)):
+        run = sil.run_sil(gains, orbits=a.orbits, ts=1.0, log_dir=tmp / name.replace(" ", "_"),
+                          environment=a.environment, **extra)
+        rtf.append(run.real_time_factor)
+        print(f"{name:22s} RTF {run.real_time_factor:6.0f}x  missed steps {run.counters.get('missed_steps')}  "
+              f"wall {run.wall_time:.1f} s")
+    print(f"ratio {names[1]} / {names[0]}: {rtf[1] / rtf[0]:.3f}; load after: {os.getloadavg()[0]:.2f}")
 
 
 if __name__ == "__main__":
