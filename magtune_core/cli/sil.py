@@ -1,6 +1,8 @@
 """``magtune sil``: software-in-the-loop run of the ROS 2 nodes (lockstep, sim time)."""
 from __future__ import annotations
 
+import argparse
+
 from ..base import jsonout
 from ..design.faults import parse_spec
 from ..ros import sil
@@ -28,9 +30,11 @@ def register(sub) -> None:
     p.add_argument("--initial-attitude-deg", type=_triple("--initial-attitude-deg"), default=None, metavar="RX,RY,RZ",
                    help="initial attitude as a rotation vector [deg] (axis x angle, at most 180 deg) of the body "
                         "w.r.t. the orbital axes (default: aligned)")
-    p.add_argument("--modes", action="store_true",
+    p.add_argument("--modes", action=argparse.BooleanOptionalAction, default=None,
                    help="fly the flight modes: start the mode manager (lifecycle bring-up, ModeLogic, health "
-                        "monitor) in DETUMBLE; without it the controller flies POINTING (the paper's run)")
+                        "monitor) in DETUMBLE; without it the controller flies POINTING (the paper's run). "
+                        "Default: on when --initial-rate-deg or --initial-attitude-deg is given (a deployment), "
+                        "off otherwise; --no-modes flies eq. 17 from any initial state")
     p.add_argument("--initial-mode", default=None, metavar="MODE",
                    help="with --modes: the first mode (DETUMBLE, ACQUISITION, POINTING, SAFE; default DETUMBLE, a "
                         "deployment; POINTING starts a settled satellite, e.g. to inject a fault)")
@@ -107,7 +111,7 @@ def run(args) -> int:
                                  env_options=environment_options(args), field=args.field, epoch_time=args.epoch_time,
                                  foxglove=args.foxglove, bag_topics=args.bag_topics, bag_exclude=args.bag_exclude,
                                  dds_interfaces=args.dds_interfaces, initial_rate_deg=args.initial_rate_deg,
-                                 initial_attitude_deg=args.initial_attitude_deg, modes=args.modes,
+                                 initial_attitude_deg=args.initial_attitude_deg, modes=_modes(args),
                                  initial_mode=args.initial_mode,
                                  attitude=args.attitude, estimator_params=_assignments(args.estimator_param),
                                  faults=faults)
@@ -177,3 +181,10 @@ def satellites(values: list[str]) -> dict:
             raise CommandError(f"--gains: namespace {ns or '/'} given twice", code=2)
         out[ns] = path
     return out
+
+
+def _modes(args) -> bool:
+    """--modes / --no-modes as given; else on for a deployment (an initial rate or attitude given)."""
+    if args.modes is not None:
+        return bool(args.modes)
+    return args.initial_rate_deg is not None or args.initial_attitude_deg is not None
