@@ -39,15 +39,15 @@ def test_mag_dropout_longer_than_stale_timeout_goes_safe_and_recovers():
     """30 s without magnetometer: the last sample is t = 999 s, the stream is stale once it lags by more than
     3 s (t = 1003 s); fresh again at 1030 s, SAFE holds for safe_recovery_time (DETUMBLE at 1040 s), then
     DETUMBLE -> ACQUISITION after detumble_exit_time (600 s from the sample after 1040 s) and the hand-over
-    (measured 2508 s). The controller holds its dipole 2 Ts after the last field, zero from 1002 s."""
+    (measured 2579 s with the shipped sigma = 60 gains). The controller holds its dipole 2 Ts after the last field, zero from 1002 s."""
     r = fly(["mag_dropout@1000:30"], 2600.0)
     assert table(r) == [(1003.0, POINTING, SAFE), (1040.0, SAFE, DETUMBLE), (1641.0, DETUMBLE, ACQUISITION),
-                        (2508.0, ACQUISITION, POINTING)]
+                        (2579.0, ACQUISITION, POINTING)]
     assert r.transitions[0].reason == "sensor data stale"
     assert np.all(r.m[(r.t >= 1002.0) & (r.t < 1040.0)] == 0.0)
     # the 600 s of B-dot after the outage leave the pointing law a 24 deg error to capture (measured 23.8 deg);
     # handed over below handover_angle (5 deg; measured 2.06 deg, settling: 0.47 deg one orbit later)
-    assert r.pointing_deg.max() < 30.0 and r.pointing_deg[r.t > 2508.0].max() < 5.0
+    assert r.pointing_deg.max() < 30.0 and r.pointing_deg[r.t > 2579.0].max() < 5.0
 
 
 def test_short_mag_dropout_is_ridden_through(nominal):
@@ -105,10 +105,10 @@ def test_small_gyro_bias_stays_pointing_with_a_bounded_error():
     assert table(r) == [] and r.pointing_deg.max() < 3.0
 
 
-@pytest.mark.parametrize("spec, bound", [("torquer_dead@1000,axis=x", 3.5), ("torquer_stuck@1000,axis=x", 4.2)])
+@pytest.mark.parametrize("spec, bound", [("torquer_dead@1000,axis=x", 4.1), ("torquer_stuck@1000,axis=x", 5.0)])
 def test_x_torquer_dead_or_stuck_degrades_but_stays_bounded(spec, bound):
     """The x torquer dead (0) or stuck at its dipole of t = 999 s: the other two axes still point the body.
-    Over 3 orbits: POINTING throughout, peak error 3.21 deg (dead) / 3.87 deg (stuck) in each orbit after the
+    Over 3 orbits: POINTING throughout, peak error 3.74 deg (dead) / 4.52 deg (stuck) in each orbit after the
     fault (measured, 5 orbits: the peaks of orbits 2-5 equal within 0.003 deg, a periodic steady state);
     bounds with 10 % margin, and the third orbit's peak within 0.05 deg of the second's (not growing)."""
     r = fly([spec], 3 * P.orbit_period)
