@@ -1,10 +1,10 @@
 """Feasibility restoration (phase 1): a start gain that meets the hard requirements when no
 scaling of the LQ start does.
 
-Why: scaling a gain down buys hold margin but slows the held loop's decay, so under the default
-design spec (hold margin 4 and |multiplier| <= 0.05 at every Ts of 1-30 s) no scaling of the paper's
-LQ start is feasible at 30 s (sigma = 60: margin 4 needs the scale <= 0.6, where the held loop's
-multiplier is 0.25). The requirements are cheap to evaluate (held-loop spectral radii and the
+Why: scaling a gain down buys hold margin but slows the held loop's decay, so under a design spec
+with a decay bound (hold margin 4 and |multiplier| <= 0.05 at every Ts of 1-30 s) no scaling of the
+paper's LQ start is feasible at 30 s (sigma = 60: margin 4 needs the scale <= 0.6, where the held
+loop's multiplier is 0.25). The requirements are cheap to evaluate (held-loop spectral radii and the
 linear dipole peak, no H-inf norm), so CMA-ES minimizes their total violation first (the classical
 phase 1 of constrained optimization, e.g. Nocedal & Wright, Numerical Optimization, sec. 15.4) and
 the tuner then minimizes J from the first feasible gain.
@@ -28,13 +28,14 @@ def violation(screen, Ks) -> np.ndarray:
         >= 0; inf where a product is not finite.
     """
     from .dipole import peak_dipole
+    from .requirements import hold_ends
 
     Ks = np.asarray(Ks, dtype=float).reshape(-1, 3, 6)
     v = np.zeros(len(Ks))
     with np.errstate(divide="ignore", invalid="ignore"):
         for loop in screen.loops:
-            v += np.maximum(0.0, np.log(loop.spectral_radius(screen.gain_margin * Ks)))
-            v += np.maximum(0.0, np.log(loop.spectral_radius(Ks) / screen.max_multiplier))
+            for g, bound in hold_ends(screen.gain_margin, screen.max_multiplier):
+                v += np.maximum(0.0, np.log(loop.spectral_radius(g * Ks) / bound))
         for loop in screen.dipole_loops:
             v += np.maximum(0.0, np.log(peak_dipole(loop, Ks, screen.case).max(axis=-1) / screen.budget))
     return np.where(np.isnan(v), np.inf, v)

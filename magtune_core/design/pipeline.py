@@ -30,7 +30,7 @@ import numpy as np
 from .cmaes import CmaSettings
 from .gains import Gains
 from .problem import Figures, cost_gradient, figures
-from .requirements import Requirements, held_margin_ok, scan_hold
+from .requirements import Requirements, held_radii, hold_ends, scan_hold
 from .resolution import resolved_steps, start_gain
 from .sampled import HoldConstraint, SampledLoop, feasible_start, hold_gain_margin, hold_provenance
 from .tuner import TunerSettings
@@ -246,7 +246,8 @@ def requirement_provenance(model, K, req: Requirements, cache: dict | None = Non
     """
     loops = SampledLoop.at(model, req.periods(req.sampling["scan_periods"]), cache)
     margins = np.array([hold_gain_margin(loop, K) for loop in loops])
-    rhos = np.array([loop.spectral_radius(np.asarray(K, dtype=float).reshape(1, 3, 6))[0] for loop in loops])
+    radii = np.array([held_radii(loop, K, req.gain_margin) for loop in loops])  # (scan, 2): margin end, K
+    rhos = radii[:, 1]
     i, j = int(np.argmin(margins)), int(np.argmax(rhos))
     screen = req.screen(model)
     checks = [c for c in screen.checks(K) if c.name.startswith("peak |m_")]
@@ -254,7 +255,8 @@ def requirement_provenance(model, K, req: Requirements, cache: dict | None = Non
     # met as the tuner decides it (the held loop stable with K and K x margin at every scanned period);
     # hold_gain_margin's first crossing (the margin from K up) is reported beside it: between the two
     # ends stability need not be monotone (the shipped gains: 3.95-3.98 against 4)
-    held_ok = not req.gain_margin or all(held_margin_ok(loop, K, req.gain_margin, req.max_multiplier) for loop in loops)
+    bounds = [b for _, b in hold_ends(req.gain_margin, req.max_multiplier)]
+    held_ok = not req.gain_margin or bool(np.all(radii < bounds))
     met = bool(held_ok and (not req.dipole_budget or peak <= req.dipole_budget))
     return {"requirements": req.describe(), "requirements_source": req.source, "requirements_met": met,
             "hold_margin_min": round(float(margins[i]), 3), "hold_tightest_ts": round(float(loops[i].ts), 4),

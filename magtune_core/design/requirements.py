@@ -251,8 +251,8 @@ class FlightScreen:
         """
         Ks = np.asarray(Ks, dtype=float).reshape(-1, 3, 6)
         ok = np.ones(len(Ks), dtype=bool)
-        for loop in self.loops:  # the margin's both ends: K x gain_margin stable, K's decay (module docstring)
-            for g, rho in ((self.gain_margin, 1.0), (1.0, self.max_multiplier)):
+        for loop in self.loops:  # the margin's both ends (hold_ends)
+            for g, rho in hold_ends(self.gain_margin, self.max_multiplier):
                 if ok.any():
                     ok[ok] = loop.spectral_radius(g * Ks[ok]) < rho
         for loop in self.dipole_loops:
@@ -299,10 +299,26 @@ def scan_hold(model: AttitudeLTP, K, req: Requirements, points: int | None = Non
                                                             for loop in loops])
 
 
-def held_margin_ok(loop, K, gain_margin: float, max_multiplier: float = 1.0) -> bool:
-    """The hold requirement at one period: the held loop stable with K x ``gain_margin`` and with K
-    decaying by ``max_multiplier`` per orbit (both ends of the margin: near the nutation limit
-    stability is not monotone in the gain's scale)."""
+def hold_ends(gain_margin: float, max_multiplier: float = 1.0) -> tuple:
+    """The hold requirement at one period as (scale, bound) pairs, rho(scale x K) < bound for each:
+    the held loop stable with K x ``gain_margin`` and decaying by ``max_multiplier`` per orbit with K
+    (both ends of the margin: near the nutation limit stability is not monotone in the gain's scale)."""
+    return ((float(gain_margin), 1.0), (1.0, float(max_multiplier)))
+
+
+def held_radii(loop, K, gain_margin: float) -> np.ndarray:
+    """The held loop's largest |multiplier| at the scales of :func:`hold_ends`, of one gain.
+
+    Returns
+    -------
+    ndarray (2,)
+        rho(gain_margin x K), rho(K).
+    """
     K = np.asarray(K, dtype=float).reshape(1, 3, 6)
-    rho = loop.spectral_radius(np.concatenate([gain_margin * K, K]))
-    return bool(rho[0] < 1.0 and rho[1] < max_multiplier)
+    return loop.spectral_radius(np.concatenate([g * K for g, _ in hold_ends(gain_margin)]))
+
+
+def held_margin_ok(loop, K, gain_margin: float, max_multiplier: float = 1.0) -> bool:
+    """The hold requirement at one period (:func:`hold_ends`) for one gain."""
+    bounds = [b for _, b in hold_ends(gain_margin, max_multiplier)]
+    return bool(np.all(held_radii(loop, K, gain_margin) < bounds))
