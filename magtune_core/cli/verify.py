@@ -73,16 +73,16 @@ def run(args) -> int:
     p = load_spacecraft(args.config)
     campaign = args.campaign or shown_path(repo_path("config/campaigns/example.yaml"))  # relative: recorded in files
     verify.load_spec(campaign)  # validated before any worker starts
-    tightest = gains.provenance.get("hold_tightest_ts")
-    if tightest is None and req.gain_margin:
-        from ..design.pipeline import requirement_provenance
-
-        tightest = requirement_provenance(load_model(args), gains.K, req)["hold_tightest_ts"]
     lo, hi = req.sampling["ts_min"], req.sampling["ts_max"]
     bad = [t for t in args.also_ts if not lo <= t <= hi]
     if bad:
         raise ConfigError("--also-ts", None, f"{bad[0]:g} s lies outside the design spec's range {lo:g}-{hi:g} s; "
                           "widen sampling.ts_min/ts_max or drop it")
+    tightest = gains.provenance.get("hold_tightest_ts")
+    if tightest is None and req.gain_margin:
+        from ..design.pipeline import requirement_provenance
+
+        tightest = requirement_provenance(load_model(args), gains.K, req)["hold_tightest_ts"]
     periods = verify.verify_periods(req, tightest, args.also_ts)
     print(f"verify {args.gains}: {args.runs} runs at Ts = {', '.join(f'{t:g}' for t in periods)} s "
           f"(ends of {lo:g}-{hi:g} s and the tightest hold margin" + (", asked" if args.also_ts else "") + "), "
