@@ -14,6 +14,7 @@ TOPIC_MAG_TORQUE = "sim/magnetic_torque"      # geometry_msgs/WrenchStamped
 TOPIC_DIST_TORQUE = "sim/disturbance_torque"  # geometry_msgs/WrenchStamped
 TOPIC_ORBIT = "sim/orbit"                     # nav_msgs/Odometry: true r [m], v [m/s] in ECI (full environment)
 TOPIC_TRUE_SUN = "sim/sun"                    # geometry_msgs/Vector3Stamped: geocentric Sun position [m], ECI (full env.)
+TOPIC_TORQUER_FIELD = "sim/torquer_field"     # sensor_msgs/MagneticField: the torquers' field at the magnetometer [T]
 TOPIC_MAG = "sensors/magnetic_field"          # sensor_msgs/MagneticField: measured b
 TOPIC_ATTITUDE = "sensors/attitude"           # sensor_msgs/Imu: measured attitude + rate (controller input)
 TOPIC_IMU = "sensors/imu"                     # sensor_msgs/Imu: gyro rate only (orientation_covariance[0] = -1)
@@ -48,6 +49,7 @@ MAG = "/" + TOPIC_MAG
 ATTITUDE = "/" + TOPIC_ATTITUDE
 ORBIT = "/" + TOPIC_ORBIT
 TRUE_SUN = "/" + TOPIC_TRUE_SUN
+TORQUER_FIELD = "/" + TOPIC_TORQUER_FIELD
 IMU = "/" + TOPIC_IMU
 SUN = "/" + TOPIC_SUN
 POSITION = "/" + TOPIC_POSITION
@@ -70,6 +72,7 @@ PROJECT_TOPICS: dict[str, tuple[str, str]] = {
     ATTITUDE: ("sensor_msgs/msg/Imu", "transient_local"),
     ORBIT: ("nav_msgs/msg/Odometry", "transient_local"),
     TRUE_SUN: ("geometry_msgs/msg/Vector3Stamped", "transient_local"),
+    TORQUER_FIELD: ("sensor_msgs/msg/MagneticField", "transient_local"),
     IMU: ("sensor_msgs/msg/Imu", "transient_local"),
     SUN: ("geometry_msgs/msg/Vector3Stamped", "transient_local"),
     POSITION: ("nav_msgs/msg/Odometry", "transient_local"),

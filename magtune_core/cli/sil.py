@@ -52,7 +52,8 @@ def register(sub) -> None:
                         "(docs/modes.md#faults)")
     p.add_argument("--scenario", default=None, metavar="FILE",
                    help="scenario file: YAML with a 'faults:' list of {kind, t, duration, axis, value} (added to "
-                        "--fault)")
+                        "--fault) and a 'torquers:' mapping (torquer_coupling, torquer_off_time, torquer_decay_time, "
+                        "duty_compensation; docs/torquers.md)")
     p.add_argument("--spacecraft", "--config", dest="spacecraft", default=None,
                    help="spacecraft/orbit parameter file (default: the global --config, config/spacecraft.yaml)")
     p.add_argument("--field", metavar="FILE", default=None,
@@ -100,7 +101,9 @@ def run(args) -> int:
             print(f"magtune sil: step {k}/{n} ({100 * k // max(n, 1)} %)", file=sys.stderr, flush=True)
 
     sats = satellites(args.gains)
-    faults = list(load_scenario_file(args.scenario)["faults"]) if args.scenario else []
+    scen = load_scenario_file(args.scenario) if args.scenario else {"faults": (), "torquers": {},
+                                                                    "torquers_source": "torquers"}
+    faults = list(scen["faults"])
     faults += [parse_spec(f) for f in args.fault]
     # every input validated before anything starts (one line and exit 2 for a bad one)
     scenario = SilScenario.build(sats, orbits=args.orbits, steps=args.steps, ts=args.ts, substeps=args.substeps,
@@ -114,7 +117,8 @@ def run(args) -> int:
                                  initial_attitude_deg=args.initial_attitude_deg, modes=_modes(args),
                                  initial_mode=args.initial_mode,
                                  attitude=args.attitude, estimator_params=_assignments(args.estimator_param),
-                                 faults=faults)
+                                 faults=faults, torquers=scen["torquers"],
+                                 torquers_source=scen["torquers_source"])
     if not args.quiet:
         print("magtune sil: starting the nodes (discovery takes a few seconds)", file=sys.stderr, flush=True)
         if args.foxglove is not None:

@@ -30,6 +30,22 @@ SAMPLE_PERIOD = Field("ts", "float", "controller sample period Ts [s] (sim time)
 DIPOLE_LIMIT = Field("dipole_limit", "float[]", "per-axis dipole saturation [A m^2]", (DEFAULT_DIPOLE_LIMIT,) * 3,
                      size=3, positive=True, bounds=(1e-6, 1e4), unit="A m^2")
 
+#: The torquers as the magnetometer and the plant see them (design/torquers.py, docs/torquers.md): the
+#: simulator, the sensors, the controller, scenario files and campaigns read this one schema. A coupling
+#: entry of 1e-3 T/(A m^2) is a magnetometer 6 cm from the rods; decay times of real rods are ms.
+TORQUER_FIELDS = (
+    Field("torquer_coupling", "float[]", "field of the torquers at the magnetometer per unit dipole C "
+          "[T/(A m^2)], row-major 3x3, body axes (zeros: none)", (0.0,) * 9, size=9, bounds=(-1e-3, 1e-3),
+          unit="T/(A m^2)"),
+    Field("torquer_off_time", "float", "torquers off for the last off_time of every period, the magnetometer "
+          "sampling at its end [s] (0: always on; C2A's cycle at 1 s: 0.2)", 0.0, nonnegative=True,
+          bounds=(0.0, 3600.0), unit="s"),
+    Field("torquer_decay_time", "float", "time constant of the torquers' field after switch-off [s] (0: instant)",
+          0.0, nonnegative=True, bounds=(0.0, 60.0), unit="s"),
+    Field("duty_compensation", "bool", "drive the law's dipole / on fraction (saturated) so the period's mean "
+          "is the law's", True),
+)
+
 #: The flight modes by id (magtune_interfaces/msg/Mode's constants; design/modes.py MODES is the same tuple).
 MODE_NAMES = ("DETUMBLE", "ACQUISITION", "POINTING", "SAFE")
 
@@ -221,8 +237,9 @@ FAULTS = Field("faults", "str[]", "injected faults, each KIND@T[:DURATION][,axis
                "(magtune_core/design/faults.py; docs/modes.md#faults)", ())
 
 #: The SIL nodes' schemas by node name.
-SIL_NODE_FIELDS = {"simulator": SIMULATOR_FIELDS + (FAULTS,), "attitude_sensors": SENSOR_FIELDS + (AUTOSTART, FAULTS),
-                   "controller": CONTROLLER_FIELDS + BDOT_FIELDS + (AUTOSTART,),
+SIL_NODE_FIELDS = {"simulator": SIMULATOR_FIELDS + TORQUER_FIELDS + (FAULTS,),
+                   "attitude_sensors": SENSOR_FIELDS + TORQUER_FIELDS + (AUTOSTART, FAULTS),
+                   "controller": CONTROLLER_FIELDS + BDOT_FIELDS + TORQUER_FIELDS + (AUTOSTART,),
                    "attitude_estimator": ESTIMATOR_FIELDS + (AUTOSTART,),
                    "mode_manager": MANAGER_FIELDS + MODE_FIELDS + BDOT_FIELDS}
 #: Parameters every node has (rclpy's own).

@@ -50,7 +50,7 @@ class Magnetometer:
     """Three-axis magnetometer: b_m = quantize(M b + bias + noise_std n) [T].
 
     ``matrix`` is M = I + scale factors (diagonal) + misalignment (off-diagonal), row-major 9
-    values; ``quantum`` the LSB [T] (0: none). The torquers' coupling is not modelled here.
+    values; ``quantum`` the LSB [T] (0: none). The torquers' field reaches it through design.torquers.
     """
 
     noise_std: float = 0.0  #: white noise std per axis [T]

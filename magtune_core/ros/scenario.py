@@ -32,8 +32,17 @@ from ..design.estimator import default_suite
 from ..design.fitfield import field_for_spacecraft
 from ..design.gains import CONTROLLER_NODE, Gains
 from ..design.modes import DETUMBLE, POINTING, ModeParams
-from ..design.node_params import BDOT_FIELDS, ESTIMATOR_FIELDS, INITIAL_RATE_ERROR, MANAGER_FIELDS, MODE_FIELDS, MODE_NAMES
+from ..design.node_params import (
+    BDOT_FIELDS,
+    ESTIMATOR_FIELDS,
+    INITIAL_RATE_ERROR,
+    MANAGER_FIELDS,
+    MODE_FIELDS,
+    MODE_NAMES,
+    TORQUER_FIELDS,
+)
 from ..design.params import SpacecraftParams, check_sample_period
+from ..design.torquers import Torquers
 from ..sim.fullenv import FullEnvironmentOptions, full_params
 from ..sim.initial import initial_conditions, substeps_for_rate
 from ..sim.simulate import initial_state
@@ -211,17 +220,20 @@ def check_attitude_arguments(attitude: str, sensor_params, estimator_params, mod
 
 
 #: The keys of a scenario file (``magtune sil --scenario FILE``), each validated by its schema.
-SCENARIO_KEYS = ("faults",)
+SCENARIO_KEYS = ("faults", "torquers")
 
 
 def load_scenario_file(path) -> dict:
     """A scenario file: YAML with ``faults:``, a list of mappings of
-    :data:`magtune_core.design.faults.FAULT_FIELDS` (``{kind: mag_dropout, t: 3000, duration: 30}``).
+    :data:`magtune_core.design.faults.FAULT_FIELDS` (``{kind: mag_dropout, t: 3000, duration: 30}``),
+    and ``torquers:``, a mapping of :data:`magtune_core.design.node_params.TORQUER_FIELDS`
+    (coupling into the magnetometer, duty cycle; docs/torquers.md).
 
     Returns
     -------
     dict
-        ``{"faults": (Fault, ...)}``; ConfigError naming the file, the entry and the field otherwise.
+        ``{"faults": (Fault, ...), "torquers": {field: value}}`` (torquers: only the fields given);
+        ConfigError naming the file, the entry and the field otherwise.
     """
     doc = load_user_yaml(path, "expected a scenario YAML file with a 'faults:' list")
     if doc is None:
@@ -231,7 +243,22 @@ def load_scenario_file(path) -> dict:
     from ..base.schema import check_names
 
     check_names(doc, (), path, allowed=SCENARIO_KEYS)
-    return {"faults": fl.from_list(doc.get("faults"), f"{path}: faults")}
+    tq = doc.get("torquers") or {}
+    if not isinstance(tq, dict):
+        raise ConfigError(path, "torquers", f"expected a mapping of {', '.join(f.name for f in TORQUER_FIELDS)}")
+    parse(tq, TORQUER_FIELDS, f"{path}: torquers", allowed=())
+    return {"faults": fl.from_list(doc.get("faults"), f"{path}: faults"), "torquers": dict(tq),
+            "torquers_source": f"{path}: torquers"}
+
+
+def check_torquer_arguments(torquers, ts_values, where: str = "torquers") -> dict:
+    """The torquers' parameters (TORQUER_FIELDS given), validated against every satellite's Ts: {name: value}."""
+    given = dict(torquers or {})
+    values = parse(given, TORQUER_FIELDS, where, allowed=())
+    tq = Torquers.from_values(values)
+    for ts in ts_values:
+        tq.check(ts, where)
+    return {k: _plain(values[k]) for k in given}
 
 
 def check_fault_arguments(faults, epoch_time: bool) -> tuple:
@@ -295,6 +322,9 @@ class SilScenario:
     attitude: str = "truth"
     #: injected faults (design.faults.Fault), every satellite
     faults: tuple = ()
+    #: the torquers' coupling and duty cycle (TORQUER_FIELDS given), every satellite's simulator,
+    #: sensors and controller
+    torquers: dict = _field(default_factory=dict)
 
     @classmethod
     def build(cls, satellites: dict, *, orbits: float = 5.0, steps: int | None = None, ts: float | None = None,
@@ -307,7 +337,8 @@ class SilScenario:
               epoch_time: bool = False, foxglove: int | None = None, bag_topics=None,
               bag_exclude: str | None = None, initial_attitude_deg=None, initial_rate_deg=None,
               modes: bool = False, initial_mode: str | None = None, mode_params: dict | None = None,
-              attitude: str = "truth", estimator_params: dict | None = None, faults=()) -> "SilScenario":
+              attitude: str = "truth", estimator_params: dict | None = None, faults=(), torquers: dict | None = None,
+              torquers_source: str = "torquers") -> "SilScenario":
         """Read and validate every input of a run (``satellites``: namespace -> gains file).
 
         ``ts`` overrides each gains file's ``ts``; ``environment`` "paper" or "full" (with
@@ -324,17 +355,16 @@ class SilScenario:
         ESTIMATOR_FIELDS) and fly on its estimate; the sensors get the estimator's default suite
         (design.estimator.default_suite) unless ``sensor_params`` set them. ``faults``: injected faults
         (:mod:`magtune_core.design.faults`: Fault objects, ``KIND@T...`` specs or mappings), validated here.
+        ``torquers``: TORQUER_FIELDS values, validated here (errors name ``torquers_source``).
 
         Returns
         -------
         SilScenario
             validated; raises ConfigError (bad input) or SilError (an unsupported combination).
         """
-        if not satellites:
-            raise ConfigError("--gains", None, "no satellite given")
         sats = {normalize_namespace(ns): Path(g) for ns, g in satellites.items()}
-        if len(sats) != len(satellites):
-            raise ConfigError("--gains", None, "two satellites with the same namespace")
+        if not satellites or len(sats) != len(satellites):
+            raise ConfigError("--gains", None, "two satellites with the same namespace" if sats else "no satellite given")
         # one read per file: the rcl-compatibility check returns the parameters the schema validates
         gains_params = {ns: check_ros_params(g, CONTROLLER_NODE) for ns, g in sats.items()}
         gains = {ns: Gains.from_mapping(gains_params[ns], g) for ns, g in sats.items()}
@@ -353,11 +383,9 @@ class SilScenario:
             sat_ts = float(ts if ts is not None else gains[ns].ts)
             check_sample_period(sat_ts, sc, "--ts" if ts is not None else f"{g}: field 'ts'")
             sat_list.append(Satellite(ns, g, gains[ns], gains_params[ns], sat_ts))
-        for path, flag in ((log_dir, "--log-dir"), (results, "--results")):
+        for path, flag in ((log_dir, "--log-dir"), (results, "--results"), (bag, "--bag")):
             if path:
-                check_writable(path, flag, directory=flag == "--log-dir")
-        if bag:
-            check_writable(bag, "--bag", directory=True, empty=True)
+                check_writable(path, flag, directory=flag != "--results", empty=flag == "--bag")
         if environment not in ("paper", "full"):
             raise SilError(f"unknown environment {environment!r} (expected 'paper' or 'full')")
         if field is not None:
@@ -396,7 +424,8 @@ class SilScenario:
                    results=Path(results) if results else None, dds_interfaces=dds_interfaces,
                    node_params={"simulator": simulator_params, "attitude_sensors": dict(sensor_params or {}),
                                 "controller": dict(controller_params or {}), ESTIMATOR: eparams},
-                   modes=bool(modes), initial_mode=mode, mode_params=mparams, attitude=attitude, faults=faults)
+                   modes=bool(modes), initial_mode=mode, mode_params=mparams, attitude=attitude, faults=faults,
+                   torquers=check_torquer_arguments(torquers, [s.ts for s in sat_list], torquers_source))
 
     # ------------------------------------------------------------------ derived
     @property
@@ -464,6 +493,8 @@ class SilScenario:
             own["attitude_sensors"]["faults"] = sensor_faults
         if sim_faults:
             sim["faults"] = sim_faults
+        for node in ("simulator", "attitude_sensors", "controller"):  # one schema, the same values
+            own[node].update(self.torquers)
         if self.modes:  # the managed nodes wait for the mode manager's transitions
             bd = {k: v for k, v in self.mode_params.items() if k in {f.name for f in BDOT_FIELDS}}
             own["attitude_sensors"]["autostart"] = own["controller"]["autostart"] = False

@@ -54,6 +54,8 @@ from ..design.modes import DETUMBLE, MODES, ModeParams
 from ..design.modes_kernel import GUARDS, MODE_CODE, kernel_params
 from ..design.params import SpacecraftParams
 from ..design.sensors import AUX_NORMALS, GYRO_U, NORMALS_PER_STEP, Gyro, aux_rng, draw, gyro_bias_walk, gyro_from
+from ..design.torquers import NONE as NO_TORQUERS
+from ..design.torquers import Torquers
 from ..env.environment import Environment
 from ..env.igrf import IGRF
 from ..env.orbit import eci_to_orbital, initial_state, orbital_rate
@@ -487,7 +489,8 @@ def _aux_blocks(sensors: SensorNoise):
 
 def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: int = 2,
                    record_every: int = 1, orbit_periods=None, full_series: bool = False,
-                   modes: BatchModes | None = None, estimator: BatchEstimator | None = None) -> BatchResult:
+                   modes: BatchModes | None = None, estimator: BatchEstimator | None = None,
+                   torquers: Torquers = NO_TORQUERS) -> BatchResult:
     """Closed loop of B runs of the nonlinear model with the sample-and-hold projection controller.
 
     Same loop as :func:`magtune_core.sim.simulate.simulate` (``steps`` controller periods of
@@ -500,14 +503,15 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
     Control law of paper eq. (17) with per-axis saturation; set-up of paper section 5.
     ``modes``: fly the flight modes (DETUMBLE: B-dot, ACQUISITION / POINTING: eq. 17, SAFE: zero), as
     :func:`magtune_core.sim.modes_loop.simulate_modes` does for one run; None: eq. 17 throughout (bit
-    for bit the loop without modes).
+    for bit the loop without modes). ``torquers`` (design.torquers.Torquers): as the SIL's nodes, every run.
 
     Returns
     -------
     BatchResult
         Histories (B, n_rec, .) at t = k Ts for k = 0, record_every, ..., and always the last step.
     """
-    B, n, S = runs.size, int(steps), int(substeps)
+    torquers.check(ts, "simulate_batch")
+    B, n, S = runs.size, int(steps), torquers.substeps(ts, int(substeps))  # the switch-off on the grid
     per = 2 * S  # grid points per controller period (grid step h/2)
     tables = _EnvTables(runs, ts / per, per, duration=n * ts)
     T = np.asarray(orbit_periods if orbit_periods is not None else tables.periods, dtype=float)
@@ -524,9 +528,8 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
         A = np.ascontiguousarray(np.asarray(geo.faces()[1][:3], dtype=float))
         cp = np.asarray(geo.cp_offset, dtype=float)
         cd, es, ed = float(geo.cd), float(geo.spec_reflect), float(geo.diff_reflect)
-    I = _as3x3(runs.inertia, B)
+    I = np.ascontiguousarray(_as3x3(runs.inertia, B))
     J = np.ascontiguousarray(np.linalg.inv(I))
-    I = np.ascontiguousarray(I)
     hw = np.asarray(runs.p.wheel_momentum, dtype=float).reshape(3).copy()
     mres = np.ascontiguousarray(np.broadcast_to(np.asarray(runs.residual_dipole, float), (B, 3)).T)
     h = ts / S
@@ -554,18 +557,17 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
     rec_slot[rec] = np.arange(len(rec))
     R = len(rec)
     Q, W, X, M, Bb = (np.empty((B, R, d)) for d in (4, 3, 6, 3, 3))
-    sat = np.zeros(B, dtype=np.int64)
-    weak = np.zeros(B, dtype=np.int64)
-    diverged = np.zeros(B, dtype=bool)
+    sat, weak, diverged = np.zeros(B, dtype=np.int64), np.zeros(B, dtype=np.int64), np.zeros(B, dtype=bool)
     min_b2 = runs.min_field**2
     ang_all = np.empty((B, n + 1) if full_series else (B, 1))
-    mn_all = np.empty_like(ang_all)
+    mn_all = np.empty_like(ang_all)  # |m| per step
     sat_all = np.zeros(ang_all.shape, dtype=np.bool_)
     index = np.ascontiguousarray(tables.index, dtype=np.int64)
     plant = Plant(I, J, hw, mres, gg, drag, srp, A, cp, cd, es, ed)
-    ctrl = Controller(K, lim, W0, min_b2)
+    law_lim, scale, weights, coupling = _torquer_arrays(torquers, lim, ts, S, B)
+    ctrl = Controller(K, law_lim, W0, min_b2, scale, weights)
     sens = Sensors(noisy, noise, 0, mag_bias, mag_std, float(sensors.mag_quantum or 0.0), mag_on, mag_M, att_std,
-                   gyro_avg, gyro_white)
+                   gyro_avg, gyro_white, *coupling)
     out = Outputs(sat, weak, diverged, DIVERGED_RATE, bool(full_series), ang_all, mn_all, rec_slot, Q, W, X, M, Bb,
                   sat_all)
     mstate = _modes_state(modes, runs, B, n, ts, bool(full_series))
@@ -585,6 +587,15 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
                       pointing_error_deg(ang_all) if full_series else None, mn_all if full_series else None,
                       np.asarray(rec), sat_all if full_series else None)
     return _with_modes(_with_estimator(res, est, eio, full_series), mstate, full_series)
+
+
+def _torquer_arrays(torquers: Torquers, lim: np.ndarray, ts: float, S: int, B: int):
+    """The kernel's view of :class:`~magtune_core.design.torquers.Torquers`: the laws' limits (3, B), the
+    drive's scale, the sub-step weights (S,) and (coupled, g C, the last drive (3, B))."""
+    g = torquers.sample_factor()
+    return (np.ascontiguousarray(torquers.law_limit(lim, ts)), float(torquers.command_scale(ts)),
+            np.ascontiguousarray(torquers.substep_weights(ts, S)),
+            (torquers.coupled and g > 0, np.ascontiguousarray(g * torquers.matrix), np.zeros((3, B))))
 
 
 def _estimator_state(estimator: BatchEstimator | None, sensors: SensorNoise, B: int, n: int, R: int, ts: float,

@@ -457,9 +457,11 @@ class Controller(NamedTuple):
     """Per-run projection controller (paper eq. 17) with saturation and the weak-field guard."""
 
     K: np.ndarray  #: (B, 3, 6) gains
-    lim: np.ndarray  #: (3, B) dipole limits [A m^2]
+    lim: np.ndarray  #: (3, B) the laws' dipole limits [A m^2] (design.torquers.Torquers.law_limit)
     W0: np.ndarray  #: (B,) orbit rate of the controller's linear state [rad/s]
     min_b2: float  #: weak-field guard: no command below this |b|^2 [T^2]
+    scale: float  #: the torquers drive the law's dipole / scale (Torquers.command_scale; 1: as commanded)
+    weights: np.ndarray  #: (S,) the driven dipole's weight per RK4 step (Torquers.substep_weights)
 
 
 class Sensors(NamedTuple):
@@ -476,6 +478,9 @@ class Sensors(NamedTuple):
     att_std: np.ndarray  #: (B,) attitude-determination error std [rad]
     gyro_avg: np.ndarray  #: (B, CHUNK, 3) (beta_k + beta_k+1)/2 of the Farrenkopf bias walk [rad/s]
     gyro_white: np.ndarray  #: (B,) std of the gyro's white part sqrt(sigma_v^2/Ts + sigma_u^2 Ts/12) [rad/s]
+    coupled: bool  #: the torquers' field reaches the magnetometer (design.torquers)
+    C: np.ndarray  #: (3, 3) g C: the coupling times the field left at the sample [T/(A m^2)]
+    m_last: np.ndarray  #: (3, B) the dipole each run's torquers drove over the last period [A m^2] (updated)
 
 
 class Outputs(NamedTuple):
@@ -645,8 +650,9 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio):
     """
     table, idx, kc, ka, kb, n, per, S, h = chunk
     I, J, hw, mres, gg, drag, srp, A, cp, cd, es, ed = plant
-    K, lim, W0, min_b2 = ctrl
-    noisy, noise, noise_k0, mag_bias, mag_std, quantum, mag_on, mag_M, att_std, gyro_avg, gyro_white = sens
+    K, lim, W0, min_b2, cscale, wts = ctrl
+    noisy, noise, noise_k0, mag_bias, mag_std, quantum, mag_on, mag_M, att_std, gyro_avg, gyro_white, coupled, Cg, \
+        m_last = sens
     sat, weak, diverged, diverged_rate, full, ang_all, mn_all, rec_slot, Q, Wr, X, M, Bb, sat_all = out
     mon, MP, bk, bnorm, bmin, fa, mts = modes.on, modes.P, modes.k, modes.normalized, modes.min_field, modes.a, modes.ts
     B = y.shape[1]
@@ -677,13 +683,19 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio):
             qm0, qm1, qm2, qm3 = q0, q1, q2, q3
             wm0, wm1, wm2 = ys[4], ys[5], ys[6]
             bm0, bm1, bm2 = bt0, bt1, bt2
+            if coupled:  # the field at the magnetometer: + g C m_last (design.torquers.Torquers.field)
+                ml0, ml1, ml2 = m_last[0, b], m_last[1, b], m_last[2, b]
+                bm0 = bt0 + (Cg[0, 0] * ml0 + Cg[0, 1] * ml1 + Cg[0, 2] * ml2)
+                bm1 = bt1 + (Cg[1, 0] * ml0 + Cg[1, 1] * ml1 + Cg[1, 2] * ml2)
+                bm2 = bt2 + (Cg[2, 0] * ml0 + Cg[2, 1] * ml1 + Cg[2, 2] * ml2)
             if noisy:
                 nz = noise[b, k - noise_k0]
                 if mag_on:  # b_m = M b + bias + std n (design.sensors.magnetometer)
                     Mb = mag_M[b]
-                    bm0 = Mb[0, 0] * bt0 + Mb[0, 1] * bt1 + Mb[0, 2] * bt2
-                    bm1 = Mb[1, 0] * bt0 + Mb[1, 1] * bt1 + Mb[1, 2] * bt2
-                    bm2 = Mb[2, 0] * bt0 + Mb[2, 1] * bt1 + Mb[2, 2] * bt2
+                    c0, c1, c2 = bm0, bm1, bm2
+                    bm0 = Mb[0, 0] * c0 + Mb[0, 1] * c1 + Mb[0, 2] * c2
+                    bm1 = Mb[1, 0] * c0 + Mb[1, 1] * c1 + Mb[1, 2] * c2
+                    bm2 = Mb[2, 0] * c0 + Mb[2, 1] * c1 + Mb[2, 2] * c2
                 bm0 = bm0 + mag_bias[0, b] + mag_std[b] * nz[0]
                 bm1 = bm1 + mag_bias[1, b] + mag_std[b] * nz[1]
                 bm2 = bm2 + mag_bias[2, b] + mag_std[b] * nz[2]
@@ -767,6 +779,9 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio):
             else:
                 weak[b] += 1
                 s0 = s1 = s2 = 0.0
+            if cscale != 1.0:  # the duty cycle's compensation: drive m / c (design.torquers.Torquers.drive)
+                s0, s1, s2 = s0 / cscale, s1 / cscale, s2 / cscale
+            m_last[0, b], m_last[1, b], m_last[2, b] = s0, s1, s2
             if full:
                 ang_all[b, k] = math.sqrt(a1 * a1 + a2 * a2 + a3 * a3)
                 mn_all[b, k] = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
@@ -785,16 +800,18 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio):
             for i in range(S):
                 j0 = base + 2 * i
                 Ea, Eb, Ec = tab[j0], tab[j0 + 1], tab[j0 + 2]
-                _rhs(Ea, ys, s0, s1, s2, Ib, Jb, hw, mr, gg, drag, srp, A, cp, cd, es, ed, k1)
+                wi = wts[i]  # the duty cycle: the driven dipole's share of this RK4 step (1: always on)
+                e0, e1, e2 = s0 * wi, s1 * wi, s2 * wi
+                _rhs(Ea, ys, e0, e1, e2, Ib, Jb, hw, mr, gg, drag, srp, A, cp, cd, es, ed, k1)
                 for j in range(7):
                     yt[j] = ys[j] + hh * k1[j]
-                _rhs(Eb, yt, s0, s1, s2, Ib, Jb, hw, mr, gg, drag, srp, A, cp, cd, es, ed, k2)
+                _rhs(Eb, yt, e0, e1, e2, Ib, Jb, hw, mr, gg, drag, srp, A, cp, cd, es, ed, k2)
                 for j in range(7):
                     yt[j] = ys[j] + hh * k2[j]
-                _rhs(Eb, yt, s0, s1, s2, Ib, Jb, hw, mr, gg, drag, srp, A, cp, cd, es, ed, k3)
+                _rhs(Eb, yt, e0, e1, e2, Ib, Jb, hw, mr, gg, drag, srp, A, cp, cd, es, ed, k3)
                 for j in range(7):
                     yt[j] = ys[j] + h * k3[j]
-                _rhs(Ec, yt, s0, s1, s2, Ib, Jb, hw, mr, gg, drag, srp, A, cp, cd, es, ed, k4)
+                _rhs(Ec, yt, e0, e1, e2, Ib, Jb, hw, mr, gg, drag, srp, A, cp, cd, es, ed, k4)
                 for j in range(7):
                     ys[j] = ys[j] + h6 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
             nq = math.sqrt(ys[0] * ys[0] + ys[1] * ys[1] + ys[2] * ys[2] + ys[3] * ys[3])

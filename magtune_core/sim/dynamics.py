@@ -214,11 +214,13 @@ class AttitudeDynamics:
             J[2][0] * e0 + J[2][1] * e1 + J[2][2] * e2,
         )
 
-    def step(self, t: float, y, dt: float, m=None, substeps: int = 1) -> np.ndarray:
+    def step(self, t: float, y, dt: float, m=None, substeps: int = 1, weights=None) -> np.ndarray:
         """Advance y over [t, t + dt] with ``substeps`` classical RK4 steps, dipole m held (ZOH).
 
     Returns y(t + dt), an ndarray (7,): the response of one sample period of the controller.
 
+        ``weights`` (substeps,) scales the dipole per sub-step: the torquers' duty cycle
+        (:meth:`magtune_core.design.torquers.Torquers.substep_weights`; None: held throughout).
         Deterministic (fixed steps, fixed operation order); the quaternion is renormalized at
         the end of the interval.
         """
@@ -227,8 +229,12 @@ class AttitudeDynamics:
         h = dt / substeps
         h2, h6 = 0.5 * h, h / 6.0
         f = self._rhs
+        m_held = m
         for i in range(substeps):
             ti = t + i * h
+            if weights is not None and m_held is not None:
+                w = float(weights[i])
+                m = (m_held[0] * w, m_held[1] * w, m_held[2] * w)
             k1 = f(ti, y, m)
             k2 = f(ti + h2, [a + h2 * b for a, b in zip(y, k1)], m)
             k3 = f(ti + h2, [a + h2 * b for a, b in zip(y, k2)], m)

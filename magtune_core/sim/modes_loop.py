@@ -29,6 +29,8 @@ from ..design.bdot import BdotController, FieldDerivativeFilter, FilterState, bd
 from ..design.law import DEFAULT_DIPOLE_LIMIT, ProjectionController, linear_state
 from ..design.modes import DETUMBLE, SAFE, Measurements, ModeLogic, ModeParams, ModeState, Transition
 from ..design.params import SpacecraftParams
+from ..design.torquers import NONE as NO_TORQUERS
+from ..design.torquers import Torquers
 from .dynamics import AttitudeDynamics
 from .initial import substeps_for_rate
 from .metrics import pointing_error_deg
@@ -54,7 +56,7 @@ def simulate_modes(K, p: SpacecraftParams | None = None, *, q0=(1.0, 0.0, 0.0, 0
                    ts: float = 1.0, orbits: float = 6.0, mode_params: ModeParams | None = None,
                    bdot_k: float = 0.0, bdot_cutoff: float = 0.2, dipole_limit=DEFAULT_DIPOLE_LIMIT,
                    residual_dipole=(1.0, 1.0, 1.0), initial_mode: str = DETUMBLE,
-                   stale=None, faults=(), stale_timeout: float = 3.0) -> ModeRun:
+                   stale=None, faults=(), stale_timeout: float = 3.0, torquers: Torquers = NO_TORQUERS) -> ModeRun:
     """Fly the mode logic from ``(q0, dw0)`` (:func:`magtune_core.sim.initial.initial_conditions`)
     for ``orbits``, paper environment (eq. 26 field, gravity gradient, residual dipole, section 5).
 
@@ -62,7 +64,9 @@ def simulate_modes(K, p: SpacecraftParams | None = None, *, q0=(1.0, 0.0, 0.0, 0
     ``stale`` an optional function t -> bool (a sensor-outage script; the loop then holds SAFE's
     zero dipole and the logic recovers by itself); ``faults`` injected faults (a sequence of
     :class:`~magtune_core.design.faults.Fault` or spec strings; ``sensors_killed`` is SIL only);
-    ``stale_timeout`` [s] the mode manager's staleness limit of a silent magnetometer.
+    ``stale_timeout`` [s] the mode manager's staleness limit of a silent magnetometer; ``torquers``
+    (:class:`magtune_core.design.torquers.Torquers`) their field at the magnetometer (the applied dipole of
+    the last period's drive), the duty cycle and its compensation, as the SIL's nodes.
 
     Returns
     -------
@@ -77,20 +81,24 @@ def simulate_modes(K, p: SpacecraftParams | None = None, *, q0=(1.0, 0.0, 0.0, 0
     logic = ModeLogic(mode_params or ModeParams())
     dyn = AttitudeDynamics.from_params(p, residual_dipole=residual_dipole)
     k = bdot_k or bdot_gain(p.orbit_rate, geomagnetic_inclination(math.radians(p.inclination_deg)), p.inertia)
-    bdot_law = BdotController(k, dipole_limit)
-    point = ProjectionController(K, dipole_limit)
+    lim = torquers.law_limit(dipole_limit, ts)
+    bdot_law = BdotController(k, lim)
+    point = ProjectionController(K, lim)
     filt = FieldDerivativeFilter(ts, bdot_cutoff)
     y = initial_state(p, dw0, q0)
-    S = substeps_for_rate(y[4:], ts)
+    S = torquers.substeps(ts, substeps_for_rate(y[4:], ts))  # the duty cycle's switch-off on the grid
+    weights = torquers.substep_weights(ts, S) if torquers.off_time > 0 else None
     n = int(round(orbits * p.orbit_period / ts))
     Y, M, modes = np.zeros((n + 1, 7)), np.zeros((n + 1, 3)), []
     state, fstate, transitions = ModeState(initial_mode, 0.0, "start"), FilterState(), []
-    fault_state, b_prev, t_field, m = fl.FaultState(), None, None, np.zeros(3)
+    fault_state, b_prev, t_field, m, applied = fl.FaultState(), None, None, np.zeros(3), np.zeros(3)
     for i in range(n + 1):
         t = i * ts
         Y[i] = y
-        b_true = dyn.body_field(t, y[:4])
-        b, w, fault_state = fl.measure(faults, t, ts, b_true, y[4:], fault_state) if faults else (b_true, y[4:], None)
+        b_mag = dyn.body_field(t, y[:4])  # the field at the magnetometer: + the torquers' after the last drive
+        if torquers.coupled:
+            b_mag = b_mag + torquers.field(applied)
+        b, w, fault_state = fl.measure(faults, t, ts, b_mag, y[4:], fault_state) if faults else (b_mag, y[4:], None)
         if b is not None:  # a field sample: the filter, the logic and the law step on it
             t_field = t
             fstate, bdot = filt.step(fstate, b)
@@ -114,16 +122,16 @@ def simulate_modes(K, p: SpacecraftParams | None = None, *, q0=(1.0, 0.0, 0.0, 0
         elif state.mode == SAFE:
             m = np.zeros(3)
         elif state.mode == DETUMBLE:
-            m = bdot_law.dipole(b, bdot)
+            m = torquers.drive(bdot_law.dipole(b, bdot), ts)
         else:
-            m = point(x, b).m
+            m = torquers.drive(point(x, b).m, ts)
         applied = m
         if faults:
             applied, fault_state = fl.actuate(faults, t, m, fault_state)
         M[i] = applied
         modes.append(state.mode)
         if i < n:
-            y = dyn.step(t, y, ts, applied, S)
+            y = dyn.step(t, y, ts, applied, S, weights)
     qv = np.linalg.norm(Y[:, 1:4], axis=1)
     return ModeRun(np.arange(n + 1) * ts, Y[:, :4], Y[:, 4:], M, np.array(modes), pointing_error_deg(qv),
                    transitions, S)

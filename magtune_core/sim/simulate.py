@@ -19,6 +19,8 @@ import numpy as np
 from ..design.law import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD, ProjectionController, linear_state
 from ..design.node_params import INITIAL_RATE_ERROR
 from ..design.params import SpacecraftParams
+from ..design.torquers import NONE as NO_TORQUERS
+from ..design.torquers import Torquers
 from .dynamics import AttitudeDynamics
 from .fullenv import full_params, make_dynamics
 from .initial import substeps_for_rate
@@ -91,7 +93,7 @@ def simulate(K, p: SpacecraftParams | None = None, *, ts: float = 1.0, orbits: f
              dipole_limit=DEFAULT_DIPOLE_LIMIT, min_field=DEFAULT_MIN_FIELD,
              residual_dipole=(1.0, 1.0, 1.0), field=None, disturbances=(),
              dynamics: AttitudeDynamics | None = None, environment: str = "paper",
-             env_options=None) -> SimResult:
+             env_options=None, torquers: Torquers = NO_TORQUERS) -> SimResult:
     """Closed loop of the nonlinear model with the sample-and-hold projection controller.
 
     ``steps`` (default ``round(orbits * T / ts)``) controller periods are simulated; each
@@ -102,7 +104,8 @@ def simulate(K, p: SpacecraftParams | None = None, *, ts: float = 1.0, orbits: f
     :class:`magtune_core.sim.fullenv.FullEnvironmentOptions`): see :mod:`magtune_core.sim.fullenv`. In
     "full", T and W0 are the actual orbit's nominal values (``fullenv.full_params``).
     The control law is paper eq. (17), m = S(b)^T K x / |b|^2, saturated per axis; the set-up is
-    the simulation study of paper section 5.
+    the simulation study of paper section 5. ``torquers`` (:class:`magtune_core.design.torquers.Torquers`):
+    their field in the field the law reads, the duty cycle and its compensation (default: none).
 
     Returns
     -------
@@ -112,13 +115,16 @@ def simulate(K, p: SpacecraftParams | None = None, *, ts: float = 1.0, orbits: f
     p = p or SpacecraftParams()
     if substeps is None:
         substeps = substeps_for_rate(np.array([0.0, 0.0, -p.orbit_rate]) + np.asarray(dw0, float), ts)
+    substeps = torquers.substeps(ts, substeps)  # the duty cycle's switch-off on the sub-step grid
     if dynamics is None:
         if environment == "full":
             p = full_params(p, env_options)
         dynamics = make_dynamics(environment, p, ts=ts, substeps=substeps, residual_dipole=residual_dipole,
                                  field=field, disturbances=disturbances, options=env_options)
     dyn = dynamics
-    ctrl = ProjectionController(K, dipole_limit, min_field)
+    ctrl = ProjectionController(K, torquers.law_limit(dipole_limit, ts), min_field)
+    weights = torquers.substep_weights(ts, substeps) if torquers.off_time > 0 else None
+    m_last = np.zeros(3)
     n = int(steps if steps is not None else round(orbits * p.orbit_period / ts))
     y = initial_state(p, dw0, q0)
     t = np.arange(n + 1) * ts
@@ -131,12 +137,13 @@ def simulate(K, p: SpacecraftParams | None = None, *, ts: float = 1.0, orbits: f
         Y[k] = y
         b = dyn.body_field(t[k], y[:4])
         x = linear_state(y[:4], y[4:], dyn.orbit_rate)
-        out = ctrl(x, b)
+        out = ctrl(x, b + torquers.field(m_last) if torquers.coupled else b)
         sat += out.saturated
         weak += out.weak_field
-        X[k], Bb[k], M[k] = x, b, out.m
+        m_last = torquers.drive(out.m, ts)
+        X[k], Bb[k], M[k] = x, b, m_last
         if k < n:
-            y = dyn.step(t[k], y, ts, out.m, substeps)
+            y = dyn.step(t[k], y, ts, m_last, substeps, weights)
     return SimResult(t, Y[:, :4], Y[:, 4:], X, M, Bb, p.orbit_period,
                      dict(saturated_steps=sat, weak_field_steps=weak, ts=ts, substeps=substeps,
                           environment=environment))

@@ -160,8 +160,9 @@ def test_node_parameters_come_from_the_schemas():
     # what the hand-kept list held before it was derived (37), plus the 8 sensor-model fields of issue 31,
     # plus issue 30's: 12 mode fields, 2 B-dot fields, initial_mode, 4 mode-manager fields, autostart,
     # plus the estimator's own 4 (gate_probability, init_angle, initial_bias_std, sun_wait; its other
-    # fields are the other nodes' names), plus the faults of issue 30 (frozen_time, faults)
-    assert len(NODE_PARAMETERS) == 37 + 8 + 12 + 2 + 1 + 4 + 1 + 4 + 2 and {"initial_quaternion", "mag_quantum", "min_field", "seed"} <= names
+    # fields are the other nodes' names), plus the faults of issue 30 (frozen_time, faults), plus the 4
+    # torquer fields of issue 30 item 6 (coupling, off time, decay time, compensation)
+    assert len(NODE_PARAMETERS) == 37 + 8 + 12 + 2 + 1 + 4 + 1 + 4 + 2 + 4 and {"initial_quaternion", "mag_quantum", "min_field", "seed"} <= names
 
 
 def test_example_files_pass_the_strict_checks():
@@ -317,6 +318,11 @@ def test_sil_rejects_bad_faults_before_starting(tmp_path, capsys, extra, words):
     ("faults: mag_stuck@10\n", "expected a list of faults"),
     ("fault:\n  - {kind: mag_stuck, t: 10}\n", "field 'fault': unknown parameter; did you mean 'faults'"),
     ("- 1\n", "expected a mapping with faults"),
+    ("torquers:\n  torquer_off_time: 1.5\n", "field 'torquer_off_time': expected less than the sample period"),
+    ("torquers:\n  torquer_off_time: 1.234567e-4\n", "multiple of ts/1000"),
+    ("torquers:\n  torquer_coupling: [1.0, 0, 0, 0, 0, 0, 0, 0, 0]\n", "field 'torquer_coupling': expected numbers in"),
+    ("torquers:\n  duty_cycle: 0.8\n", "field 'duty_cycle': unknown parameter"),
+    ("torquers: 0.2\n", "field 'torquers': expected a mapping of torquer_coupling"),
 ])
 def test_sil_rejects_bad_scenario_files(tmp_path, capsys, text, words):
     scen = tmp_path / "scenario.yaml"
@@ -340,3 +346,15 @@ def test_scenario_file_and_cli_faults_reach_the_nodes(tmp_path):
     assert params["attitude_sensors"]["faults"] == ["mag_dropout@3000.0:30.0"]
     assert params["simulator"]["faults"] == ["torquer_dead@5.0,axis=y", "sensors_killed@200.0"]
     assert "faults" not in params["controller"]
+
+
+def test_scenario_torquers_reach_simulator_sensors_and_controller(tmp_path):
+    """A scenario's torquers section: the same values for the three nodes that model them (one schema)."""
+    from magtune_core.ros.scenario import SilScenario, load_scenario_file
+
+    scen = tmp_path / "scenario.yaml"
+    scen.write_text("torquers:\n  torquer_off_time: 0.2\n  torquer_coupling: [2.0e-7, 0, 0, 0, -1.0e-7, 0, 0, 0, -1.0e-7]\n")
+    sc = SilScenario.build({"": GAINS}, steps=10, torquers=load_scenario_file(scen)["torquers"])
+    params = sc.node_parameters(sc.satellites[0], tmp_path / "r.npz")
+    for node in ("simulator", "attitude_sensors", "controller"):
+        assert params[node]["torquer_off_time"] == 0.2 and params[node]["torquer_coupling"][4] == -1e-7, node

@@ -6,6 +6,8 @@ Subscribes:
   sim/truth              nav_msgs/Odometry          attitude q (see simulator.py)
   sim/inertial_rate      geometry_msgs/Vector3Stamped inertial body rate [rad/s], body axes (the gyro's input)
   sim/magnetic_field     sensor_msgs/MagneticField  true body-frame field [T]
+  sim/torquer_field      sensor_msgs/MagneticField  the torquers' field at the magnetometer [T] (only with a
+                         nonzero torquer_coupling, TORQUER_FIELDS: the magnetometer then reads b + this)
   sim/orbit, sim/sun     nav_msgs/Odometry, geometry_msgs/Vector3Stamped: r, v and the Sun in ECI
                          (environment 'full' only; without them no sun sensor and no position fix)
   /clock                 rosgraph_msgs/Clock        (use_sim_time)
@@ -43,7 +45,8 @@ from sensor_msgs.msg import Imu, MagneticField
 from magtune_core.base.errors import ConfigError
 from magtune_core.design import faults as fl
 from magtune_core.design import sensors as s
-from magtune_core.design.node_params import FAULTS, SENSOR_FIELDS, check_sensors
+from magtune_core.design.node_params import FAULTS, SENSOR_FIELDS, TORQUER_FIELDS, check_sensors
+from magtune_core.design.torquers import Torquers
 
 from . import common as c
 
@@ -67,6 +70,7 @@ class AttitudeSensors(c.ManagedNode):
         c.check(check_sensors, v, self)
         self.values = v
         self.suite = s.SensorSuite.from_values(v)
+        self.coupled = Torquers.from_values(c.parse_fields(self, TORQUER_FIELDS)).coupled
         try:
             self.faults = fl.from_list(c.parse_fields(self, (FAULTS,))["faults"], "faults")
         except ConfigError as exc:
@@ -80,8 +84,9 @@ class AttitudeSensors(c.ManagedNode):
         self.rng, self.aux = np.random.default_rng(v["seed"]), s.aux_rng(v["seed"])
         self.beta = np.asarray(self.suite.gyro.bias, dtype=float)  # gyro bias before the next sample
         self.fault_state = fl.FaultState()
-        self.gate = c.StampGate(self, 2 * c.sec_to_ns(self.suite.ts), n=5)
-        self.sync = c.PairSync(3)  # field, truth (attitude), inertial rate: same stamp t_k
+        self.gate = c.StampGate(self, 2 * c.sec_to_ns(self.suite.ts), n=6)
+        # field, truth (attitude), inertial rate (and the torquers' field when coupled): same stamp t_k
+        self.sync = c.PairSync(4 if self.coupled else 3)
         self.sync_orbit = c.PairSync(3)  # truth, orbit, Sun (full environment)
         self.pub_mag = self.data_publisher(MagneticField, c.TOPIC_MAG, c.LOCKSTEP_QOS)
         self.pub_imu = self.data_publisher(Imu, c.TOPIC_IMU, c.LOCKSTEP_QOS)
@@ -93,6 +98,8 @@ class AttitudeSensors(c.ManagedNode):
         self.data_subscription(Vector3Stamped, c.TOPIC_INERTIAL_RATE, self.on_rate, c.LOCKSTEP_QOS)
         self.data_subscription(Odometry, c.TOPIC_ORBIT, self.on_orbit, c.LOCKSTEP_QOS)
         self.data_subscription(Vector3Stamped, c.TOPIC_TRUE_SUN, self.on_sun, c.LOCKSTEP_QOS)
+        if self.coupled:
+            self.data_subscription(MagneticField, c.TOPIC_TORQUER_FIELD, self.on_torquer_field, c.LOCKSTEP_QOS)
 
     def make_messages(self):
         """Preallocated messages with their frames and (constant) covariances."""
@@ -141,6 +148,13 @@ class AttitudeSensors(c.ManagedNode):
         if self._accept(0, msg):
             self._pair(self.sync, 0, msg, self.publish)
 
+    def on_torquer_field(self, msg: MagneticField):
+        b = msg.magnetic_field
+        if not c.finite(b.x, b.y, b.z):
+            return self.diag.count("rejected_nonfinite", "non-finite torquer field")
+        if self._accept(5, msg):
+            self._pair(self.sync, 3, msg, self.publish)
+
     def on_orbit(self, msg: Odometry):
         p, v = msg.pose.pose.position, msg.twist.twist.linear
         if not c.finite(p.x, p.y, p.z, v.x, v.y, v.z):
@@ -168,12 +182,16 @@ class AttitudeSensors(c.ManagedNode):
             then(*pair)
 
     # ---------------------------------------------------------------- outputs
-    def publish(self, field: MagneticField, truth: Odometry, rate: Vector3Stamped):
+    def publish(self, field: MagneticField, truth: Odometry, rate: Vector3Stamped, torquer: MagneticField = None):
         """Magnetometer, gyro and attitude of t_k (one row of normals when anything is noisy)."""
         su, stamp = self.suite, truth.header.stamp
         f, o, w = field.magnetic_field, truth.pose.pose.orientation, rate.vector
         n = s.draw(self.rng) if su.noisy else np.zeros(s.NORMALS_PER_STEP)
-        b = s.magnetometer(su.magnetometer, [f.x, f.y, f.z], n[s.MAG])
+        b_at = np.array([f.x, f.y, f.z])
+        if torquer is not None:  # the field at the magnetometer: the geomagnetic one plus the torquers'
+            g = torquer.magnetic_field
+            b_at = b_at + np.array([g.x, g.y, g.z])
+        b = s.magnetometer(su.magnetometer, b_at, n[s.MAG])
         wm, beta = s.gyro(su.gyro, [[w.x, w.y, w.z]], su.ts, self.beta, n[None, s.GYRO_V], n[None, s.GYRO_U])
         self.beta = beta[-1]
         q = s.noisy_attitude([o.w, o.x, o.y, o.z], su.attitude_std, n[s.ATT])

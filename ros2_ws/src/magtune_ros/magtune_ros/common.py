@@ -71,6 +71,7 @@ from magtune_core.base.topics import (  # noqa: E402,F401
     TOPIC_POSITION,
     TOPIC_SUN,
     TOPIC_TF,
+    TOPIC_TORQUER_FIELD,
     TOPIC_TRUE_FIELD,
     TOPIC_TRUE_SUN,
     TOPIC_TRUTH,

@@ -5,6 +5,8 @@
     DETUMBLE:              saturated B-dot (magtune_core.design.bdot.BdotController, gain rule of
                            Avanzini & Giulietti 2012 unless bdot_gain is set)
     SAFE:                  m = 0
+With a duty cycle (``torquer_off_time``, TORQUER_FIELDS) the torquers drive the law's dipole / f,
+f the on fraction, saturated per axis (``duty_compensation``; design.torquers.Torquers.drive).
 The mode is parameter ``initial_mode`` (default POINTING: the paper's run) until the mode
 manager publishes one on ``mode`` (magtune_interfaces/Mode); a change applies from the next
 sample. Lifecycle (magtune_ros.common.ManagedNode): configure loads and validates every
@@ -43,12 +45,14 @@ from magtune_interfaces.msg import Mode
 from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import Imu, MagneticField
 
+from magtune_core.base.errors import ConfigError
 from magtune_core.design.bdot import BdotController, FieldDerivativeFilter, FilterState, bdot_gain, geomagnetic_inclination
 from magtune_core.design.gains import Gains
 from magtune_core.design.law import ProjectionController, linear_state
 from magtune_core.design.modes import ACQUISITION, DETUMBLE, MODES, POINTING
-from magtune_core.design.node_params import BDOT_FIELDS, CONTROLLER_FIELDS
+from magtune_core.design.node_params import BDOT_FIELDS, CONTROLLER_FIELDS, TORQUER_FIELDS
 from magtune_core.design.params import SpacecraftParams
+from magtune_core.design.torquers import Torquers
 
 from . import common as c
 
@@ -78,13 +82,19 @@ class Controller(c.ManagedNode):
         K, self.sigma, self.ts = gains.K, gains.sigma, gains.ts
         v = c.parse_fields(self, CONTROLLER_FIELDS)
         b = c.parse_fields(self, BDOT_FIELDS)
+        tq = Torquers.from_values(c.parse_fields(self, TORQUER_FIELDS))
         p = c.from_schema(self, SpacecraftParams)
         c.declare_overrides(self)
-        self.w0 = p.orbit_rate
-        self.law = ProjectionController(K, v["dipole_limit"], v["min_field"])
+        try:
+            tq.check(self.ts, "parameters")
+        except ConfigError as exc:
+            raise c._param_error(exc) from None
+        self.torquers, self.w0 = tq, p.orbit_rate
+        lim = tq.law_limit(v["dipole_limit"], self.ts)  # the duty cycle's compensation (design.torquers)
+        self.law = ProjectionController(K, lim, v["min_field"])
         k = b["bdot_gain"] or bdot_gain(p.orbit_rate, geomagnetic_inclination(math.radians(p.inclination_deg)),
                                         p.inertia)
-        self.bdot_law = BdotController(k, v["dipole_limit"], min_field=v["min_field"])
+        self.bdot_law = BdotController(k, lim, min_field=v["min_field"])
         self.filter = FieldDerivativeFilter(self.ts, b["bdot_cutoff"])
         self.mode = v["initial_mode"]
         self.ts_ns = c.sec_to_ns(self.ts)
@@ -156,13 +166,13 @@ class Controller(c.ManagedNode):
             elif self.mode in (ACQUISITION, POINTING):
                 x = linear_state((o.w, o.x, o.y, o.z), (w.x, w.y, w.z), self.w0)
                 out = self.law(x, bv)
-                self.m = out.m
+                self.m = self.torquers.drive(out.m, self.ts)
                 if out.weak_field:
                     self.diag.count("weak_field", f"|b| below min_field at t={ns * 1e-9:.3f} s: zero dipole")
                 if out.saturated:
                     self.diag.count("saturated")
             elif self.mode == DETUMBLE:
-                self.m = self.bdot_law.dipole(bv, bdot)
+                self.m = self.torquers.drive(self.bdot_law.dipole(bv, bdot), self.ts)
             else:  # SAFE: torquers off
                 self.m = np.zeros(3)
             self.diag.count("samples")

@@ -23,6 +23,9 @@ Publishes (all stamped with simulated time t_k = k * ts):
                                pose.position = r [m], twist.linear = v [m/s] (ECI), orientation identity
   sim/sun                      geometry_msgs/Vector3Stamped (environment 'full' only) frame 'eci':
                                geocentric Sun position [m] (the environment's, env.sun)
+  sim/torquer_field            sensor_msgs/MagneticField (only with a nonzero ``torquer_coupling``): the
+                               torquers' field at the magnetometer at t_k [T], body axes, from the dipole
+                               applied over the last period (design.torquers.Torquers.field)
   sim/magnetic_torque          geometry_msgs/WrenchStamped  m x b at t_k [N m], body axes
   sim/disturbance_torque       geometry_msgs/WrenchStamped  gravity gradient + residual dipole (+ drag, SRP) at t_k
   /diagnostics                 diagnostic_msgs/DiagnosticArray (steps, missed_steps, rejected, ...)
@@ -38,7 +41,9 @@ Subscribes:
   controller/dipole_command    geometry_msgs/Vector3Stamped [A m^2], body axes; saturated per axis.
 
 Faults (parameter ``faults``, magtune_core.design.faults): the torquer faults act on the applied
-dipole (``faults.actuate``: the truth side, recorded in the results); at a ``sensors_killed`` fault's
+dipole (``faults.actuate``: the truth side, recorded in the results); the duty cycle
+(``torquer_off_time``, TORQUER_FIELDS) switches the torquers off for the end of every step
+(``Torquers.substep_weights``); at a ``sensors_killed`` fault's
 time the simulator logs ``fault sensors_killed at t=...`` and holds that step 1 s of wall time, so
 the runner's SIGKILL of attitude_sensors lands at that sim time.
 
@@ -70,8 +75,9 @@ from magtune_core.base.rotations import cross, matrix_to_quat
 from magtune_core.design import faults as fl
 from magtune_core.design.fitfield import field_for_spacecraft
 from magtune_core.design.law import linear_state, saturate
-from magtune_core.design.node_params import FAULTS, SIMULATOR_FIELDS, check_simulator
+from magtune_core.design.node_params import FAULTS, SIMULATOR_FIELDS, TORQUER_FIELDS, check_simulator
 from magtune_core.design.params import SpacecraftParams
+from magtune_core.design.torquers import Torquers
 from magtune_core.sim.fullenv import FullEnvironmentOptions, make_dynamics
 from magtune_core.sim.simulate import DIVERGED_EXIT, SimResult, divergence, initial_state
 
@@ -121,6 +127,13 @@ class Simulator(Node):
         except ConfigError as exc:
             raise c._param_error(exc) from None
         self.fault_state, self.kill_t = fl.FaultState(), fl.kill_time(self.faults)
+        self.torquers = Torquers.from_values(c.parse_fields(self, TORQUER_FIELDS))
+        try:
+            self.torquers.check(self.ts, "parameters")
+        except ConfigError as exc:
+            raise c._param_error(exc) from None
+        self.substeps = self.torquers.substeps(self.ts, self.substeps)  # the duty cycle's switch-off on the grid
+        self.weights = self.torquers.substep_weights(self.ts, self.substeps) if self.torquers.off_time > 0 else None
         return v
 
     def build_plant(self, v: dict) -> None:
@@ -142,6 +155,7 @@ class Simulator(Node):
         self.k = 0
         self.t_ns = [self.time_origin_ns + c.sec_to_ns(k * self.ts) for k in range(self.n + 1)]
         self.m_cmd = np.zeros(3)
+        self.m_last = np.zeros(3)  # the dipole applied over the last step: its field at the magnetometer
         self.last_cmd_ns = -1
         self.awaiting = False
         self.progress_every = max(1, self.n // 10)
@@ -182,6 +196,8 @@ class Simulator(Node):
         self.pub_orbit = self.create_publisher(Odometry, c.TOPIC_ORBIT, c.LOCKSTEP_QOS) if full else None
         self.pub_sun = self.create_publisher(Vector3Stamped, c.TOPIC_TRUE_SUN, c.LOCKSTEP_QOS) if full else None
         self.pub_tdist = self.create_publisher(WrenchStamped, c.TOPIC_DIST_TORQUE, c.LOCKSTEP_QOS)
+        self.pub_tqf = (self.create_publisher(MagneticField, c.TOPIC_TORQUER_FIELD, c.LOCKSTEP_QOS)
+                        if self.torquers.coupled else None)
         self.sub_cmd = self.create_subscription(Vector3Stamped, c.TOPIC_DIPOLE, self.on_command, c.LOCKSTEP_QOS)
         self.pub_tf = self.create_publisher(TFMessage, c.TOPIC_TF, c.LOCKSTEP_QOS) if self.pub_tf_on else None
         self.pub_markers = (self.create_publisher(MarkerArray, c.TOPIC_MARKERS, c.LOCKSTEP_QOS)
@@ -195,9 +211,9 @@ class Simulator(Node):
         self.msg_truth.child_frame_id = c.FRAME_BODY
         self.msg_orbit, self.msg_sun = Odometry(), Vector3Stamped()
         self.msg_orbit.header.frame_id = self.msg_orbit.child_frame_id = self.msg_sun.header.frame_id = c.FRAME_ECI
-        self.msg_rate, self.msg_field = Vector3Stamped(), MagneticField()
+        self.msg_rate, self.msg_field, self.msg_tqf = Vector3Stamped(), MagneticField(), MagneticField()
         self.msg_tmag, self.msg_tdist = WrenchStamped(), WrenchStamped()
-        for msg in (self.msg_rate, self.msg_field, self.msg_tmag, self.msg_tdist):
+        for msg in (self.msg_rate, self.msg_field, self.msg_tqf, self.msg_tmag, self.msg_tdist):
             msg.header.frame_id = c.FRAME_BODY
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.wall0 = time.perf_counter()
@@ -282,6 +298,11 @@ class Simulator(Node):
         self.pub_truth.publish(m)
         self.pub_rate.publish(r)
         self.pub_field.publish(f)
+        if self.pub_tqf is not None:
+            g = self.msg_tqf
+            g.header.stamp = stamp
+            g.magnetic_field.x, g.magnetic_field.y, g.magnetic_field.z = (float(x) for x in self.torquers.field(self.m_last))
+            self.pub_tqf.publish(g)
         if self.pub_orbit is not None:
             self.publish_orbit(k, stamp)
         if self.pub_tf is not None:
@@ -343,7 +364,8 @@ class Simulator(Node):
             return
         if self.pub_markers is not None:
             self.publish_markers(k, m)
-        self.y = self.dyn.step(k * self.ts, self.y, self.ts, m, self.substeps)
+        self.y = self.dyn.step(k * self.ts, self.y, self.ts, m, self.substeps, self.weights)
+        self.m_last = m
         self.k = k + 1
         why = divergence(self.y)
         if why:  # stop at once: stepping a NaN state would "succeed" with garbage
