@@ -22,6 +22,22 @@ def ros():
     return common, serialize_message, deserialize_message, Imu, MagneticField
 
 
+def _odometry(frame_id, child, rng):
+    from nav_msgs.msg import Odometry
+
+    m = Odometry()
+    m.header.frame_id, m.child_frame_id = frame_id, child
+    m.header.stamp.sec, m.header.stamp.nanosec = int(rng.integers(0, 2**31 - 1)), int(rng.integers(0, 10**9))
+    p, v = m.pose.pose.position, m.twist.twist.linear
+    p.x, p.y, p.z = (float(x) for x in rng.normal(size=3) * 7e6)
+    v.x, v.y, v.z = (float(x) for x in rng.normal(size=3) * 7e3)
+    m.pose.pose.orientation.w = 1.0
+    m.pose.covariance = [float(x) for x in rng.normal(size=36)]
+    m.twist.twist.angular.z = 0.5
+    m.twist.covariance = [float(x) for x in rng.normal(size=36)]
+    return m
+
+
 def _imu(Imu, frame_id, rng):
     m = Imu()
     m.header.frame_id = frame_id
@@ -53,6 +69,27 @@ def test_raw_readers_equal_rclpy_deserialization(ros, frame_id):
         assert c.raw_magnetic_field(data) == (c.stamp_to_ns(m.header.stamp), (b.x, b.y, b.z))
 
 
+@pytest.mark.parametrize("frame_id", ["", "eci", "body", "abcdefgh"])
+@pytest.mark.parametrize("child", ["", "e", "eci", "abcdefg"])
+def test_raw_odometry_and_vector3_stamped_equal_rclpy(ros, frame_id, child):
+    from geometry_msgs.msg import Vector3Stamped
+    from nav_msgs.msg import Odometry
+
+    c, ser, deser = ros[:3]
+    rng = np.random.default_rng(len(frame_id) * 10 + len(child))
+    for _ in range(10):
+        data = ser(_odometry(frame_id, child, rng))
+        m = deser(data, Odometry)
+        p, v = m.pose.pose.position, m.twist.twist.linear
+        assert c.raw_odometry(data) == (c.stamp_to_ns(m.header.stamp), (p.x, p.y, p.z), (v.x, v.y, v.z))
+        s = Vector3Stamped()
+        s.header = m.header
+        s.vector.x, s.vector.y, s.vector.z = (float(x) for x in rng.normal(size=3))
+        data = ser(s)
+        u = deser(data, Vector3Stamped).vector
+        assert c.raw_vector3_stamped(data) == (c.stamp_to_ns(m.header.stamp), (u.x, u.y, u.z))
+
+
 def test_raw_reader_big_endian(ros):
     """A big-endian CDR MagneticField (encapsulation 0x0000), written by hand: read as such."""
     c = ros[0]
@@ -70,6 +107,15 @@ def test_raw_readers_refuse_what_is_not_the_message(ros):
         assert c.raw_imu(imu[:n]) is None
     for n in range(len(mag)):
         assert c.raw_magnetic_field(mag[:n]) is None
+    from geometry_msgs.msg import Vector3Stamped
+
+    odom, vec = ser(_odometry("eci", "eci", np.random.default_rng(1))), ser(Vector3Stamped())
+    for n in range(len(odom)):
+        assert c.raw_odometry(odom[:n]) is None
+    for n in range(len(vec)):
+        assert c.raw_vector3_stamped(vec[:n]) is None
     assert c.raw_imu(b"\x00\x07" + imu[2:]) is None  # another encapsulation (XCDR2)
     huge = imu[:12] + struct.pack("<I", 2**31) + imu[16:]  # a frame_id longer than the message
-    assert c.raw_imu(huge) is None and c.raw_magnetic_field(huge) is None
+    assert c.raw_imu(huge) is None and c.raw_magnetic_field(huge) is None and c.raw_odometry(huge) is None
+    child = odom[:20] + struct.pack("<I", 2**31) + odom[24:]  # a huge child_frame_id
+    assert c.raw_odometry(child) is None

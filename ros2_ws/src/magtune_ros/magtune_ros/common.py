@@ -406,9 +406,9 @@ class ManagedNode(LifecycleNode):
         self._entities.append(pub)
         return pub
 
-    def data_subscription(self, *args):
-        """A subscription that exists while the node is active."""
-        sub = self.create_subscription(*args)
+    def data_subscription(self, *args, **kw):
+        """A subscription that exists while the node is active (``raw=True``: the callback gets the bytes)."""
+        sub = self.create_subscription(*args, **kw)
         self._entities.append(sub)
         return sub
 
@@ -533,16 +533,26 @@ _IMU = {o: struct.Struct(o + "4d72x3d") for o in "<>"}
 _IMU_SIZE = 32 + 72 + 24 + 72 + 24 + 72  # orientation .. linear_acceleration_covariance [bytes]
 #: sensor_msgs/MagneticField after the header: magnetic_field x y z, 9 covariances
 _VEC3 = {o: struct.Struct(o + "3d") for o in "<>"}
+_UINT = {o: struct.Struct(o + "I") for o in "<>"}
+#: nav_msgs/Odometry after child_frame_id: pose position x y z, orientation and 36 covariances (skipped),
+#: twist linear x y z
+_ODOM = {o: struct.Struct(o + "3d32x288x3d") for o in "<>"}
+_ODOM_SIZE = 24 + 32 + 288 + 24 + 24 + 288  # pose .. twist covariance [bytes]
 
 
-def _raw_header(data: bytes):
-    """(byte order, stamp [ns], offset of the first double after the header) of a serialized
-    std_msgs/Header-led message, or None if the bytes are not one."""
+def _raw_header(data: bytes, strings: int = 0):
+    """(byte order, stamp [ns], offset of the first double after the header and ``strings`` more
+    strings) of a serialized std_msgs/Header-led message, or None if the bytes are not one."""
     order = _CDR_ORDER.get(bytes(data[:2]))
     if order is None or len(data) < 16:
         return None
     sec, nsec, n = _HEADER[order].unpack_from(data, 4)
     body = 12 + n  # the frame_id's end, relative to the CDR body at byte 4
+    for _ in range(strings):  # e.g. Odometry's child_frame_id: a uint32 length aligned to 4, then the bytes
+        body = (body + 3) & ~3
+        if len(data) < 4 + body + 4:
+            return None
+        body += 4 + _UINT[order].unpack_from(data, 4 + body)[0]
     return order, sec * 1_000_000_000 + nsec, 4 + ((body + 7) & ~7)  # doubles align to 8 in the body
 
 
@@ -564,3 +574,23 @@ def raw_magnetic_field(data: bytes):
         return None
     order, ns, at = h
     return ns, _VEC3[order].unpack_from(data, at)
+
+
+def raw_vector3_stamped(data: bytes):
+    """(stamp [ns], (x, y, z)) of a serialized geometry_msgs/Vector3Stamped, or None if malformed."""
+    h = _raw_header(data)
+    if h is None or len(data) < h[2] + 24:
+        return None
+    order, ns, at = h
+    return ns, _VEC3[order].unpack_from(data, at)
+
+
+def raw_odometry(data: bytes):
+    """(stamp [ns], pose position (x, y, z), twist linear (x, y, z)) of a serialized
+    nav_msgs/Odometry, or None if malformed."""
+    h = _raw_header(data, strings=1)
+    if h is None or len(data) < h[2] + _ODOM_SIZE:
+        return None
+    order, ns, at = h
+    px, py, pz, vx, vy, vz = _ODOM[order].unpack_from(data, at)
+    return ns, (px, py, pz), (vx, vy, vz)
