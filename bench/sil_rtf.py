@@ -1,7 +1,7 @@
 """SIL real-time factor: lockstep run of the three magtune_ros nodes over DDS at Ts = 1 s.
 
     python bench/sil_rtf.py [--orbits 5] [--gains FILE] [--environment paper|full]
-    python bench/sil_rtf.py --compare modes|estimator [--orbits 5] [--environment full]
+    python bench/sil_rtf.py --compare modes|estimator [--orbits 5] [--environment full] [--repeat 3]
 
 Prints the real-time factor (simulated seconds / wall seconds of the stepping phase, i.e.
 after discovery), the missed steps, and the largest deviation from the offline simulation.
@@ -9,7 +9,9 @@ Target (issue 3): >= 470x for 5 orbits with zero missed steps; with ``--environm
 (J2 orbit, IGRF degree 10, drag, SRP; issue 5): >= 200x. ``--compare`` flies the same run twice,
 side by side in one invocation: without and with the mode manager (started in POINTING, so both
 fly the same law; target: within 10 %), or with truth feedback and with the attitude estimator
-(target: >= 70 %), and prints the ratio and the machine load.
+(target: >= 70 %), and prints the ratio and the machine load (/proc/loadavg) of each run.
+``--repeat N`` alternates the pair N times (baseline, variant, baseline, ...) and prints the
+median of the N ratios: on a shared machine one pair is noisy (the same run varied 700-1100x).
 """
 import argparse
 import sys
@@ -39,6 +41,7 @@ def main():
                     help="simulator without /tf and sim/markers (publish_tf/publish_markers false): their cost")
     ap.add_argument("--compare", choices=("modes", "estimator"), default=None,
                     help="the same run without and with the mode manager / the attitude estimator")
+    ap.add_argument("--repeat", type=int, default=1, help="--compare: alternate the pair this many times")
     a = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="magtune_bench_"))
     if a.compare:
@@ -65,22 +68,30 @@ def main():
 
 
 def compare(a, tmp: Path) -> None:
-    """Baseline and variant, each run once after a warm-up run, in this invocation; RTF ratio."""
-    import os
-
+    """Baseline and variant, alternated ``--repeat`` times after a warm-up run, in this invocation; RTF ratios."""
     gains = a.gains or str(Path(__file__).resolve().parents[1] / "config" / "gains" / "sigma_120.yaml")
     variant = (dict(modes=True, initial_mode="POINTING") if a.compare == "modes" else dict(attitude="estimator"))
     names = ("without mode manager", "with mode manager") if a.compare == "modes" else ("truth feedback", "estimator")
-    print(f"load before: {os.getloadavg()[0]:.2f}; {a.orbits:g} orbits, environment {a.environment}, gains {gains}")
+    print(f"load before: {_load()}; {a.orbits:g} orbits, environment {a.environment}, gains {gains}")
     sil.run_sil(gains, orbits=0.1, ts=1.0, log_dir=tmp / "warm", environment=a.environment)  # caches, discovery
-    rtf = []
-    for name, extra in zip(names, ({}, variant)):
-        run = sil.run_sil(gains, orbits=a.orbits, ts=1.0, log_dir=tmp / name.replace(" ", "_"),
-                          environment=a.environment, **extra)
-        rtf.append(run.real_time_factor)
-        print(f"{name:22s} RTF {run.real_time_factor:6.0f}x  missed steps {run.counters.get('missed_steps')}  "
-              f"wall {run.wall_time:.1f} s")
-    print(f"ratio {names[1]} / {names[0]}: {rtf[1] / rtf[0]:.3f}; load after: {os.getloadavg()[0]:.2f}")
+    ratios = []
+    for i in range(a.repeat):
+        rtf = []
+        for name, extra in zip(names, ({}, variant)):
+            run = sil.run_sil(gains, orbits=a.orbits, ts=1.0, log_dir=tmp / f"{name.replace(' ', '_')}_{i}",
+                              environment=a.environment, **extra)
+            rtf.append(run.real_time_factor)
+            print(f"{name:22s} RTF {run.real_time_factor:6.0f}x  missed steps {run.counters.get('missed_steps')}  "
+                  f"wall {run.wall_time:.1f} s  load {_load()}")
+        ratios.append(rtf[1] / rtf[0])
+        print(f"ratio {names[1]} / {names[0]}: {ratios[-1]:.3f}")
+    if a.repeat > 1:
+        print(f"median ratio of {a.repeat}: {float(np.median(ratios)):.3f} (min {min(ratios):.3f}, max {max(ratios):.3f})")
+
+
+def _load() -> str:
+    """The 1-, 5- and 15-minute load averages."""
+    return " ".join(Path("/proc/loadavg").read_text().split()[:3])
 
 
 if __name__ == "__main__":

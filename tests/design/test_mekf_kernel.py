@@ -94,3 +94,38 @@ def test_compiled_filter_equals_python_filter(eclipse_start):
     assert started == int(km.k0[0]) and (started > 0) == eclipse_start, (started, km.k0)
     assert np.all(worst < 1e-10), worst
     assert km.counts[0, 0] + km.counts[0, 1] == n + 1 - started
+
+
+@pytest.mark.parametrize("eclipse_start", [False, True])
+def test_compiled_stream_equals_python_stream(eclipse_start):
+    """MekfStream(compiled=True) (the attitude_estimator node's: the kernel's propagate and update
+    after the Python coarse fix) against MekfStream on the run above: the same fix sample, NIS to
+    1e-9 relative, attitude and bias within 1e-10 (rad, of the prior), P within 1e-10 relative."""
+    n = 3000
+    lit = np.ones(n + 1, dtype=bool)
+    lit[1000:1600] = False
+    if eclipse_start:
+        lit[:400] = False
+    truth = E.kinematic_truth(n, 1.0, _rate, _b_ref, sun_ref=(1.0, 1.0, 0.3), lit=lit)
+    bias = tuple(np.deg2rad(np.array([40.0, -60.0, 30.0])) / 3600.0)
+    suite = SensorSuite(1.0, Magnetometer(100e-9), Gyro(1e-4, 1e-6, bias), 0.0, SunSensor(math.radians(0.5)))
+    mag, w_m, s_m, s_ok = _measurements(truth, suite, 7)
+    ref, fast = MekfStream(suite), MekfStream(suite, compiled=True)
+    worst, accepted = np.zeros(3), [0, 0]
+    for k in range(n + 1):
+        args = (w_m[k - 1] if k else None, mag[k], truth.b_ref[k],
+                *((s_m[k], truth.sun_ref[k]) if s_ok[k] else (None, None)))
+        a, b = ref.step(*args), fast.step(*args)
+        assert (a.state is None) == (b.state is None) and a.started == b.started, k
+        if a.state is None:
+            continue
+        assert (a.mag_accepted, a.sun_accepted) == (b.mag_accepted, b.sun_accepted), k
+        accepted[0] += a.mag_accepted
+        accepted[1] += bool(a.sun_accepted)
+        assert math.isclose(a.nis_mag, b.nis_mag, rel_tol=1e-9), (k, a.nis_mag, b.nis_mag)
+        assert (math.isnan(a.nis_sun) and math.isnan(b.nis_sun)) or math.isclose(a.nis_sun, b.nis_sun, rel_tol=1e-9)
+        worst = np.maximum(worst, [np.linalg.norm(E.attitude_error(a.state.q, b.state.q)),
+                                   np.max(np.abs(a.state.b - b.state.b)) / 5e-4,
+                                   np.max(np.abs(a.state.P - b.state.P)) / np.max(np.abs(a.state.P))])
+    assert np.all(worst < 1e-10), worst
+    assert accepted[0] > 2500 and accepted[1] > 1500, accepted

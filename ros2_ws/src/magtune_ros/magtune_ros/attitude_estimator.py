@@ -12,6 +12,7 @@ Subscribes (LOCKSTEP_QOS):
   sensors/magnetic_field  sensor_msgs/MagneticField  measured field [T], body axes
   sensors/sun             geometry_msgs/Vector3Stamped measured unit Sun vector (only when valid)
   sensors/position        nav_msgs/Odometry          position fix r [m], v [m/s], ECI (environment 'full')
+                          (each taken raw: the serialized bytes, the fields read in place)
   /clock                  rosgraph_msgs/Clock        (use_sim_time)
 Publishes:
   estimate/attitude       sensor_msgs/Imu, frame 'body', stamp = the sample's: orientation = estimated
@@ -28,6 +29,11 @@ satellite in the Earth's shadow, else after waiting ``sun_wait`` wall seconds (s
 message of an already processed stamp is dropped (sun_late). Before the coarse fix each sample's message has
 orientation_covariance[0] = -1 (unknown; the
 controller commands zero dipole).
+
+The node is on the lockstep's critical path (sensors -> estimator -> controller), so it takes its
+inputs serialized (raw) and reads only the fields it uses (common.raw_imu, raw_magnetic_field,
+raw_vector3_stamped, raw_odometry), runs the filter compiled (MekfStream(compiled=True), the same
+equations as the core's Python filter within 1e-10 rad) and fills a preallocated message.
 """
 from __future__ import annotations
 
@@ -42,7 +48,7 @@ from sensor_msgs.msg import Imu, MagneticField
 from magtune_core.design.estimator import MekfStream, OnboardModels
 from magtune_core.design.node_params import ESTIMATOR_FIELDS
 from magtune_core.design.params import SpacecraftParams
-from magtune_core.design.sensors import Gyro, Magnetometer, SensorSuite, SunSensor, illuminated
+from magtune_core.design.sensors import Gyro, Magnetometer, SensorSuite, SunSensor
 
 from . import common as c
 
@@ -70,7 +76,7 @@ class AttitudeEstimator(c.ManagedNode):
     def __init__(self):
         super().__init__(self.NODE_NAME, ["samples", "estimates", "mag_accepted", "mag_rejected", "sun_accepted",
                                           "sun_rejected", "sun_missing", "sun_late", "rejected_nonfinite",
-                                          "rejected_stamp", "stale_inputs"])
+                                          "rejected_malformed", "rejected_stamp", "stale_inputs"])
         self.pending = None
         self.create_timer(0.05, self.check_pending, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
@@ -85,75 +91,82 @@ class AttitudeEstimator(c.ManagedNode):
         self.msg = Imu()
         self.msg.header.frame_id = c.FRAME_BODY
         self.msg.linear_acceleration_covariance[0] = -1.0
+        self.rate_var = self.suite.gyro.white_std(self.suite.ts) ** 2 * np.eye(3)  # the gyro's white part
+        self.unknown = np.array([-1.0] + [0.0] * 8)  # REP-145's "not known" covariance
 
     def activate(self):
         """A fresh filter (an activation restarts from the coarse fix), then the topics."""
         v = self.values
         self.stream = MekfStream(self.suite, bias_std=v["initial_bias_std"], gate_probability=v["gate_probability"],
-                                 init_angle=v["init_angle"])
+                                 init_angle=v["init_angle"], compiled=True)
         self.ts_ns = c.sec_to_ns(self.suite.ts)
         self.gate = c.StampGate(self, 2 * self.ts_ns, n=4)
         self.sync = c.PairSync(3 if self.full else 2)  # imu, mag (, position): same stamp t_k
         self.suns: dict = {}
         self.last_ns, self.w_prev, self.pending = -1, None, None
         self.pub = self.data_publisher(Imu, TOPIC_ESTIMATE, c.LOCKSTEP_QOS)
-        self.data_subscription(Imu, c.TOPIC_IMU, self.on_imu, c.LOCKSTEP_QOS)
-        self.data_subscription(MagneticField, c.TOPIC_MAG, self.on_mag, c.LOCKSTEP_QOS)
+        self.data_subscription(Imu, c.TOPIC_IMU, self.on_imu, c.LOCKSTEP_QOS, raw=True)
+        self.data_subscription(MagneticField, c.TOPIC_MAG, self.on_mag, c.LOCKSTEP_QOS, raw=True)
         if self.full:
-            self.data_subscription(Vector3Stamped, c.TOPIC_SUN, self.on_sun, c.LOCKSTEP_QOS)
-            self.data_subscription(Odometry, c.TOPIC_POSITION, self.on_position, c.LOCKSTEP_QOS)
+            self.data_subscription(Vector3Stamped, c.TOPIC_SUN, self.on_sun, c.LOCKSTEP_QOS, raw=True)
+            self.data_subscription(Odometry, c.TOPIC_POSITION, self.on_position, c.LOCKSTEP_QOS, raw=True)
 
-    # ---------------------------------------------------------------- inputs
-    def on_imu(self, msg: Imu):
-        w = msg.angular_velocity
-        if not c.finite(w.x, w.y, w.z):
+    # ---------------------------------------------------------------- inputs (serialized messages)
+    def on_imu(self, data: bytes):
+        f = c.raw_imu(data)
+        if f is None:
+            return self.diag.count("rejected_malformed", "malformed sensors/imu message")
+        if not c.finite(*f[2]):
             return self.diag.count("rejected_nonfinite", "non-finite gyro rate")
-        self._input(0, msg)
+        self._input(0, f[0], f[2])
 
-    def on_mag(self, msg: MagneticField):
-        b = msg.magnetic_field
-        if not c.finite(b.x, b.y, b.z) or b.x == b.y == b.z == 0.0:
+    def on_mag(self, data: bytes):
+        f = c.raw_magnetic_field(data)
+        if f is None:
+            return self.diag.count("rejected_malformed", "malformed sensors/magnetic_field message")
+        b = f[1]
+        if not c.finite(*b) or b[0] == b[1] == b[2] == 0.0:
             return self.diag.count("rejected_nonfinite", "non-finite or zero magnetic field")
-        self._input(1, msg)
+        self._input(1, f[0], b)
 
-    def on_position(self, msg: Odometry):
-        p, v = msg.pose.pose.position, msg.twist.twist.linear
-        if not c.finite(p.x, p.y, p.z, v.x, v.y, v.z) or p.x == p.y == p.z == 0.0:
+    def on_position(self, data: bytes):
+        f = c.raw_odometry(data)
+        if f is None:
+            return self.diag.count("rejected_malformed", "malformed sensors/position message")
+        p, v = f[1], f[2]
+        if not c.finite(*p, *v) or p[0] == p[1] == p[2] == 0.0:
             return self.diag.count("rejected_nonfinite", "non-finite or zero position fix")
-        self._input(2, msg)
+        self._input(2, f[0], (np.array(p), np.array(v)))
 
-    def on_sun(self, msg: Vector3Stamped):
-        u = msg.vector
-        n = math.sqrt(u.x * u.x + u.y * u.y + u.z * u.z) if c.finite(u.x, u.y, u.z) else 0.0
+    def on_sun(self, data: bytes):
+        f = c.raw_vector3_stamped(data)
+        if f is None:
+            return self.diag.count("rejected_malformed", "malformed sensors/sun message")
+        ns, (x, y, z) = f
+        n = math.sqrt(x * x + y * y + z * z) if c.finite(x, y, z) else 0.0
         if not abs(n - 1.0) < 1e-3:
             return self.diag.count("rejected_nonfinite", "sun vector not finite and unit")
-        ns = c.stamp_to_ns(msg.header.stamp)
         if ns <= self.last_ns:
             return self.diag.count("sun_late", f"sun sample of {ns * 1e-9:.3f} s after that step was estimated")
-        self.suns[ns] = np.array([u.x, u.y, u.z])
+        self.suns[ns] = np.array([x, y, z])
         while len(self.suns) > 16:
             del self.suns[next(iter(self.suns))]
         if self.pending is not None and self.pending[0] == ns:
             self._process(*self.pending[:2])
 
-    def _input(self, slot, msg):
-        ns = c.stamp_to_ns(msg.header.stamp)
+    def _input(self, slot, ns, value):
         bad = self.gate.check(slot, ns)
         if bad:
             return self.diag.count(*bad)
-        group = self.sync.add(slot, ns, msg)
+        group = self.sync.add(slot, ns, value)
         if group is None:
             return
         if self.pending is not None:  # a newer sample is complete: the pending one goes on without its sun
             self.diag.count("sun_missing", "no sun sample for a step predicted lit")
             self._process(*self.pending[:2])
-        if not self.full or ns in self.suns or not self._lit(ns, group[2]):
+        if not self.full or ns in self.suns or not self.models.lit(self._t(ns), group[2][0]):
             return self._process(ns, group)
         self.pending = (ns, group, c.now_wall())
-
-    def _lit(self, ns, pos: Odometry) -> bool:
-        p = pos.pose.pose.position
-        return bool(illuminated(np.array([p.x, p.y, p.z]), self.models.sun_eci(self._t(ns))))
 
     def check_pending(self):
         if self.pending is not None and c.now_wall() - self.pending[2] > self.values["sun_wait"]:
@@ -168,30 +181,30 @@ class AttitudeEstimator(c.ManagedNode):
         """One MEKF step of sample ``ns`` (design.estimator.MekfStream.step) and its estimate."""
         self.pending = None
         self.last_ns = ns
-        imu, mag = group[0], group[1]
+        w, b = group[0], group[1]
         t = self._t(ns)
-        w, b = imu.angular_velocity, mag.magnetic_field
-        r = v = None
-        if self.full:
-            pp, pv = group[2].pose.pose.position, group[2].twist.twist.linear
-            r, v = np.array([pp.x, pp.y, pp.z]), np.array([pv.x, pv.y, pv.z])
+        r, v = group[2] if self.full else (None, None)
         sun = self.suns.pop(ns, None)
         for k in [k for k in self.suns if k < ns]:
             del self.suns[k]
         s_ref = self.models.sun(t, r) if sun is not None else None
-        out = self.stream.step(self.w_prev, [b.x, b.y, b.z], self.models.field(t, r), sun, s_ref)
-        self.w_prev = np.array([w.x, w.y, w.z])
+        out = self.stream.step(self.w_prev, b, self.models.field(t, r), sun, s_ref)
+        self.w_prev = np.array(w)
         self.diag.count("samples")
         if out.state is None:  # before the coarse fix: "no orientation" (the controller commands zero)
             return self.publish_none(ns)
         if out.started:
             self.diag.extra["fixed_at"] = f"{t:.3f}"
-        self.diag.count("mag_accepted" if out.mag_accepted else "mag_rejected",
-                        None if out.mag_accepted else f"magnetometer innovation gated (NIS {out.nis_mag:.3g})")
+        if out.mag_accepted:
+            self.diag.count("mag_accepted")
+        else:
+            self.diag.count("mag_rejected", f"magnetometer innovation gated (NIS {out.nis_mag:.3g})")
         self.diag.extra["nis_mag"] = f"{out.nis_mag:.4g}"
         if out.sun_accepted is not None:
-            self.diag.count("sun_accepted" if out.sun_accepted else "sun_rejected",
-                            None if out.sun_accepted else f"sun innovation gated (NIS {out.nis_sun:.3g})")
+            if out.sun_accepted:
+                self.diag.count("sun_accepted")
+            else:
+                self.diag.count("sun_rejected", f"sun innovation gated (NIS {out.nis_sun:.3g})")
             self.diag.extra["nis_sun"] = f"{out.nis_sun:.4g}"
         self.publish(ns, t, out.state, r, v)
 
@@ -200,13 +213,13 @@ class AttitudeEstimator(c.ManagedNode):
         m.header.stamp = c.ns_to_stamp(ns)
         q = self.models.to_orbital(state.q, t, r, v)
         o = m.orientation
-        o.w, o.x, o.y, o.z = (float(x) for x in q)
-        m.orientation_covariance = [float(x) for x in state.P[:3, :3].ravel()]
-        rate = self.w_prev - state.b
+        o.w, o.x, o.y, o.z = float(q[0]), float(q[1]), float(q[2]), float(q[3])
+        P = state.P
+        m.orientation_covariance = P[:3, :3].ravel()  # a float64 (9,) copy: rclpy takes it as is
         av = m.angular_velocity
-        av.x, av.y, av.z = (float(x) for x in rate)
-        m.angular_velocity_covariance = [float(x) for x in (state.P[3:, 3:] + self.suite.gyro.white_std(self.suite.ts) ** 2
-                                                             * np.eye(3)).ravel()]
+        w, bias = self.w_prev, state.b
+        av.x, av.y, av.z = float(w[0] - bias[0]), float(w[1] - bias[1]), float(w[2] - bias[2])
+        m.angular_velocity_covariance = (P[3:, 3:] + self.rate_var).ravel()
         self.diag.count("estimates")
         self.pub.publish(m)
 
@@ -216,10 +229,10 @@ class AttitudeEstimator(c.ManagedNode):
         m = self.msg
         m.header.stamp = c.ns_to_stamp(ns)
         m.orientation.w, m.orientation.x, m.orientation.y, m.orientation.z = 1.0, 0.0, 0.0, 0.0
-        m.orientation_covariance = [-1.0] + [0.0] * 8
+        m.orientation_covariance = self.unknown.copy()
         w = self.w_prev
         m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z = (float(x) for x in w)
-        m.angular_velocity_covariance = [-1.0] + [0.0] * 8
+        m.angular_velocity_covariance = self.unknown.copy()
         self.pub.publish(m)
 
     def finish(self):

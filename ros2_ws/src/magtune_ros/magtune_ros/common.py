@@ -8,6 +8,7 @@ import array
 import math
 import os
 import signal
+import struct
 import sys
 import threading
 import time
@@ -206,8 +207,10 @@ INFO_COUNTERS = ("steps", "commands", "samples", "published", "sun_samples", "su
 class Diagnostics:
     """Counters published on /diagnostics (diagnostic_msgs/DiagnosticArray) every ``period`` wall s."""
 
-    def __init__(self, node: Node, counters, period: float = 1.0):
+    def __init__(self, node: Node, counters, period: float = 1.0, now_ns=None):
         self.node = node
+        #: the header stamp's source [ns] (default the node's clock)
+        self.now_ns = now_ns
         self.counts = {k: 0 for k in counters}
         self.extra: dict = {}
         #: (level, message) overriding the counters' status, e.g. a managed node's failed configure
@@ -231,7 +234,7 @@ class Diagnostics:
         st = DiagnosticStatus(level=level, name=self.name, hardware_id="magtune_sil", message=message)
         st.values = [KeyValue(key=k, value=str(v)) for k, v in {**self.counts, **self.extra}.items()]
         msg = DiagnosticArray(status=[st])
-        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.header.stamp = ns_to_stamp(self.now_ns()) if self.now_ns else self.node.get_clock().now().to_msg()
         self.pub.publish(msg)
 
 
@@ -404,9 +407,9 @@ class ManagedNode(LifecycleNode):
         self._entities.append(pub)
         return pub
 
-    def data_subscription(self, *args):
-        """A subscription that exists while the node is active."""
-        sub = self.create_subscription(*args)
+    def data_subscription(self, *args, **kw):
+        """A subscription that exists while the node is active (``raw=True``: the callback gets the bytes)."""
+        sub = self.create_subscription(*args, **kw)
         self._entities.append(sub)
         return sub
 
@@ -496,11 +499,12 @@ class PairSync:
 
 class StampGate:
     """Rejects inputs whose stamps are not newer than the last accepted one, older than
-    ``max_age`` relative to the node's (simulated) clock, or more than ``max_age`` ahead of it."""
+    ``max_age`` relative to the node's (simulated) clock, or more than ``max_age`` ahead of it
+    (``max_age_ns`` None: the stamps' order only, no clock read)."""
 
-    def __init__(self, node: Node, max_age_ns: int, n: int = 2):
+    def __init__(self, node: Node, max_age_ns: int | None, n: int = 2):
         self.node = node
-        self.max_age_ns = int(max_age_ns)
+        self.max_age_ns = None if max_age_ns is None else int(max_age_ns)
         self.last_ns = [-1] * n
 
     def check(self, slot: int, ns: int):
@@ -508,6 +512,9 @@ class StampGate:
         if ns <= self.last_ns[slot]:
             kind = "duplicate" if ns == self.last_ns[slot] else "from the past"
             return "rejected_stamp", f"stamp {ns * 1e-9:.3f} s {kind} (last accepted {self.last_ns[slot] * 1e-9:.3f} s)"
+        if self.max_age_ns is None:
+            self.last_ns[slot] = ns
+            return None
         now = self.node.get_clock().now().nanoseconds
         if now - ns > self.max_age_ns:
             return "stale_inputs", f"stamp {ns * 1e-9:.3f} s older than {self.max_age_ns * 1e-9:g} s (now {now * 1e-9:.3f} s)"
@@ -516,3 +523,75 @@ class StampGate:
                                       f"{self.max_age_ns * 1e-9:g} s (now {now * 1e-9:.3f} s)")
         self.last_ns[slot] = ns
         return None
+
+
+# ---------------------------------------------------------------- serialized (raw) messages
+#: CDR encapsulation (XCDR1, the rmw's for ROS 2 types) -> struct byte order.
+_CDR_ORDER = {b"\x00\x01": "<", b"\x00\x00": ">"}
+_HEADER = {o: struct.Struct(o + "iII") for o in "<>"}  # stamp sec, nanosec, frame_id length (with its NUL)
+#: sensor_msgs/Imu after the header: orientation x y z w, 9 covariances (skipped), angular_velocity x y z
+_IMU = {o: struct.Struct(o + "4d72x3d") for o in "<>"}
+_IMU_SIZE = 32 + 72 + 24 + 72 + 24 + 72  # orientation .. linear_acceleration_covariance [bytes]
+#: sensor_msgs/MagneticField after the header: magnetic_field x y z, 9 covariances
+_VEC3 = {o: struct.Struct(o + "3d") for o in "<>"}
+_UINT = {o: struct.Struct(o + "I") for o in "<>"}
+#: nav_msgs/Odometry after child_frame_id: pose position x y z, orientation and 36 covariances (skipped),
+#: twist linear x y z
+_ODOM = {o: struct.Struct(o + "3d32x288x3d") for o in "<>"}
+_ODOM_SIZE = 24 + 32 + 288 + 24 + 24 + 288  # pose .. twist covariance [bytes]
+
+
+def _raw_header(data: bytes, strings: int = 0):
+    """(byte order, stamp [ns], offset of the first double after the header and ``strings`` more
+    strings) of a serialized std_msgs/Header-led message, or None if the bytes are not one."""
+    order = _CDR_ORDER.get(bytes(data[:2]))
+    if order is None or len(data) < 16:
+        return None
+    sec, nsec, n = _HEADER[order].unpack_from(data, 4)
+    body = 12 + n  # the frame_id's end, relative to the CDR body at byte 4
+    for _ in range(strings):  # e.g. Odometry's child_frame_id: a uint32 length aligned to 4, then the bytes
+        body = (body + 3) & ~3
+        if len(data) < 4 + body + 4:
+            return None
+        body += 4 + _UINT[order].unpack_from(data, 4 + body)[0]
+    return order, sec * 1_000_000_000 + nsec, 4 + ((body + 7) & ~7)  # doubles align to 8 in the body
+
+
+def raw_imu(data: bytes):
+    """(stamp [ns], (qw, qx, qy, qz), (wx, wy, wz)) of a serialized sensor_msgs/Imu (a ``raw=True``
+    subscription's bytes), or None if malformed: the two fields without building the message."""
+    h = _raw_header(data)
+    if h is None or len(data) < h[2] + _IMU_SIZE:
+        return None
+    order, ns, at = h
+    x, y, z, w, wx, wy, wz = _IMU[order].unpack_from(data, at)
+    return ns, (w, x, y, z), (wx, wy, wz)
+
+
+def raw_magnetic_field(data: bytes):
+    """(stamp [ns], (bx, by, bz)) of a serialized sensor_msgs/MagneticField, or None if malformed."""
+    h = _raw_header(data)
+    if h is None or len(data) < h[2] + 24 + 72:
+        return None
+    order, ns, at = h
+    return ns, _VEC3[order].unpack_from(data, at)
+
+
+def raw_vector3_stamped(data: bytes):
+    """(stamp [ns], (x, y, z)) of a serialized geometry_msgs/Vector3Stamped, or None if malformed."""
+    h = _raw_header(data)
+    if h is None or len(data) < h[2] + 24:
+        return None
+    order, ns, at = h
+    return ns, _VEC3[order].unpack_from(data, at)
+
+
+def raw_odometry(data: bytes):
+    """(stamp [ns], pose position (x, y, z), twist linear (x, y, z)) of a serialized
+    nav_msgs/Odometry, or None if malformed."""
+    h = _raw_header(data, strings=1)
+    if h is None or len(data) < h[2] + _ODOM_SIZE:
+        return None
+    order, ns, at = h
+    px, py, pz, vx, vy, vz = _ODOM[order].unpack_from(data, at)
+    return ns, (px, py, pz), (vx, vy, vz)

@@ -8,20 +8,25 @@ configure leaves that node *unconfigured*: the manager prints ``mode_manager: <n
 The manager itself is a plain node: it manages, as Nav2's lifecycle_manager does.
 
 Mode logic (magtune_core.design.modes.ModeLogic, parameters MODE_FIELDS): stepped at each sensor
-sample t_k (sensors/imu, sensors/magnetic_field and sensors/attitude paired by stamp) with the
-measured quantities only: |w_gyro| from sensors/imu, the filtered |db/dt| of sensors/magnetic_field
-(design.bdot.FieldDerivativeFilter, bdot_cutoff), |b_k - b_(k-1)| of sensors/magnetic_field (a
-sample repeated for frozen_time: a frozen magnetometer -> SAFE) and the pointing error of the
-attitude estimate.
+sample t_k (sensors/magnetic_field and sensors/attitude paired by stamp) with the measured
+quantities only: |w_gyro| (the gyro sample, which sensors/attitude carries as sensors/imu does),
+the filtered |db/dt| of sensors/magnetic_field (design.bdot.FieldDerivativeFilter, bdot_cutoff),
+|b_k - b_(k-1)| of sensors/magnetic_field (a sample repeated for frozen_time: a frozen magnetometer
+-> SAFE) and the pointing error of the attitude estimate. The manager is outside the lockstep and
+shares the cores with it, so it takes the two streams serialized (raw) and reads the few fields it
+needs (common.raw_imu, common.raw_magnetic_field) instead of building the messages.
+
+Time: the manager's sim time is the newest stamp of its samples (it keeps no /clock: use_sim_time
+is forced false); transitions, commanded modes and /diagnostics are stamped with it.
 
 Health, two clocks:
   liveness   steady wall-clock time: every managed node publishes its /diagnostics status (its
              heartbeat) at 1 Hz of steady time; none for ``heartbeat_timeout`` s -> SAFE, the
              node named in the reason and on /diagnostics (ERROR). Wall time, because in lockstep
              a dead node stalls the simulator and so /clock: a sim-time timeout would never expire.
-  staleness  sim time, from the stamps only: a sim-time timer (period ts) finds one sensor stream
-             whose last stamp lags the newest of the others by more than ``stale_timeout`` -> the
-             logic sees ``stale`` -> SAFE (stamps, not the clock: the manager is outside the
+  staleness  sim time, from the stamps only: at every sensor message, a stream whose last stamp
+             lags the newest of the other by more than ``stale_timeout`` -> the logic steps with
+             ``stale`` at the newest stamp -> SAFE (stamps, not a clock: the manager is outside the
              lockstep and may process samples well after /clock moved on, so "now minus last
              sample" fired spuriously at full speed; a stop of every stream is the liveness
              check's, or the simulator's missed steps'); it recovers by itself after
@@ -31,8 +36,8 @@ Health, two clocks:
 Publishes:
   mode           magtune_interfaces/Mode (MODE_QOS: reliable, transient-local): the mode, the
                  previous one and the reason of the last transition, stamped with its sim time
-  /diagnostics   counters: samples, transitions, requests, rejected_nonfinite, rejected_stamp,
-                 stale, heartbeat_lost; mode; ERROR naming the node whose heartbeat is missing
+  /diagnostics   counters: samples, transitions, requests, rejected_nonfinite, rejected_malformed,
+                 rejected_stamp, stale, heartbeat_lost; mode; ERROR naming the node whose heartbeat is missing
 Service:
   set_mode       magtune_interfaces/SetMode: a commanded mode (reason recorded); a commanded SAFE
                  is sticky: it holds until another mode is commanded (docs/decisions.md)
@@ -51,6 +56,7 @@ from magtune_interfaces.msg import Mode
 from magtune_interfaces.srv import SetMode
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.task import Future
 from sensor_msgs.msg import Imu, MagneticField
 
@@ -60,6 +66,9 @@ from magtune_core.design.modes import MODES, SAFE, Measurements, ModeLogic, Mode
 from magtune_core.design.node_params import BDOT_FIELDS, MANAGER_FIELDS, MODE_FIELDS
 
 from . import common as c
+
+#: The sensor streams of the mode logic, by slot.
+STREAMS = ("sensors/magnetic_field", "sensors/attitude")
 
 
 class BringUpError(RuntimeError):
@@ -71,7 +80,8 @@ class ModeManager(Node):
     START_ERRORS = (BringUpError,)
 
     def __init__(self):
-        super().__init__(self.NODE_NAME)
+        # no /clock: the manager's sim time is its samples' stamps (one message and one timer less per step)
+        super().__init__(self.NODE_NAME, parameter_overrides=[Parameter("use_sim_time", value=False)])
         self.done = Future()
         v = c.parse_fields(self, MANAGER_FIELDS)
         bd = c.parse_fields(self, BDOT_FIELDS)
@@ -90,26 +100,24 @@ class ModeManager(Node):
         self.previous = self.state.mode
         self.last = None            # last Measurements
         self.b_prev = None          # last magnetometer sample (the frozen-sensor guard's |b_k - b_(k-1)|)
-        self.last_sample_ns = None  # stamp of the last sensor sample
         self.beats: dict[str, float] = {}      # node -> steady time [s] of its last heartbeat
         self.errors: dict[str, str] = {}       # node -> its ERROR status message (failed configure)
         self.lost: set[str] = set()
         self.monitoring = False
-        self.diag = c.Diagnostics(self, ["samples", "transitions", "requests", "rejected_nonfinite", "rejected_stamp",
-                                         "stale", "heartbeat_lost"])
         # stamps must increase; no age limit: a manager behind the world (it is outside the lockstep)
         # still steps the logic on every sample, in stamp order, so its decisions do not depend on its lag
-        self.gate = c.StampGate(self, 2**62, n=3)
-        self.sync = c.PairSync(3)  # gyro, magnetometer, attitude of t_k
+        self.gate = c.StampGate(self, None, n=2)
+        self.diag = c.Diagnostics(self, ["samples", "transitions", "requests", "rejected_nonfinite",
+                                         "rejected_malformed", "rejected_stamp", "stale", "heartbeat_lost"],
+                                  now_ns=lambda: max(0, *self.gate.last_ns))
+        self.sync = c.PairSync(2)  # magnetometer, attitude (with the gyro) of t_k
         self.pub_mode = self.create_publisher(Mode, c.TOPIC_MODE, c.MODE_QOS)
         self.create_subscription(DiagnosticArray, c.TOPIC_DIAGNOSTICS, self.on_diagnostics, c.DIAG_QOS)
-        self.create_subscription(Imu, c.TOPIC_IMU, lambda m: self.on_sensor(0, m), c.LOCKSTEP_QOS)
-        self.create_subscription(MagneticField, c.TOPIC_MAG, lambda m: self.on_sensor(1, m), c.LOCKSTEP_QOS)
-        self.create_subscription(Imu, c.TOPIC_ATTITUDE, lambda m: self.on_sensor(2, m), c.LOCKSTEP_QOS)
+        self.create_subscription(MagneticField, c.TOPIC_MAG, self.on_mag, c.LOCKSTEP_QOS, raw=True)
+        self.create_subscription(Imu, c.TOPIC_ATTITUDE, self.on_attitude, c.LOCKSTEP_QOS, raw=True)
         self.create_service(SetMode, c.SERVICE_SET_MODE, self.on_set_mode)
         self.change = {n: self.create_client(ChangeState, f"{n}/change_state") for n in self.nodes}
         self.get_state = {n: self.create_client(GetState, f"{n}/get_state") for n in self.nodes}
-        self.create_timer(v["ts"], self.check_stale)  # sim time (use_sim_time)
         self.create_timer(0.25, self.check_heartbeats, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.publish_mode()
 
@@ -213,49 +221,55 @@ class ModeManager(Node):
 
     def check_stale(self):
         """Staleness on sim time, from the stamps: a sensor stream whose last stamp lags the newest
-        stamp of the others by more than stale_timeout -> the logic steps with ``stale``."""
+        stamp of the other by more than stale_timeout -> the logic steps with ``stale``."""
         last = self.gate.last_ns
         if min(last) < 0:
             return
         lag = max(last) - min(last)
         if lag > self.stale_ns:
             slot = last.index(min(last))
-            self.diag.count("stale", f"{('sensors/imu', 'sensors/magnetic_field', 'sensors/attitude')[slot]} "
-                                     f"{lag * 1e-9:.1f} s behind the other sensor streams")
+            self.diag.count("stale", f"{STREAMS[slot]} {lag * 1e-9:.1f} s behind the other sensor stream")
             m = self.last or Measurements(rate=math.nan)
             self.step(Measurements(m.rate, m.bdot, m.pointing_error, stale=True, field_step=m.field_step),
                       max(last) * 1e-9)
 
     # ---------------------------------------------------------------- mode logic
-    def on_sensor(self, slot: int, msg):
-        if slot == 1:
-            b = msg.magnetic_field
-            vals = (b.x, b.y, b.z)
-        else:
-            w, o = msg.angular_velocity, msg.orientation
-            vals = (w.x, w.y, w.z) + ((o.w, o.x, o.y, o.z) if slot == 2 else ())
-        if not c.finite(*vals):
+    def on_mag(self, data: bytes):
+        f = c.raw_magnetic_field(data)
+        if f is None:
+            return self.diag.count("rejected_malformed", "malformed sensors/magnetic_field message")
+        if not c.finite(*f[1]):
             return self.diag.count("rejected_nonfinite", "non-finite sensor sample")
-        ns = c.stamp_to_ns(msg.header.stamp)
+        self._input(0, f[0], f[1])
+
+    def on_attitude(self, data: bytes):
+        f = c.raw_imu(data)
+        if f is None:
+            return self.diag.count("rejected_malformed", "malformed sensors/attitude message")
+        if not (c.finite(*f[1]) and c.finite(*f[2])):
+            return self.diag.count("rejected_nonfinite", "non-finite sensor sample")
+        self._input(1, f[0], f[1:])
+
+    def _input(self, slot: int, ns: int, values):
         bad = self.gate.check(slot, ns)
         if bad:
             return self.diag.count(*bad)
-        trio = self.sync.add(slot, ns, msg)
-        if trio:
-            self.sample(ns, *trio)
+        pair = self.sync.add(slot, ns, values)
+        if pair:
+            self.sample(ns, *pair)
+        else:  # a stream ahead of the other: is the other one stale?
+            self.check_stale()
 
-    def sample(self, ns: int, imu: Imu, mag: MagneticField, att: Imu):
-        """One sample t_k: the measured quantities, then one step of the logic."""
-        w, b, o = imu.angular_velocity, mag.magnetic_field, att.orientation
-        self.fstate, bdot = self.filter.step(self.fstate, [b.x, b.y, b.z])
-        qv = math.sqrt(o.x * o.x + o.y * o.y + o.z * o.z) / max(math.sqrt(o.w * o.w + o.x * o.x + o.y * o.y
-                                                                          + o.z * o.z), 1e-300)
-        bv = (b.x, b.y, b.z)
-        step = math.nan if self.b_prev is None else math.dist(bv, self.b_prev)
-        self.b_prev = bv
-        m = Measurements(rate=math.sqrt(w.x * w.x + w.y * w.y + w.z * w.z), bdot=float(np.linalg.norm(bdot)),
+    def sample(self, ns: int, b, att):
+        """One sample t_k: the measured quantities (field b, attitude (q, gyro w)), then one step of the logic."""
+        (qw, qx, qy, qz), (wx, wy, wz) = att
+        self.fstate, bdot = self.filter.step(self.fstate, b)
+        qv = math.sqrt(qx * qx + qy * qy + qz * qz) / max(math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), 1e-300)
+        step = math.nan if self.b_prev is None else math.dist(b, self.b_prev)
+        self.b_prev = b
+        m = Measurements(rate=math.sqrt(wx * wx + wy * wy + wz * wz), bdot=float(np.linalg.norm(bdot)),
                          pointing_error=2.0 * math.asin(min(qv, 1.0)), field_step=step)
-        self.last, self.last_sample_ns = m, ns
+        self.last = m
         self.diag.count("samples")
         self.step(m, ns * 1e-9)
 
@@ -293,7 +307,8 @@ class ModeManager(Node):
         return res
 
     def now_s(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
+        """The manager's sim time [s]: the newest stamp of its samples (0 before the first)."""
+        return max(0, *self.gate.last_ns) * 1e-9
 
     def finish(self):
         if self.context.ok():
