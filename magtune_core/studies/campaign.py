@@ -2,7 +2,7 @@
 
 ``magtune campaign SPEC.yaml --runs N --out DIR`` (the command: :mod:`magtune_core.cli.campaign`)
 
-A campaign spec (YAML, three sections, each validated by its :class:`Field` schema below)
+A campaign spec (YAML, three sections and optional ones, each validated by its :class:`Field` schema below)
 names the gains file(s), the spacecraft file, the environment, the run length and Ts, the
 dispersions and the pass/fail criteria. Run ``i`` (0 <= i < N) draws its parameters from its own
 generator ``numpy.random.default_rng([seed, i])`` in a fixed order (every draw is made even
@@ -29,6 +29,11 @@ Dispersions (all optional; zero spread = nominal):
   noise [rad/s] and bias likewise, attitude-determination error std [rad] (the model of the
   ``attitude_sensors`` node, :mod:`magtune_core.sim.batch`);
 * dipole limit per axis [A m^2]: uniform in ``[dipole_limit_min, dipole_limit_max]``.
+
+Optional sections: ``modes`` (deployment campaigns: the mode machine and B-dot, with ``campaign.modes``),
+``estimator`` (the MEKF in the loop, with ``campaign.attitude: estimator``) and ``torquers`` (the torquers'
+field at the magnetometer and their duty cycle, every run: the simulator/sensors/controller nodes' schema
+TORQUER_FIELDS, docs/torquers.md).
 
 Figures of merit per run, from the true attitude at every controller instant (pointing error
 = rotation angle between body and orbital axes, ``2 asin(|q_vec|)`` [deg],
@@ -66,8 +71,9 @@ from ..base.paramfile import load_user_yaml
 from ..base.schema import Field, parse
 from ..design.gains import load_gains
 from ..design.modes import MODES, POINTING, ModeParams
-from ..design.node_params import BDOT_FIELDS, ESTIMATOR_FIELDS, MODE_FIELDS, check_modes
+from ..design.node_params import BDOT_FIELDS, ESTIMATOR_FIELDS, MODE_FIELDS, TORQUER_FIELDS, check_modes
 from ..design.params import SpacecraftParams, load_spacecraft
+from ..design.torquers import Torquers
 from ..sim.batch import BatchEstimator, BatchModes, BatchRuns, SensorNoise, simulate_batch
 from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions, nominal_orbit_period, substeps_for
 from ..sim.initial import substeps_for_rate
@@ -159,7 +165,7 @@ MODES_SECTION_FIELDS = MODE_FIELDS + BDOT_FIELDS
 ESTIMATOR_SECTION_FIELDS = tuple(f for f in ESTIMATOR_FIELDS if f.name in BatchEstimator.__dataclass_fields__)
 
 SECTIONS = {"campaign": CAMPAIGN_FIELDS, "dispersions": DISPERSION_FIELDS, "criteria": CRITERIA_FIELDS,
-            "modes": MODES_SECTION_FIELDS, "estimator": ESTIMATOR_SECTION_FIELDS}
+            "modes": MODES_SECTION_FIELDS, "estimator": ESTIMATOR_SECTION_FIELDS, "torquers": TORQUER_FIELDS}
 STATUSES = ("ok", "diverged", "failed")
 #: Figures of merit (columns of runs.parquet) and their units, in report order.
 FIGURES = (("settling_time", "s"), ("max_pointing_deg", "deg"), ("rms_pointing_deg", "deg"),
@@ -193,6 +199,7 @@ class CampaignSpec:
     raw: dict = field(default_factory=dict)
     modes: dict = field(default_factory=dict)  #: section ``modes`` (parsed; used with ``campaign.modes``)
     estimator: dict = field(default_factory=dict)  #: section ``estimator`` (parsed; with ``campaign.attitude: estimator``)
+    torquers: dict = field(default_factory=dict)  #: section ``torquers`` (parsed: coupling, duty cycle; every run)
 
     @property
     def seed(self) -> int:
@@ -202,14 +209,15 @@ class CampaignSpec:
     def substeps(self) -> int:
         """RK4 steps per Ts: ``campaign.substeps``, 0 = at most 0.5 s per step; a deployment campaign takes at
         least what the fastest drawable initial rate needs (sim.initial.substeps_for_rate of the bound
-        |rate_mean| + rate_max + W0 per axis: one value for every run, so a batch is one integrator)."""
+        |rate_mean| + rate_max + W0 per axis: one value for every run, so a batch is one integrator), raised to
+        the fewest that put a duty cycle's switch-off on the grid (design.torquers.Torquers.substeps)."""
         s = int(self.campaign["substeps"])
         s = s if s > 0 else substeps_for(self.campaign["ts"])
         if self.campaign["modes"]:
             d = self.dispersions
             bound = np.abs(d["rate_mean"]) + d["rate_max"] + np.array([0.0, 0.0, self.p.orbit_rate])
             s = max(s, substeps_for_rate(bound, self.campaign["ts"]))
-        return s
+        return self.batch_torquers().substeps(self.campaign["ts"], s)  # a duty cycle's switch-off on the grid
 
     def batch_modes(self) -> BatchModes | None:
         """The flight modes every run flies (``campaign.modes``; section ``modes``), else None."""
@@ -225,6 +233,11 @@ class CampaignSpec:
             return None
         return BatchEstimator(**{f.name: self.estimator[f.name] for f in ESTIMATOR_SECTION_FIELDS},
                               sun_sensor_std=self.dispersions["sun_noise_std"])
+
+    def batch_torquers(self) -> Torquers:
+        """The torquers' coupling into the magnetometer and duty cycle every run flies (section ``torquers``,
+        the schema of the simulator, sensors and controller nodes; docs/torquers.md)."""
+        return Torquers.from_values(self.torquers)
 
     def env_options(self, epoch: datetime, raan_deg: float) -> FullEnvironmentOptions:
         c = self.campaign
@@ -336,6 +349,7 @@ def load_spec(path) -> CampaignSpec:
     if c["attitude"] == "estimator" and c["modes"]:
         raise ConfigError(path, "campaign.attitude", "estimator is not available with campaign.modes (the mode "
                           "machine reads the measured attitude)")
+    Torquers.from_values(values["torquers"]).check(c["ts"], f"{path}: torquers")
     Ks, files = [], []
     for g in c["gains"]:
         gp = _resolve(g, path)
@@ -344,7 +358,7 @@ def load_spec(path) -> CampaignSpec:
         Ks.append(load_gains(gp).K)
         files.append(str(g))
     return CampaignSpec(str(path), c, d, values["criteria"], files, np.array(Ks), p, e0, e1, raw, values["modes"],
-                        values["estimator"])
+                        values["estimator"], values["torquers"])
 
 
 # --- per-run parameters ------------------------------------------------------------------------
@@ -503,7 +517,8 @@ def _simulate_rows(spec: CampaignSpec, jobs: list, steps: int, record_every: int
     draws = [draw_run(spec, i) for _, i in jobs]
     runs = _batch_runs(spec, draws, [g for g, _ in jobs])
     res = simulate_batch(runs, ts=spec.campaign["ts"], steps=steps, substeps=spec.substeps, record_every=record_every,
-                         full_series=True, modes=spec.batch_modes(), estimator=spec.batch_estimator())
+                         full_series=True, modes=spec.batch_modes(), estimator=spec.batch_estimator(),
+                         torquers=spec.batch_torquers())
     t_all = np.arange(steps + 1) * spec.campaign["ts"]
     rows = []
     for b, ((g, i), r) in enumerate(zip(jobs, draws)):
@@ -715,7 +730,8 @@ def write_results(spec: CampaignSpec, runs: int, out: Path, results: list, batch
                 batch_size=spec.campaign["batch_size"], batches=len(batches),
                 counts={s: status.count(s) for s in STATUSES}, passed=int(sum(bool(r["passed"]) for r in rows)),
                 campaign=_plain(spec.campaign), dispersions=_plain(spec.dispersions), criteria=_plain(spec.criteria),
-                **(dict(modes=_plain(spec.modes)) if spec.campaign["modes"] else {}), **info)
+                **(dict(modes=_plain(spec.modes)) if spec.campaign["modes"] else {}),
+                **(dict(torquers=_plain(spec.torquers)) if spec.raw.get("torquers") else {}), **info)
     meta["failed_runs"] = [dict(run=int(r["run"]), gains=r["gains"], error=r.get("error", "")) for r in rows
                            if r["status"] == "failed"]
     meta["runs_per_second"] = len(rows) / info["wall"] if info.get("wall") else math.nan

@@ -88,6 +88,19 @@ def worst_runs(cols: dict, n: int = WORST) -> np.ndarray:
     return ok[np.argsort(-key, kind="stable")[:n]]
 
 
+def _torquer_line(meta: dict) -> list:
+    """The torquers of every run (campaign section ``torquers``: coupling, duty cycle), if the spec set them."""
+    tq = meta.get("torquers")
+    if not tq:
+        return []
+    C = np.asarray(tq.get("torquer_coupling", [0.0] * 9), dtype=float)
+    off = float(tq.get("torquer_off_time", 0.0))
+    duty = (f"off the last {off:g} s of every period ({'compensated' if tq.get('duty_compensation', True) else 'not compensated'}, "
+            f"field decay {float(tq.get('torquer_decay_time', 0.0)):g} s)") if off > 0 else "always on"
+    return [f"Torquers: coupling into the magnetometer max |C_ij| = {np.abs(C).max():.3g} T/(A m^2), {duty} "
+            "(docs/torquers.md)."]
+
+
 def write_report(out) -> str:
     """Plots and summary.md in the campaign directory ``out``; returns the markdown."""
     out = Path(out)
@@ -105,7 +118,7 @@ def write_report(out) -> str:
              f"{meta['ts']:g} s ({meta['substeps']} RK4 steps per Ts), {meta['steps']} controller steps per run.",
              f"Executed on {meta.get('scheduler')} with {meta.get('workers')} worker(s), {meta['batches']} batches of "
              f"<= {meta['batch_size']} runs, {meta['wall']:.1f} s wall ({meta['runs_per_second']:.2f} runs/s; task CPU "
-             f"{meta.get('cpu_s_per_run', float('nan')):.3f} s per run).", "",
+             f"{meta.get('cpu_s_per_run', float('nan')):.3f} s per run).", *_torquer_line(meta), "",
              "## Outcome", "", "| status | runs |", "|---|---|"]
     for s in STATUSES:
         lines.append(f"| {s} | {int(np.sum(status == s))} |")
