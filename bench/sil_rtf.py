@@ -14,6 +14,7 @@ fly the same law; target: within 10 %), or with truth feedback and with the atti
 median of the N ratios: on a shared machine one pair is noisy (the same run varied 700-1100x).
 """
 import argparse
+import resource
 import sys
 import tempfile
 import time
@@ -78,15 +79,25 @@ def compare(a, tmp: Path) -> None:
     for i in range(a.repeat):
         rtf = []
         for name, extra in zip(names, ({}, variant)):
+            cpu0 = _children_cpu()
             run = sil.run_sil(gains, orbits=a.orbits, ts=1.0, log_dir=tmp / f"{name.replace(' ', '_')}_{i}",
                               environment=a.environment, **extra)
             rtf.append(run.real_time_factor)
+            steps = len(run.result.t)
             print(f"{name:22s} RTF {run.real_time_factor:6.0f}x  missed steps {run.counters.get('missed_steps')}  "
-                  f"wall {run.wall_time:.1f} s  load {_load()}")
+                  f"wall {run.wall_time:.1f} s  {1e3 * run.wall_time / steps:.3f} ms/step  node CPU "
+                  f"{1e3 * (_children_cpu() - cpu0) / steps:.3f} ms/step  load {_load()}")
         ratios.append(rtf[1] / rtf[0])
         print(f"ratio {names[1]} / {names[0]}: {ratios[-1]:.3f}")
     if a.repeat > 1:
         print(f"median ratio of {a.repeat}: {float(np.median(ratios)):.3f} (min {min(ratios):.3f}, max {max(ratios):.3f})")
+
+
+def _children_cpu() -> float:
+    """CPU seconds (user + system) of this process's finished children: the node processes of the runs so
+    far (start-up and shutdown included), so a run's difference over its steps is its nodes' CPU per step."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
 
 
 def _load() -> str:
