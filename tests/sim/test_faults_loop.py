@@ -120,6 +120,36 @@ def test_x_torquer_dead_or_stuck_degrades_but_stays_bounded(spec, bound):
         assert np.all(r.m[r.t >= T0, 0] == 0.0)
 
 
+@pytest.mark.parametrize("spec, bound", [("torquer_dead@1000,axis=z", 7.7), ("torquer_stuck@1000,axis=z", 2.7)])
+def test_z_torquer_dead_or_stuck_settles_to_a_bounded_error(spec, bound):
+    """The z (yaw, nadir) torquer dead or stuck: POINTING holds, the error grows towards a periodic steady state
+    (measured over 14 orbits: peaks 2.0 .. 8.99 deg dead, converging to ~9 deg; 0.74 .. 3.42 deg stuck). Over 5
+    orbits: peaks 6.95 / 2.40 deg in the fifth orbit (bounds with 10 % margin), each orbit's growth at most 0.9
+    of the one before (measured 0.79-0.85: converging, a diverging error would not shrink its increments)."""
+    r = fly([spec], 5 * P.orbit_period)
+    assert table(r) == []
+    T = P.orbit_period
+    peaks = np.array([r.pointing_deg[(r.t >= j * T) & (r.t < (j + 1) * T)].max() for j in range(5)])
+    growth = np.diff(peaks)
+    assert peaks.max() < bound and np.all(growth > 0) and np.all(growth[1:] < 0.9 * growth[:-1]), peaks
+    if "dead" in spec:
+        assert np.all(r.m[r.t >= T0, 2] == 0.0)
+
+
+def test_y_torquer_dead_loses_roll_and_yaw_and_the_modes_say_so():
+    """The y (pitch, orbit-normal) torquer dead: roll and yaw torque need m_y (tau_x = m_y b_z - m_z b_y,
+    tau_z = m_x b_y - m_y b_x, and the orbit-normal field b_y is small in this near-polar orbit), so eq. 17
+    cannot hold the attitude: the error leaves the handover angle and the mode machine goes to ACQUISITION
+    (measured 1708 s), which cannot hold it either (the same torquers); the wheel's momentum keeps the rates
+    small (measured max |dw| 0.016 rad/s over 14 orbits, below the detumble entry rate): no DETUMBLE, no SAFE."""
+    r = fly(["torquer_dead@1000,axis=y"], 2 * P.orbit_period)
+    tr = table(r)
+    assert tr and tr[0][1:] == (POINTING, ACQUISITION) and 1000.0 < tr[0][0] < 2500.0, tr
+    assert {t[2] for t in tr} <= {POINTING, ACQUISITION}, tr
+    assert r.pointing_deg.max() > 45.0  # the attitude is lost, not degraded (measured 106.6 deg in 2 orbits)
+    assert np.all(r.m[r.t >= T0, 1] == 0.0)
+
+
 def test_sensors_killed_is_sil_only():
     with pytest.raises(ConfigError, match="sensors_killed is a SIL fault"):
         fly(["sensors_killed@10"], 20.0)
