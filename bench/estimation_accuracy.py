@@ -46,9 +46,26 @@ def main() -> None:
                             lit=round(float(np.mean(truth.lit)), 3) if truth.lit is not None else 0.0,
                             mag_rejected=s["mag_rejected"], sun_rejected=s["sun_rejected"], k0=run.k0,
                             seconds=round(time.perf_counter() - t0, 1))
+            if truth.lit is not None:
+                out[key].update(eclipse_split(run, truth.lit, int(a.skip)))
             print(key, json.dumps(out[key]), flush=True)
             if a.seeds > 1:
                 print(key, json.dumps(ensemble(truth, use_sun, a)), flush=True)
+
+
+def eclipse_split(run, lit, start: int) -> dict:
+    """What eclipse costs: RMS error and mean 3-sigma bound per axis [deg] over the lit and the eclipsed
+    samples (truth's illumination, from ``start``), and the peak 3-sigma in eclipse."""
+    s = slice(max(start, run.k0), None)
+    e, sig, on = run.error[s], run.sigma()[s], np.asarray(lit, dtype=bool)[s]
+    out = {}
+    for name, m in (("lit", on), ("eclipse", ~on)):
+        if m.any():
+            out[f"rms_{name}_deg"] = np.round(np.degrees(np.sqrt(np.mean(e[m] ** 2, axis=0))), 3).tolist()
+            out[f"mean_3sigma_{name}_deg"] = np.round(np.degrees(3 * sig[m].mean(axis=0)), 3).tolist()
+    if (~on).any():
+        out["peak_3sigma_eclipse_deg"] = np.round(np.degrees(3 * sig[~on].max(axis=0)), 3).tolist()
+    return out
 
 
 def autocorrelation_time(x, max_lag: int = 3000) -> float:
