@@ -40,6 +40,9 @@ def register(sub) -> None:
 def run(args) -> int:
     if args.robust and args.sensitivity:
         raise ConfigError("--sensitivity", None, "is for the nominal model: leave out --robust (or --sensitivity)")
+    if args.robust and args.requirements:  # the robust figures do not evaluate the design spec's requirements
+        raise ConfigError("--requirements", None, "is checked on the nominal model: leave out --robust (its figures "
+                          "check no requirement), or verify under dispersions with magtune verify")
     if args.spec and not args.requirements:
         raise ConfigError("--spec", None, "is read with --requirements only; add --requirements")
     model = load_model(args)

@@ -107,6 +107,13 @@ def test_analyze_sensitivity_refuses_robust_before_any_work():
     assert len(r.stderr.strip().splitlines()) == 1 and "--sensitivity" in r.stderr and "--robust" in r.stderr
 
 
+
+def test_analyze_requirements_refuses_robust_before_any_work():
+    """--robust computes the set's J, c1, c2, rho and no requirement: with --requirements it would skip them silently."""
+    r = _magtune("analyze", "config/gains/sigma_60.yaml", "--requirements", "--robust", "does/not/matter.yaml")
+    assert r.returncode == 2 and r.stdout == ""
+    assert len(r.stderr.strip().splitlines()) == 1 and "--requirements" in r.stderr and "--robust" in r.stderr
+
 @pytest.mark.parametrize("content, field", [
     ("controller:\n  ros__parameters:\n    gain: [1, 2, 3]\n    sigma: 60.0\n", "gain"),
     ("controller:\n  ros__parameters:\n    gain: [.nan, 0,0,0,0,0, 0,0,0,0,0,0, 0,0,0,0,0,0]\n    sigma: 60.0\n", "gain"),
