@@ -235,10 +235,6 @@ class AttitudeEstimator(c.ManagedNode):
         m.angular_velocity_covariance = self.unknown.copy()
         self.pub.publish(m)
 
-    def finish(self):
-        if self.context.ok():
-            self.diag.publish()
-
 
 def main(args=None):
     return c.run(AttitudeEstimator, args)

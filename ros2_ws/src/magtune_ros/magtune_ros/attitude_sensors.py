@@ -243,10 +243,6 @@ class AttitudeSensors(c.ManagedNode):
         self.diag.count("sun_samples")
         self.pub_sun.publish(m)
 
-    def finish(self):
-        if self.context.ok():
-            self.diag.publish()
-
 
 def main(args=None):
     return c.run(AttitudeSensors, args)

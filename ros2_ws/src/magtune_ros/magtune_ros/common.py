@@ -428,6 +428,11 @@ class ManagedNode(LifecycleNode):
         return True
 
     # what subclasses fill in
+    def finish(self):
+        """At shutdown (``run``): the last diagnostics, so /diagnostics ends with the final counters."""
+        if self.context.ok():
+            self.diag.publish()
+
     def configure(self):  # pragma: no cover - abstract
         raise NotImplementedError
 

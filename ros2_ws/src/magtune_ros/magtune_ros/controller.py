@@ -198,10 +198,6 @@ class Controller(c.ManagedNode):
                                           f"(now {now * 1e-9:.3f} s): dipole zeroed")
             self.publish(now)
 
-    def finish(self):
-        if self.context.ok():
-            self.diag.publish()
-
 
 def main(args=None):
     return c.run(Controller, args)

@@ -311,6 +311,7 @@ class ModeManager(Node):
         return max(0, *self.gate.last_ns) * 1e-9
 
     def finish(self):
+        """At shutdown (``common.run``): the last diagnostics (as ``common.ManagedNode.finish``)."""
         if self.context.ok():
             self.diag.publish()
 
