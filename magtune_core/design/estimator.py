@@ -31,7 +31,7 @@ from ..env.igrf import IGRF
 from ..env.orbit import eci_to_orbital
 from ..env.sun import sun_position
 from .attitude_fix import davenport
-from .mekf import MekfParams, MekfState, initial_state, propagate, rotvec_quat, update
+from .mekf import MAG_BIAS_STD, MekfParams, MekfState, initial_state, propagate, rotvec_quat, update
 from .sensors import Gyro, Magnetometer, PositionFix, SensorSuite, SunSensor
 
 SECONDS_PER_DAY = 86400.0
@@ -128,19 +128,23 @@ class MekfStream:
     """The MEKF of :mod:`magtune_core.design.mekf` fed one sample at a time (see the module docstring).
 
     ``suite`` gives the filter's sensor model (magnetometer covariance, gyro sigma_v/sigma_u, sun
-    std); ``bias_std`` [rad/s] the bias prior; ``init_angle`` [rad] how far the reference field
-    must turn before the magnetometer-only fix.
+    std); ``bias_std`` [rad/s] the gyro-bias prior; ``mag_bias_std`` [T] the magnetometer-bias prior
+    (9 states, always; 0: the bias block stays zero and the estimate is the 6-state filter's) and
+    ``mag_bias_rw`` [T/s^0.5] its random walk; ``init_angle`` [rad] how far the reference field must
+    turn before the magnetometer-only fix. The coarse fix weighs the magnetometer with
+    sqrt(R_mag[0, 0] + mag_bias_std^2) (the bias prior taken as part of its error).
     """
 
     def __init__(self, suite: SensorSuite, *, bias_std: float = 5e-4, gate_probability: float = 0.9999,
-                 init_angle: float = math.radians(10.0), compiled: bool = False):
+                 init_angle: float = math.radians(10.0), mag_bias_std: float = MAG_BIAS_STD, mag_bias_rw: float = 0.0,
+                 compiled: bool = False):
         self.suite, self.ts = suite, suite.ts
-        self.params = MekfParams(suite.gyro.arw, suite.gyro.rrw, gate_probability)
+        self.params = MekfParams(suite.gyro.arw, suite.gyro.rrw, gate_probability, mag_rw=mag_bias_rw)
         self.R_mag = suite.magnetometer.covariance
         self.R_sun = suite.sun.noise_std**2 * np.eye(3)
         self.gate_mag, self.gate_sun = self.params.gate(3), self.params.gate(2)
-        self.sig_mag = math.sqrt(self.R_mag[0, 0])
-        self.bias_std, self.init_angle = bias_std, init_angle
+        self.sig_mag = math.sqrt(self.R_mag[0, 0]) if mag_bias_std == 0 else math.sqrt(self.R_mag[0, 0] + mag_bias_std**2)
+        self.bias_std, self.init_angle, self.mag_bias_std = bias_std, init_angle, mag_bias_std
         self.state: MekfState | None = None
         self.k = -1  # samples seen
         self._first = None  # (mag_0, b_ref_0) of the magnetometer-only fix
@@ -151,6 +155,7 @@ class MekfStream:
 
             self._kernel = mekf_kernel
             self._sv2, self._su2 = float(self.params.arw) ** 2, float(self.params.rrw) ** 2
+            self._sm2 = float(mag_bias_rw) ** 2
             self._R_mag, self._R_sun = np.ascontiguousarray(self.R_mag, dtype=float), np.ascontiguousarray(self.R_sun)
             self._warm_up()
 
@@ -158,9 +163,9 @@ class MekfStream:
         """One call of each compiled function on a throw-away state (loads numba's cache, or compiles
         once, here rather than at the first sample of a lockstep run)."""
         k = self._kernel
-        q, b, P = np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), np.eye(6)
-        k.propagate(q, b, P, np.zeros(3), self.ts, self._sv2, self._su2, k.GL_X, k.GL_W)
-        k.update(q, b, P, np.array([1.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0]), self._R_sun, math.inf)
+        q, b, m, P = np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), np.zeros(3), np.eye(9)
+        k.propagate(q, b, P, np.zeros(3), self.ts, self._sv2, self._su2, self._sm2, k.GL_X, k.GL_W)
+        k.update(q, b, m, P, np.array([1.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0]), self._R_sun, math.inf, True)
 
     def step(self, w_prev, mag, b_ref, sun=None, s_ref=None) -> StepOutput:
         """Sample k: ``w_prev`` the gyro sample of k-1 [rad/s] (None at k = 0), ``mag`` [T] and its
@@ -178,7 +183,7 @@ class MekfStream:
             return self._step_compiled(w_prev, mag, b_ref, sun, s_ref)
         else:
             self.state = propagate(self.state, w_prev, self.ts, self.params)
-        self.state, _, nis_m, ok_m = update(self.state, mag, b_ref, self.R_mag, self.gate_mag)
+        self.state, _, nis_m, ok_m = update(self.state, mag, b_ref, self.R_mag, self.gate_mag, biased=True)
         nis_s, ok_s = math.nan, None
         if sun is not None:
             self.state, _, nis_s, ok_s = update(self.state, sun, s_ref, self.R_sun, self.gate_sun)
@@ -187,15 +192,15 @@ class MekfStream:
     def _step_compiled(self, w_prev, mag, b_ref, sun, s_ref) -> StepOutput:
         """:meth:`step` after the fix with :mod:`mekf_kernel`'s propagate and update (in place, on copies)."""
         k, st = self._kernel, self.state
-        q, b, P = st.q.copy(), st.b.copy(), st.P.copy()
-        k.propagate(q, b, P, np.asarray(w_prev, dtype=float), self.ts, self._sv2, self._su2, k.GL_X, k.GL_W)
-        nis_m, ok_m = k.update(q, b, P, np.asarray(mag, dtype=float), np.asarray(b_ref, dtype=float), self._R_mag,
-                               self.gate_mag)
+        q, b, m, P = st.q.copy(), st.b.copy(), st.m.copy(), st.P.copy()
+        k.propagate(q, b, P, np.asarray(w_prev, dtype=float), self.ts, self._sv2, self._su2, self._sm2, k.GL_X, k.GL_W)
+        nis_m, ok_m = k.update(q, b, m, P, np.asarray(mag, dtype=float), np.asarray(b_ref, dtype=float), self._R_mag,
+                               self.gate_mag, True)
         nis_s, ok_s = math.nan, None
         if sun is not None:
-            nis_s, ok_s = k.update(q, b, P, np.asarray(sun, dtype=float), np.asarray(s_ref, dtype=float), self._R_sun,
-                                   self.gate_sun)
-        self.state = MekfState(q, b, P)
+            nis_s, ok_s = k.update(q, b, m, P, np.asarray(sun, dtype=float), np.asarray(s_ref, dtype=float),
+                                   self._R_sun, self.gate_sun, False)
+        self.state = MekfState(q, b, P, m)
         return StepOutput(self.state, nis_m, nis_s, bool(ok_m), ok_s if ok_s is None else bool(ok_s), False)
 
     def _fix(self, w_prev, mag, b_ref, sun, s_ref) -> MekfState | None:
@@ -204,7 +209,7 @@ class MekfStream:
             if sun is not None:
                 q, P = davenport([mag, sun], [b_ref, s_ref], [self.sig_mag / np.linalg.norm(mag),
                                                              self.suite.sun.noise_std])
-                return initial_state(q, P, self.bias_std)
+                return initial_state(q, P, self.bias_std, mag_bias_std=self.mag_bias_std)
             self._first = (mag, b_ref)
             return None
         self._carry = quat_mul(self._carry, rotvec_quat(np.asarray(w_prev, dtype=float) * self.ts))
@@ -217,4 +222,4 @@ class MekfStream:
         s_old = math.sqrt((self.sig_mag / np.linalg.norm(mag0)) ** 2 + (self.bias_std * T) ** 2
                           + self.suite.gyro.arw**2 * T)
         q, P = davenport([mag, b_old], [b_ref, b0_ref], [self.sig_mag / np.linalg.norm(mag), s_old])
-        return initial_state(q, P, self.bias_std)
+        return initial_state(q, P, self.bias_std, mag_bias_std=self.mag_bias_std)

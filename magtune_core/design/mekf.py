@@ -1,22 +1,32 @@
-"""Multiplicative extended Kalman filter (MEKF) of attitude and gyro bias.
+"""Multiplicative extended Kalman filter (MEKF) of attitude, gyro bias and magnetometer bias.
 
 Lefferts, Markley & Shuster 1982 (JGC 5(5) 417-429); Markley & Crassidis 2014, Fundamentals of
-Spacecraft Attitude Determination and Control, sec. 6.2 (MC below). Global state: q (body
-w.r.t. an inertial reference frame, scalar first, the project's convention) and the gyro bias
-b [rad/s]; error state x = [dtheta; db] (6) with q_true = q (x) exp(dtheta/2), dtheta in body
-axes, b_true = b + db. The gyro is the Farrenkopf model of :mod:`magtune_core.design.sensors`
-(sigma_v, sigma_u). Pure functions on a frozen :class:`MekfState`; equations: docs/estimation.md.
+Spacecraft Attitude Determination and Control, sec. 6.2 (MC below; the magnetometer bias appended
+as a calibration state, MC ch. 6). Global state: q (body w.r.t. an inertial reference frame,
+scalar first, the project's convention), the gyro bias b [rad/s] and the magnetometer bias m [T]
+(body axes); error state x = [dtheta; db; dm] (9) with q_true = q (x) exp(dtheta/2), dtheta in
+body axes, b_true = b + db, m_true = m + dm. The first 6 states alone (P of shape (6, 6)) are the
+filter without the magnetometer bias: every function reads the dimension from P, and a 9-state P
+whose dm block is zero (prior std 0, random walk 0) gives the 6-state results (the zero block stays
+exactly zero). The gyro is the Farrenkopf model of :mod:`magtune_core.design.sensors` (sigma_v,
+sigma_u); the magnetometer bias a random walk of sigma_m [T/s^0.5] (0: constant), entering only the
+magnetometer's measurement b_m = R(q)^T b_ref + m + noise. Pure functions on a frozen
+:class:`MekfState`; equations: docs/estimation.md.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import expm
 from scipy.stats import chi2
 
 from ..base.rotations import quat_mul, rotation_matrix
+
+#: Default magnetometer-bias prior std per axis [T] (node_params ESTIMATOR_FIELDS initial_mag_bias_std,
+#: MekfStream, the batch's estimator): above the campaigns' 200 nT per-axis bias draw (docs/estimation.md).
+MAG_BIAS_STD = 3e-7
 
 
 @dataclass(frozen=True)
@@ -26,6 +36,7 @@ class MekfParams:
     arw: float = 1e-4  #: gyro angle random walk sigma_v [rad/s^0.5]
     rrw: float = 1e-6  #: gyro rate random walk sigma_u [rad/s^1.5]
     gate_probability: float = 0.9999  #: chi-square gate: innovations beyond this quantile are rejected
+    mag_rw: float = 0.0  #: magnetometer-bias random walk sigma_m [T/s^0.5] (9-state filter; 0: constant bias)
 
     def gate(self, dof: int) -> float:
         """Chi-square threshold of the NIS for ``dof`` degrees of freedom (inf: no gating)."""
@@ -34,12 +45,19 @@ class MekfParams:
 
 @dataclass(frozen=True)
 class MekfState:
-    """Estimate: q (4,) body w.r.t. reference (scalar first), b (3,) gyro bias [rad/s], P (6, 6)
-    covariance of [dtheta (body axes, rad); db (rad/s)]."""
+    """Estimate: q (4,) body w.r.t. reference (scalar first), b (3,) gyro bias [rad/s], P (9, 9)
+    covariance of [dtheta (body axes, rad); db (rad/s); dm (T)], m (3,) magnetometer bias [T] (body
+    axes). P (6, 6): the filter without the magnetometer bias (m not read)."""
 
     q: np.ndarray
     b: np.ndarray
     P: np.ndarray
+    m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    @property
+    def mag_bias(self) -> bool:
+        """The magnetometer bias is a state (P is 9 x 9)."""
+        return self.P.shape[0] == 9
 
 
 def skew(v) -> np.ndarray:
@@ -145,25 +163,48 @@ def propagate(state: MekfState, omega_meas, dt: float, params: MekfParams) -> Me
     """State after ``dt`` [s] with the gyro sample ``omega_meas`` [rad/s] held over the step.
 
     q+ = q (x) exp((w_m - b) dt / 2) (exact for the constant estimated rate; MC eq. 6.60 in
-    the project's Hamilton convention), b+ = b, P+ = Phi P Phi^T + Q (:func:`transition`,
-    :func:`process_noise`).
+    the project's Hamilton convention), b+ = b, m+ = m, P+ = Phi P Phi^T + Q (:func:`transition`,
+    :func:`process_noise`; with the magnetometer bias, Phi = blockdiag(Phi, I) and
+    Q = blockdiag(Q, sigma_m^2 dt I)).
     """
     w = np.asarray(omega_meas, dtype=float) - state.b
     q = quat_mul(state.q, rotvec_quat(w * dt))
-    Phi = transition(w, dt)
-    P = Phi @ state.P @ Phi.T + process_noise(w, dt, params)
-    return MekfState(q / np.linalg.norm(q), state.b.copy(), 0.5 * (P + P.T))
+    n = state.P.shape[0]
+    Phi, Q = np.eye(n), np.zeros((n, n))
+    Phi[:6, :6] = transition(w, dt)
+    Q[:6, :6] = process_noise(w, dt, params)
+    if n == 9:
+        Q[6:, 6:] = params.mag_rw**2 * dt * np.eye(3)
+    P = Phi @ state.P @ Phi.T + Q
+    return MekfState(q / np.linalg.norm(q), state.b.copy(), 0.5 * (P + P.T), state.m.copy())
 
 
-def update(state: MekfState, b_meas, b_ref, R, gate: float = math.inf
+def measurement(state: MekfState, b_ref, biased: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted body vector h and its Jacobian H (3, n) w.r.t. the error state of ``state``.
+
+    h = R(q)^T b_ref (+ m when ``biased``: the magnetometer, with the bias a state), H = [[a x], 0, I]
+    with a = R(q)^T b_ref (MC eq. 6.41; the bias block I only for ``biased``, zeros for the sun
+    sensor; no bias block in a 6-state filter)."""
+    a = rotation_matrix(state.q).T @ np.asarray(b_ref, dtype=float)
+    n = state.P.shape[0]
+    H = np.zeros((3, n))
+    H[:, :3] = skew(a)
+    if biased and n == 9:
+        H[:, 6:] = np.eye(3)
+        return a + state.m, H
+    return a, H
+
+
+def update(state: MekfState, b_meas, b_ref, R, gate: float = math.inf, biased: bool = False
            ) -> tuple[MekfState, np.ndarray, float, bool]:
     """One vector update: body measurement ``b_meas`` of the reference vector ``b_ref`` with
-    measurement covariance ``R`` (3, 3).
+    measurement covariance ``R`` (3, 3); ``biased``: the magnetometer's (its bias m is in the
+    measurement when the state has it).
 
-    Predicted h = R(q)^T b_ref, H = [[h x], 0] (MC eq. 6.41), S = H P H^T + R, K = P H^T S^-1;
+    Predicted h and H of :func:`measurement`, S = H P H^T + R, K = P H^T S^-1;
     Joseph-form covariance (I - K H) P (I - K H)^T + K R K^T (Bucy & Joseph 1968) and the
-    multiplicative reset q (x) [1; dtheta/2] normalized, b + db (MC eqs. 6.27-6.28). The update is
-    skipped (state returned unchanged, accepted False) when the NIS exceeds ``gate``.
+    multiplicative reset q (x) [1; dtheta/2] normalized, b + db, m + dm (MC eqs. 6.27-6.28). The
+    update is skipped (state returned unchanged, accepted False) when the NIS exceeds ``gate``.
 
     Returns
     -------
@@ -176,10 +217,8 @@ def update(state: MekfState, b_meas, b_ref, R, gate: float = math.inf
     accepted : bool
         NIS within the gate.
     """
-    h = rotation_matrix(state.q).T @ np.asarray(b_ref, dtype=float)
+    h, H = measurement(state, b_ref, biased)
     y = np.asarray(b_meas, dtype=float) - h
-    H = np.zeros((3, 6))
-    H[:, :3] = skew(h)
     PHt = state.P @ H.T
     S = H @ PHt + R
     nis = float(y @ np.linalg.solve(S, y))
@@ -187,16 +226,23 @@ def update(state: MekfState, b_meas, b_ref, R, gate: float = math.inf
         return state, y, nis, False
     K = np.linalg.solve(S, PHt.T).T  # S symmetric
     dx = K @ y
-    IKH = np.eye(6) - K @ H
+    IKH = np.eye(H.shape[1]) - K @ H
     P = IKH @ state.P @ IKH.T + K @ R @ K.T
     q = quat_mul(state.q, np.concatenate([[1.0], 0.5 * dx[:3]]))
-    return MekfState(q / np.linalg.norm(q), state.b + dx[3:], 0.5 * (P + P.T)), y, nis, True
+    m = state.m + dx[6:] if state.mag_bias else state.m.copy()
+    return MekfState(q / np.linalg.norm(q), state.b + dx[3:6], 0.5 * (P + P.T), m), y, nis, True
 
 
-def initial_state(q_fix, P_fix, bias_std: float, bias=(0.0, 0.0, 0.0)) -> MekfState:
+def initial_state(q_fix, P_fix, bias_std: float, bias=(0.0, 0.0, 0.0), mag_bias_std: float | None = None
+                  ) -> MekfState:
     """Start from a coarse fix (:mod:`magtune_core.design.attitude_fix`): q and its attitude
-    covariance, the bias prior ``bias`` with std ``bias_std`` [rad/s] per axis, uncorrelated."""
-    P = np.zeros((6, 6))
+    covariance, the bias prior ``bias`` with std ``bias_std`` [rad/s] per axis, uncorrelated;
+    ``mag_bias_std`` [T]: the 9-state filter with the magnetometer-bias prior 0 of that std per axis
+    (0: the bias block stays zero, the 6-state results), None: the 6-state filter."""
+    n = 6 if mag_bias_std is None else 9
+    P = np.zeros((n, n))
     P[:3, :3] = P_fix
-    P[3:, 3:] = bias_std**2 * np.eye(3)
+    P[3:6, 3:6] = bias_std**2 * np.eye(3)
+    if n == 9:
+        P[6:, 6:] = mag_bias_std**2 * np.eye(3)
     return MekfState(np.asarray(q_fix, dtype=float), np.asarray(bias, dtype=float).copy(), P)

@@ -13,8 +13,10 @@ turned by ``init_angle``). tests/design/test_mekf_kernel.py runs both on the sam
 to 1e-12 (attitude, rad) over a run with a start in sunlight and one in eclipse.
 
 State of one filter (:class:`KernelMekf` holds B of them): ``q`` (4,) body w.r.t. the reference frame,
-``b`` (3,) gyro bias, ``P`` (6, 6), plus the start's memory (first magnetometer sample, its reference,
-the carried quaternion).
+``b`` (3,) gyro bias, ``mb`` (3,) magnetometer bias, ``P`` (9, 9) of [dtheta; db; dm] (the layout of
+:mod:`magtune_core.design.mekf`; :func:`propagate` and :func:`update` take a (6, 6) P as the filter
+without the magnetometer bias), plus the start's memory (first magnetometer sample, its reference, the
+carried quaternion).
 """
 from __future__ import annotations
 
@@ -38,15 +40,18 @@ class KernelMekf(NamedTuple):
     sv2: np.ndarray  #: (B,) sigma_v^2 of the filter's gyro model [rad^2/s]
     su2: np.ndarray  #: (B,) sigma_u^2 [rad^2/s^3]
     R_mag: np.ndarray  #: (B, 3, 3) magnetometer measurement covariance [T^2]
-    sig_mag: np.ndarray  #: (B,) sqrt(R_mag[0, 0]) (the coarse fix's weight)
+    sig_mag: np.ndarray  #: (B,) sqrt(R_mag[0, 0] + mag_bias_std^2) (the coarse fix's weight of the magnetometer)
     sun_std: np.ndarray  #: (B,) sun sensor std [rad] (R_sun = sun_std^2 I)
     gate_mag: float  #: chi-square gate of the magnetometer NIS (3 dof; inf: none)
     gate_sun: float  #: chi-square gate of the sun NIS (2 dof)
     bias_std: float  #: bias prior std [rad/s]
+    mag_bias_std: float  #: magnetometer-bias prior std [T] (0: the dm block stays zero)
+    sm2: float  #: sigma_m^2 of the magnetometer-bias random walk [T^2/s]
     cos_init: float  #: cos(init_angle) of the magnetometer-only fix
     q: np.ndarray  #: (B, 4) estimate
     b: np.ndarray  #: (B, 3) estimated bias [rad/s]
-    P: np.ndarray  #: (B, 6, 6)
+    mb: np.ndarray  #: (B, 3) estimated magnetometer bias [T]
+    P: np.ndarray  #: (B, 9, 9)
     started: np.ndarray  #: (B,) bool: the coarse fix is made
     k: np.ndarray  #: (B,) int64 samples seen minus one (MekfStream.k)
     first: np.ndarray  #: (B, 6) first magnetometer sample and its reference (the magnetometer-only fix)
@@ -123,10 +128,12 @@ def _coef(n, s, series):
 
 
 @njit(cache=True)
-def propagate(q, b, P, wm, dt, sv2, su2, glx, glw):
+def propagate(q, b, P, wm, dt, sv2, su2, sm2, glx, glw):
     """:func:`magtune_core.design.mekf.propagate` in place: q (x) exp((wm - b) dt/2), P = Phi P Phi^T + Q
     (closed-form Phi and Q of :func:`~magtune_core.design.mekf.transition` and
-    :func:`~magtune_core.design.mekf.process_noise`)."""
+    :func:`~magtune_core.design.mekf.process_noise`; a (9, 9) P: Phi's and Q's magnetometer-bias block
+    I and sm2 dt I)."""
+    nx = P.shape[0]
     w0, w1, w2 = wm[0] - b[0], wm[1] - b[1], wm[2] - b[2]
     p0, p1, p2, p3 = _rotvec_quat(w0 * dt, w1 * dt, w2 * dt)
     r0, r1, r2, r3 = _qmul(q[0], q[1], q[2], q[3], p0, p1, p2, p3)
@@ -135,7 +142,7 @@ def propagate(q, b, P, wm, dt, sv2, su2, glx, glw):
     W2 = W @ W
     n = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
     c1, c2, c3 = _coef(n, dt, n * dt < 1e-2)
-    Phi = np.eye(6)
+    Phi = np.eye(nx)
     for i in range(3):
         for j in range(3):
             e = 1.0 if i == j else 0.0
@@ -153,7 +160,7 @@ def propagate(q, b, P, wm, dt, sv2, su2, glx, glw):
     f *= dt
     ic3 *= dt
     ic2 = c3
-    Q = np.zeros((6, 6))
+    Q = np.zeros((nx, nx))
     for i in range(3):
         for j in range(3):
             e = 1.0 if i == j else 0.0
@@ -163,26 +170,34 @@ def propagate(q, b, P, wm, dt, sv2, su2, glx, glw):
     for i in range(3):
         for j in range(3):
             Q[3 + j, i] = Q[i, 3 + j]
+        if nx == 9:
+            Q[6 + i, 6 + i] = sm2 * dt
     Pn = Phi @ P @ Phi.T + Q
     nq = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2 + r3 * r3)
     q[0], q[1], q[2], q[3] = r0 / nq, r1 / nq, r2 / nq, r3 / nq
-    for i in range(6):
-        for j in range(6):
+    for i in range(nx):
+        for j in range(nx):
             P[i, j] = 0.5 * (Pn[i, j] + Pn[j, i])
 
 
 @njit(cache=True)
-def update(q, b, P, bm, bref, R, gate):
-    """:func:`magtune_core.design.mekf.update` in place; returns (nis, accepted)."""
+def update(q, b, m, P, bm, bref, R, gate, biased):
+    """:func:`magtune_core.design.mekf.update` in place (``m`` the magnetometer bias, read and reset when
+    ``biased`` and P is (9, 9): h = R(q)^T bref + m, H = [[a x], 0, I]); returns (nis, accepted)."""
+    nx = P.shape[0]
+    bias = biased and nx == 9
     A = rotation(q)
     h = np.empty(3)
     for i in range(3):
         h[i] = A[0, i] * bref[0] + A[1, i] * bref[1] + A[2, i] * bref[2]
+    H = np.zeros((3, nx))
+    H[0, 1], H[0, 2], H[1, 0], H[1, 2], H[2, 0], H[2, 1] = -h[2], h[1], h[2], -h[0], -h[1], h[0]
     y = np.empty(3)
     for i in range(3):
+        if bias:
+            H[i, 6 + i] = 1.0
+            h[i] += m[i]
         y[i] = bm[i] - h[i]
-    H = np.zeros((3, 6))
-    H[0, 1], H[0, 2], H[1, 0], H[1, 2], H[2, 0], H[2, 1] = -h[2], h[1], h[2], -h[0], -h[1], h[0]
     PHt = P @ H.T
     S = H @ PHt + R
     nis = float(y @ np.linalg.solve(S, y))
@@ -190,15 +205,17 @@ def update(q, b, P, bm, bref, R, gate):
         return nis, False
     K = np.linalg.solve(S, PHt.T).T
     dx = K @ y
-    IKH = np.eye(6) - K @ H
+    IKH = np.eye(nx) - K @ H
     Pn = IKH @ P @ IKH.T + K @ R @ K.T
     r0, r1, r2, r3 = _qmul(q[0], q[1], q[2], q[3], 1.0, 0.5 * dx[0], 0.5 * dx[1], 0.5 * dx[2])
     nq = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2 + r3 * r3)
     q[0], q[1], q[2], q[3] = r0 / nq, r1 / nq, r2 / nq, r3 / nq
     for i in range(3):
         b[i] += dx[3 + i]
-    for i in range(6):
-        for j in range(6):
+        if nx == 9:
+            m[i] += dx[6 + i]
+    for i in range(nx):
+        for j in range(nx):
             P[i, j] = 0.5 * (Pn[i, j] + Pn[j, i])
     return nis, True
 
@@ -245,17 +262,19 @@ def davenport2(b1, r1, s1, b2, r2, s2):
 
 @njit(cache=True)
 def _start(m, i, q, P):
-    """MekfStream's initial_state: q, P_fix and the bias prior (bias 0)."""
+    """MekfStream's initial_state: q, P_fix and the bias priors (biases 0)."""
     for j in range(4):
         m.q[i, j] = q[j]
-    for j in range(6):
-        for k in range(6):
+    for j in range(9):
+        for k in range(9):
             m.P[i, j, k] = 0.0
     for j in range(3):
         m.b[i, j] = 0.0
+        m.mb[i, j] = 0.0
         for k in range(3):
             m.P[i, j, k] = P[j, k]
         m.P[i, 3 + j, 3 + j] = m.bias_std**2
+        m.P[i, 6 + j, 6 + j] = m.mag_bias_std**2
     m.started[i] = True
 
 
@@ -294,24 +313,28 @@ def stream_step(m, i, mag, bref, sun_ok, sun, sref):
             _start(m, i, q, Pf)
             m.k0[i] = k
     else:
-        propagate(m.q[i], m.b[i], m.P[i], m.w_prev[i], m.ts, m.sv2[i], m.su2[i], GL_X, GL_W)
-    nis_m, ok = update(m.q[i], m.b[i], m.P[i], mag, bref, m.R_mag[i], m.gate_mag)
+        propagate(m.q[i], m.b[i], m.P[i], m.w_prev[i], m.ts, m.sv2[i], m.su2[i], m.sm2, GL_X, GL_W)
+    nis_m, ok = update(m.q[i], m.b[i], m.mb[i], m.P[i], mag, bref, m.R_mag[i], m.gate_mag, True)
     m.counts[i, 0 if ok else 1] += 1
     nis_s = math.nan
     if sun_ok:
         Rs = m.sun_std[i] ** 2 * np.eye(3)
-        nis_s, ok = update(m.q[i], m.b[i], m.P[i], sun, sref, Rs, m.gate_sun)
+        nis_s, ok = update(m.q[i], m.b[i], m.mb[i], m.P[i], sun, sref, Rs, m.gate_sun, False)
         m.counts[i, 2 if ok else 3] += 1
     return nis_m, nis_s
 
 
 def kernel_state(B: int, ts: float, *, arw, rrw, mag_cov, sun_std, gate_probability: float = 0.9999,
-                 bias_std: float = 5e-4, init_angle: float = math.radians(10.0), on: bool = True) -> KernelMekf:
+                 bias_std: float = 5e-4, init_angle: float = math.radians(10.0), mag_bias_std: float | None = None,
+                 mag_bias_rw: float = 0.0, on: bool = True) -> KernelMekf:
     """B fresh filters (MekfStream's start state) with the filter's model: ``arw`` sigma_v, ``rrw`` sigma_u
-    (scalars or (B,)), ``mag_cov`` (3, 3) or (B, 3, 3) [T^2], ``sun_std`` [rad] (scalar or (B,)); the
-    chi-square gates of :class:`magtune_core.design.mekf.MekfParams`. ``on`` False: a placeholder the
-    kernel does not read."""
-    from .mekf import MekfParams
+    (scalars or (B,)), ``mag_cov`` (3, 3) or (B, 3, 3) [T^2], ``sun_std`` [rad] (scalar or (B,)), the
+    magnetometer-bias prior ``mag_bias_std`` [T] (None: MekfStream's default) and random walk
+    ``mag_bias_rw`` [T/s^0.5]; the chi-square gates of :class:`magtune_core.design.mekf.MekfParams`.
+    ``on`` False: a placeholder the kernel does not read."""
+    from .mekf import MAG_BIAS_STD, MekfParams
+
+    mb = MAG_BIAS_STD if mag_bias_std is None else float(mag_bias_std)
 
     def per_run(v):
         return np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=float), (B,)))
@@ -320,8 +343,10 @@ def kernel_state(B: int, ts: float, *, arw, rrw, mag_cov, sun_std, gate_probabil
     R = np.ascontiguousarray(np.broadcast_to(np.asarray(mag_cov, dtype=float), (B, 3, 3)))
     carry = np.zeros((B, 4))
     carry[:, 0] = 1.0
-    return KernelMekf(bool(on), float(ts), per_run(arw) ** 2, per_run(rrw) ** 2, R, np.sqrt(R[:, 0, 0]).copy(),
-                      per_run(sun_std), gp.gate(3), gp.gate(2), float(bias_std), math.cos(init_angle),
-                      np.zeros((B, 4)), np.zeros((B, 3)), np.zeros((B, 6, 6)), np.zeros(B, dtype=np.bool_),
+    sig = np.sqrt(R[:, 0, 0]) if mb == 0 else np.sqrt(R[:, 0, 0] + mb**2)  # MekfStream.sig_mag
+    return KernelMekf(bool(on), float(ts), per_run(arw) ** 2, per_run(rrw) ** 2, R, sig.copy(),
+                      per_run(sun_std), gp.gate(3), gp.gate(2), float(bias_std), mb, float(mag_bias_rw) ** 2,
+                      math.cos(init_angle), np.zeros((B, 4)), np.zeros((B, 3)), np.zeros((B, 3)), np.zeros((B, 9, 9)),
+                      np.zeros(B, dtype=np.bool_),
                       np.full(B, -1, dtype=np.int64), np.zeros((B, 6)), carry, np.zeros((B, 3)),
                       np.zeros((B, 4), dtype=np.int64), np.full(B, -1, dtype=np.int64))

@@ -166,6 +166,12 @@ ESTIMATOR_FIELDS = (
           bounds=(1e-9, 0.1), unit="rad/s"),
     Field("init_angle", "float", "magnetometer-only coarse fix once the reference field turned by this [rad]",
           math.radians(10.0), positive=True, bounds=(1e-3, 3.0), unit="rad"),
+    # default: design.mekf.MAG_BIAS_STD (tests/design/test_mekf_mag_bias.py pins them equal)
+    Field("initial_mag_bias_std", "float", "initial magnetometer bias std per axis [T] (bias prior 0; the filter "
+          "estimates the bias, states 7-9; 0: not estimated, the 6-state filter)", 3e-7, nonnegative=True,
+          bounds=(0.0, 1e-5), unit="T"),
+    Field("mag_bias_rw", "float", "magnetometer bias random walk std [T/s^0.5] (0: a constant bias)", 0.0,
+          nonnegative=True, bounds=(0.0, 1e-7), unit="T/s^0.5"),
     Field("sun_wait", "float", "wall seconds to wait for a sun sample the on-board model predicts (lit) before "
           "the step goes on without it (counted as sun_missing)", 0.5, positive=True, bounds=(1e-3, 60.0), unit="s"),
 )

@@ -49,6 +49,7 @@ from scipy.integrate import solve_ivp
 
 from ..design.bdot import FieldDerivativeFilter, bdot_gain, geomagnetic_inclination
 from ..design.law import DEFAULT_MIN_FIELD
+from ..design.mekf import MAG_BIAS_STD
 from ..design.mekf_kernel import kernel_state
 from ..design.modes import DETUMBLE, MODES, ModeParams
 from ..design.modes_kernel import GUARDS, MODE_CODE, kernel_params
@@ -168,6 +169,8 @@ class BatchEstimator:
     gate_probability: float = 0.9999
     initial_bias_std: float = 5e-4
     init_angle: float = math.radians(10.0)
+    initial_mag_bias_std: float = MAG_BIAS_STD
+    mag_bias_rw: float = 0.0
     sun_sensor_std: float = math.radians(0.5)
 
 
@@ -244,7 +247,8 @@ class BatchResult:
     #: dtheta and sqrt(P_ii) [rad] and ``est_nees`` (B, N+1) (with ``full_series``; nan before the fix), ``est_k0``
     #: (B,) the coarse fix's step, ``no_attitude_steps`` (B,), ``est_counts`` (B, 4) mag accepted / rejected,
     #: sun accepted / rejected; at the recorded instants ``est_q`` (B, R, 4) body w.r.t. the filter's reference
-    #: (ECI; paper: orbital axes at t = 0), ``est_bias`` (B, R, 3), ``est_P`` (B, R, 6, 6)
+    #: (ECI; paper: orbital axes at t = 0), ``est_bias`` (B, R, 3), ``est_P`` (B, R, 9, 9) of [dtheta; db; dm],
+    #: ``est_mag_bias`` (B, R, 3) the magnetometer-bias estimate [T]
     est_error: np.ndarray | None = None
     est_sigma: np.ndarray | None = None
     est_nees: np.ndarray | None = None
@@ -254,6 +258,7 @@ class BatchResult:
     est_q: np.ndarray | None = None
     est_bias: np.ndarray | None = None
     est_P: np.ndarray | None = None
+    est_mag_bias: np.ndarray | None = None
 
 
 def _as3x3(I: np.ndarray, n: int) -> np.ndarray:
@@ -608,15 +613,15 @@ def _estimator_state(estimator: BatchEstimator | None, sensors: SensorNoise, B: 
         est = kernel_state(1, ts, arw=1.0, rrw=1.0, mag_cov=np.eye(3), sun_std=1.0, on=False)
         return est, EstimatorIO(z1, z3, np.zeros(1), np.zeros((1, 1, 3), np.float32), np.zeros((1, 1, 3), np.float32),
                                 np.zeros((1, 1), np.float32), np.zeros(1, np.int64), np.zeros((1, 1, 4)),
-                                np.zeros((1, 1, 3)), np.zeros((1, 1, 6, 6))), None
+                                np.zeros((1, 1, 3)), np.zeros((1, 1, 9, 9)), np.zeros((1, 1, 3))), None
     est = kernel_state(B, ts, arw=e.gyro_arw, rrw=e.gyro_rrw, mag_cov=e.mag_noise_std**2 * np.eye(3),
                        sun_std=e.sun_noise_std, gate_probability=e.gate_probability, bias_std=e.initial_bias_std,
-                       init_angle=e.init_angle)
+                       init_angle=e.init_angle, mag_bias_std=e.initial_mag_bias_std, mag_bias_rw=e.mag_bias_rw)
     shape = (B, n + 1) if full else (B, 1)
     eio = EstimatorIO(np.zeros((1, 1, 13)), np.zeros((B, 1, 9)), np.full(B, float(e.sun_sensor_std)),
                       np.full(shape + (3,), np.nan, np.float32), np.full(shape + (3,), np.nan, np.float32),
                       np.full(shape, np.nan, np.float32), np.zeros(B, np.int64), np.full((B, R, 4), np.nan),
-                      np.full((B, R, 3), np.nan), np.full((B, R, 6, 6), np.nan))
+                      np.full((B, R, 3), np.nan), np.full((B, R, 9, 9), np.nan), np.full((B, R, 3), np.nan))
     return est, eio, _aux_blocks(sensors)
 
 
@@ -637,7 +642,7 @@ def _with_estimator(res: BatchResult, est, eio: EstimatorIO, full: bool) -> Batc
     if full:
         res.est_error, res.est_sigma, res.est_nees = eio.err, eio.sig, eio.nees
     res.est_k0, res.no_attitude_steps, res.est_counts = est.k0.copy(), eio.no_att.copy(), est.counts.copy()
-    res.est_q, res.est_bias, res.est_P = eio.Qe, eio.be, eio.Pe
+    res.est_q, res.est_bias, res.est_P, res.est_mag_bias = eio.Qe, eio.be, eio.Pe, eio.me
     return res
 
 

@@ -545,7 +545,8 @@ class EstimatorIO(NamedTuple):
     no_att: np.ndarray  #: (B,) int64 steps without an estimate (before the coarse fix: zero dipole)
     Qe: np.ndarray  #: (B, R, 4) recorded estimate, body w.r.t. orbital axes
     be: np.ndarray  #: (B, R, 3) recorded bias estimate [rad/s]
-    Pe: np.ndarray  #: (B, R, 6, 6) recorded covariance
+    Pe: np.ndarray  #: (B, R, 9, 9) recorded covariance
+    me: np.ndarray  #: (B, R, 3) recorded magnetometer-bias estimate [T]
 
 
 @njit(cache=True, error_model="numpy")
@@ -617,8 +618,9 @@ def _estimate(est, eio, u, b, r, k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1, fo2,
             eio.Qe[b, r, i] = est.q[b, i]
         for i in range(3):
             eio.be[b, r, i] = est.b[b, i]
-        for i in range(6):
-            for j in range(6):
+            eio.me[b, r, i] = est.mb[b, i]
+        for i in range(9):
+            for j in range(9):
                 eio.Pe[b, r, i, j] = est.P[b, i, j]
     return True, qe, rate
 

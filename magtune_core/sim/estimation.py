@@ -19,7 +19,7 @@ from scipy.stats import chi2
 
 from ..base.rotations import matrix_to_quat, quat_mul, rotation_matrix
 from ..design.estimator import MekfStream, OnboardModels, default_suite  # noqa: F401 - default_suite: the offline runs' suite
-from ..design.mekf import attitude_error, quat_rotvec, rotvec_quat
+from ..design.mekf import MAG_BIAS_STD, attitude_error, quat_rotvec, rotvec_quat
 from ..design.params import SpacecraftParams
 from ..design.sensors import (
     AUX_NORMALS,
@@ -146,7 +146,7 @@ class MekfRun:
     t: np.ndarray
     q: np.ndarray  #: (N+1, 4) estimate after the updates at t_k
     bias: np.ndarray  #: (N+1, 3) estimated gyro bias [rad/s]
-    P: np.ndarray  #: (N+1, 6, 6)
+    P: np.ndarray  #: (N+1, 9, 9) of [dtheta; db; dm] (design.mekf)
     error: np.ndarray  #: (N+1, 3) attitude error dtheta [rad], body axes (q_true = q (x) exp(dtheta/2))
     bias_error: np.ndarray  #: (N+1, 3) true minus estimated bias [rad/s]
     nees: np.ndarray  #: (N+1,) attitude NEES dtheta^T P_tt^-1 dtheta (3 dof)
@@ -155,6 +155,8 @@ class MekfRun:
     k0: int = 0  #: first sample with an estimate (coarse fix)
     counts: dict = field(default_factory=dict)  #: accepted / rejected updates per sensor
     lit: np.ndarray | None = None  #: (N+1,) sun sensor valid
+    mag_bias: np.ndarray | None = None  #: (N+1, 3) estimated magnetometer bias [T]
+    mag_bias_error: np.ndarray | None = None  #: (N+1, 3) true (the suite's constant bias) minus estimated [T]
 
     def sigma(self) -> np.ndarray:
         """(N+1, 3) standard deviations of the attitude error per body axis [rad]."""
@@ -163,7 +165,8 @@ class MekfRun:
 
 def run_mekf(truth: Truth, suite: SensorSuite | None = None, seed: int = 0, *, use_sun: bool = True,
              field_model=None, sun_model=None, bias_std: float = 5e-4, gate_probability: float = 0.9999,
-             init_angle: float = math.radians(10.0)) -> MekfRun:
+             init_angle: float = math.radians(10.0), mag_bias_std: float = MAG_BIAS_STD,
+             mag_bias_rw: float = 0.0) -> MekfRun:
     """Simulate the sensors on ``truth`` (seed ``seed``) and run the MEKF over it.
 
     Per sample: magnetometer update against ``field_model`` (default :func:`onboard_field`),
@@ -171,7 +174,8 @@ def run_mekf(truth: Truth, suite: SensorSuite | None = None, seed: int = 0, *, u
     then propagation with the gyro sample. Start: Davenport fix of magnetometer and sun sensor at
     t_0 when the Sun is seen, else of the magnetometer now and the first one carried forward by
     the raw gyro once the reference field has turned by ``init_angle`` (its error inflated by
-    (bias_std T)^2 + sigma_v^2 T). Initial bias 0 with std ``bias_std`` [rad/s].
+    (bias_std T)^2 + sigma_v^2 T). Initial bias 0 with std ``bias_std`` [rad/s]; magnetometer bias
+    0 with std ``mag_bias_std`` [T] (0: not estimated) and random walk ``mag_bias_rw`` [T/s^0.5].
 
     Returns
     -------
@@ -194,7 +198,8 @@ def run_mekf(truth: Truth, suite: SensorSuite | None = None, seed: int = 0, *, u
            else np.zeros((n1, 3)))
     field_model = field_model or onboard_field(truth)
     sun_model = sun_model or onboard_sun(truth)
-    stream = MekfStream(suite, bias_std=bias_std, gate_probability=gate_probability, init_angle=init_angle)
+    stream = MekfStream(suite, bias_std=bias_std, gate_probability=gate_probability, init_angle=init_angle,
+                        mag_bias_std=mag_bias_std, mag_bias_rw=mag_bias_rw)
     out = _empty(truth, n1)
     out.k0 = -1
     counts = dict(mag_accepted=0, mag_rejected=0, sun_accepted=0, sun_rejected=0)
@@ -211,21 +216,23 @@ def run_mekf(truth: Truth, suite: SensorSuite | None = None, seed: int = 0, *, u
             out.nis_sun[k] = step.nis_sun
             counts["sun_accepted" if step.sun_accepted else "sun_rejected"] += 1
         state = step.state
-        out.q[k], out.bias[k], out.P[k] = state.q, state.b, state.P
+        out.q[k], out.bias[k], out.P[k], out.mag_bias[k] = state.q, state.b, state.P, state.m
         e = attitude_error(truth.q[k], state.q)
         out.error[k] = e
         out.nees[k] = e @ np.linalg.solve(state.P[:3, :3], e)
     if out.k0 < 0:
         raise ValueError("the reference field never turned by init_angle: no coarse fix from the magnetometer alone")
     out.bias_error = beta - out.bias
+    out.mag_bias_error = np.asarray(suite.magnetometer.bias, dtype=float) - out.mag_bias
     out.counts, out.lit = counts, s_ok
     return out
 
 
 def _empty(truth: Truth, n1: int) -> MekfRun:
     nan = np.full
-    return MekfRun(truth.t, nan((n1, 4), np.nan), nan((n1, 3), np.nan), nan((n1, 6, 6), np.nan),
-                   nan((n1, 3), np.nan), nan((n1, 3), np.nan), nan(n1, np.nan), nan(n1, np.nan), nan(n1, np.nan))
+    return MekfRun(truth.t, nan((n1, 4), np.nan), nan((n1, 3), np.nan), nan((n1, 9, 9), np.nan),
+                   nan((n1, 3), np.nan), nan((n1, 3), np.nan), nan(n1, np.nan), nan(n1, np.nan), nan(n1, np.nan),
+                   mag_bias=nan((n1, 3), np.nan))
 
 
 # ---------------------------------------------------------------- statistics

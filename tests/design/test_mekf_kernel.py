@@ -52,16 +52,22 @@ def _measurements(truth, suite, seed):
     return mag, w_m, s_m, s_ok
 
 
+MAG_BIAS = (2e-7, -2e-7, 2e-7)  #: the campaigns' 200 nT per axis (estimated by the default 9-state filter)
+
+
+@pytest.mark.parametrize("mag_bias_std", [3e-7, 0.0])
 @pytest.mark.parametrize("eclipse_start", [False, True])
-def test_compiled_filter_equals_python_filter(eclipse_start):
-    """3000 samples, bias (40, -60, 30) deg/h, sun lost from 1000 to 1600 s; a start in sunlight
+def test_compiled_filter_equals_python_filter(eclipse_start, mag_bias_std):
+    """3000 samples, bias (40, -60, 30) deg/h, magnetometer bias 200 nT per axis estimated (prior 300 nT,
+    the 9 states) or not (prior 0), sun lost from 1000 to 1600 s; a start in sunlight
     (Davenport of magnetometer and Sun at t = 0) or in eclipse (the magnetometer carried by the gyro
     until the field turned by 10 deg). Same float64 formulas in both; the only differences are the
     order of a few sums and LAPACK calls (eigh, solve) on 3x3/4x4 matrices: a few ulp per step,
     which the filter's contraction keeps from growing. Bound 1e-10 rad on the attitude (the error
-    itself is ~1e-3 rad), 1e-10 of the prior's 5e-4 rad/s on the bias, 1e-10 relative on P (measured:
-    ~1e-15 / 1e-14 from the sunlit start; ~1e-12 / 5e-12 from the eclipse start, whose carried-vector
-    fix starts from an ill-conditioned P, sigma ~0.1 rad about the field)."""
+    itself is ~1e-3 rad), 1e-10 of the prior's 5e-4 rad/s on the bias and of 3e-7 T on the magnetometer
+    bias, 1e-10 relative on P (measured with 6 states: ~1e-15 / 1e-14 from the sunlit start; ~1e-12 /
+    5e-12 from the eclipse start, whose carried-vector fix starts from an ill-conditioned P, sigma
+    ~0.1 rad about the field)."""
     n = 3000
     lit = np.ones(n + 1, dtype=bool)
     lit[1000:1600] = False
@@ -69,11 +75,12 @@ def test_compiled_filter_equals_python_filter(eclipse_start):
         lit[:400] = False
     truth = E.kinematic_truth(n, 1.0, _rate, _b_ref, sun_ref=(1.0, 1.0, 0.3), lit=lit)
     bias = tuple(np.deg2rad(np.array([40.0, -60.0, 30.0])) / 3600.0)
-    suite = SensorSuite(1.0, Magnetometer(100e-9), Gyro(1e-4, 1e-6, bias), 0.0, SunSensor(math.radians(0.5)))
+    suite = SensorSuite(1.0, Magnetometer(100e-9, MAG_BIAS), Gyro(1e-4, 1e-6, bias), 0.0, SunSensor(math.radians(0.5)))
     mag, w_m, s_m, s_ok = _measurements(truth, suite, 7)
-    stream = MekfStream(suite)
-    km = MK.kernel_state(1, 1.0, arw=1e-4, rrw=1e-6, mag_cov=suite.magnetometer.covariance, sun_std=math.radians(0.5))
-    worst = np.zeros(3)
+    stream = MekfStream(suite, mag_bias_std=mag_bias_std)
+    km = MK.kernel_state(1, 1.0, arw=1e-4, rrw=1e-6, mag_cov=suite.magnetometer.covariance, sun_std=math.radians(0.5),
+                         mag_bias_std=mag_bias_std)
+    worst = np.zeros(4)
     started = None
     for k in range(n + 1):
         out = stream.step(w_m[k - 1] if k else None, mag[k], truth.b_ref[k], *((s_m[k], truth.sun_ref[k]) if s_ok[k]
@@ -86,21 +93,30 @@ def test_compiled_filter_equals_python_filter(eclipse_start):
             continue
         started = k if started is None else started
         s = out.state
+        assert s.P.shape == km.P[0].shape == (9, 9)
         worst = np.maximum(worst, [np.linalg.norm(E.attitude_error(s.q, km.q[0])),
                                    np.max(np.abs(km.b[0] - s.b)) / 5e-4,  # of the bias prior's scale
-                                   np.max(np.abs(km.P[0] - s.P)) / np.max(np.abs(s.P))])
+                                   np.max(np.abs(km.P[0] - s.P)) / np.max(np.abs(s.P)),
+                                   np.max(np.abs(km.mb[0] - s.m)) / 3e-7])
         assert math.isclose(nis_m, out.nis_mag, rel_tol=1e-9), (k, nis_m, out.nis_mag)
         assert (math.isnan(nis_s) and math.isnan(out.nis_sun)) or math.isclose(nis_s, out.nis_sun, rel_tol=1e-9)
     assert started == int(km.k0[0]) and (started > 0) == eclipse_start, (started, km.k0)
     assert np.all(worst < 1e-10), worst
+    print(f"worst differences (attitude rad, bias, P rel, mag bias): {worst}")
+    if mag_bias_std == 0:
+        assert np.all(km.mb[0] == 0) and np.all(km.P[0, 6:] == 0)
+    else:  # the 9 states do estimate: 3000 s, a half orbit, bring the bias from 200 nT to within ~3 sigma
+        sm = np.sqrt(np.diag(km.P[0, 6:, 6:]))
+        assert np.all(np.abs(np.array(MAG_BIAS) - km.mb[0]) <= 3 * sm) and np.all(sm < 0.5 * mag_bias_std), sm
     assert km.counts[0, 0] + km.counts[0, 1] == n + 1 - started
 
 
 @pytest.mark.parametrize("eclipse_start", [False, True])
 def test_compiled_stream_equals_python_stream(eclipse_start):
     """MekfStream(compiled=True) (the attitude_estimator node's: the kernel's propagate and update
-    after the Python coarse fix) against MekfStream on the run above: the same fix sample, NIS to
-    1e-9 relative, attitude and bias within 1e-10 (rad, of the prior), P within 1e-10 relative."""
+    after the Python coarse fix) against MekfStream on the run above (9 states, the default prior, the
+    200 nT magnetometer bias): the same fix sample, NIS to 1e-9 relative, attitude and biases within
+    1e-10 (rad, of the priors), P within 1e-10 relative."""
     n = 3000
     lit = np.ones(n + 1, dtype=bool)
     lit[1000:1600] = False
@@ -108,10 +124,10 @@ def test_compiled_stream_equals_python_stream(eclipse_start):
         lit[:400] = False
     truth = E.kinematic_truth(n, 1.0, _rate, _b_ref, sun_ref=(1.0, 1.0, 0.3), lit=lit)
     bias = tuple(np.deg2rad(np.array([40.0, -60.0, 30.0])) / 3600.0)
-    suite = SensorSuite(1.0, Magnetometer(100e-9), Gyro(1e-4, 1e-6, bias), 0.0, SunSensor(math.radians(0.5)))
+    suite = SensorSuite(1.0, Magnetometer(100e-9, MAG_BIAS), Gyro(1e-4, 1e-6, bias), 0.0, SunSensor(math.radians(0.5)))
     mag, w_m, s_m, s_ok = _measurements(truth, suite, 7)
     ref, fast = MekfStream(suite), MekfStream(suite, compiled=True)
-    worst, accepted = np.zeros(3), [0, 0]
+    worst, accepted = np.zeros(4), [0, 0]
     for k in range(n + 1):
         args = (w_m[k - 1] if k else None, mag[k], truth.b_ref[k],
                 *((s_m[k], truth.sun_ref[k]) if s_ok[k] else (None, None)))
@@ -126,6 +142,8 @@ def test_compiled_stream_equals_python_stream(eclipse_start):
         assert (math.isnan(a.nis_sun) and math.isnan(b.nis_sun)) or math.isclose(a.nis_sun, b.nis_sun, rel_tol=1e-9)
         worst = np.maximum(worst, [np.linalg.norm(E.attitude_error(a.state.q, b.state.q)),
                                    np.max(np.abs(a.state.b - b.state.b)) / 5e-4,
-                                   np.max(np.abs(a.state.P - b.state.P)) / np.max(np.abs(a.state.P))])
+                                   np.max(np.abs(a.state.P - b.state.P)) / np.max(np.abs(a.state.P)),
+                                   np.max(np.abs(a.state.m - b.state.m)) / 3e-7])
     assert np.all(worst < 1e-10), worst
+    print(f"worst differences (attitude rad, bias, P rel, mag bias): {worst}")
     assert accepted[0] > 2500 and accepted[1] > 1500, accepted

@@ -98,7 +98,8 @@ class AttitudeEstimator(c.ManagedNode):
         """A fresh filter (an activation restarts from the coarse fix), then the topics."""
         v = self.values
         self.stream = MekfStream(self.suite, bias_std=v["initial_bias_std"], gate_probability=v["gate_probability"],
-                                 init_angle=v["init_angle"], compiled=True)
+                                 init_angle=v["init_angle"], mag_bias_std=v["initial_mag_bias_std"],
+                                 mag_bias_rw=v["mag_bias_rw"], compiled=True)
         self.ts_ns = c.sec_to_ns(self.suite.ts)
         self.gate = c.StampGate(self, 2 * self.ts_ns, n=4)
         self.sync = c.PairSync(3 if self.full else 2)  # imu, mag (, position): same stamp t_k
@@ -219,7 +220,7 @@ class AttitudeEstimator(c.ManagedNode):
         av = m.angular_velocity
         w, bias = self.w_prev, state.b
         av.x, av.y, av.z = float(w[0] - bias[0]), float(w[1] - bias[1]), float(w[2] - bias[2])
-        m.angular_velocity_covariance = (P[3:, 3:] + self.rate_var).ravel()
+        m.angular_velocity_covariance = (P[3:6, 3:6] + self.rate_var).ravel()  # the gyro-bias block of the 9
         self.diag.count("estimates")
         self.pub.publish(m)
 
