@@ -6,10 +6,10 @@ import math
 
 import numpy as np
 import pytest
+from kinematic import b_ref, wobble_rate  # tests/support
 
 from magtune_core.design import mekf_kernel as MK
 from magtune_core.design.estimator import MekfStream
-from magtune_core.design.field import paper_field
 from magtune_core.design.sensors import (
     AUX_NORMALS,
     GYRO_U,
@@ -28,18 +28,6 @@ from magtune_core.design.sensors import (
 )
 from magtune_core.sim import estimation as E
 
-W0 = 2 * math.pi / 5614.8
-
-
-def _b_ref(t):
-    b = np.asarray(paper_field(W0)(t)).reshape(len(t), 3)
-    c, s = np.cos(-W0 * t), np.sin(-W0 * t)
-    return np.stack([c * b[:, 0] - s * b[:, 1], s * b[:, 0] + c * b[:, 1], b[:, 2]], -1)
-
-
-def _rate(t):
-    return np.stack([1e-3 * np.sin(2 * np.pi * t / 700), 1e-3 * np.cos(2 * np.pi * t / 900), -W0 + 0 * t], -1)
-
 
 def _measurements(truth, suite, seed):
     """The sensors of run_mekf on ``truth`` (same generators and order)."""
@@ -53,6 +41,19 @@ def _measurements(truth, suite, seed):
 
 
 MAG_BIAS = (2e-7, -2e-7, 2e-7)  #: the campaigns' 200 nT per axis (estimated by the default 9-state filter)
+
+
+def _run(n: int, eclipse_start: bool):
+    """The equality tests' run: n samples, gyro bias (40, -60, 30) deg/h, MAG_BIAS, sun lost from 1000 to
+    1600 s (and over the first 400 s with ``eclipse_start``); (truth, suite, measurements of seed 7)."""
+    lit = np.ones(n + 1, dtype=bool)
+    lit[1000:1600] = False
+    if eclipse_start:
+        lit[:400] = False
+    truth = E.kinematic_truth(n, 1.0, wobble_rate, b_ref, sun_ref=(1.0, 1.0, 0.3), lit=lit)
+    bias = tuple(np.deg2rad(np.array([40.0, -60.0, 30.0])) / 3600.0)
+    suite = SensorSuite(1.0, Magnetometer(100e-9, MAG_BIAS), Gyro(1e-4, 1e-6, bias), 0.0, SunSensor(math.radians(0.5)))
+    return truth, suite, _measurements(truth, suite, 7)
 
 
 @pytest.mark.parametrize("mag_bias_std", [3e-7, 0.0])
@@ -69,14 +70,7 @@ def test_compiled_filter_equals_python_filter(eclipse_start, mag_bias_std):
     5e-12 from the eclipse start, whose carried-vector fix starts from an ill-conditioned P, sigma
     ~0.1 rad about the field)."""
     n = 3000
-    lit = np.ones(n + 1, dtype=bool)
-    lit[1000:1600] = False
-    if eclipse_start:
-        lit[:400] = False
-    truth = E.kinematic_truth(n, 1.0, _rate, _b_ref, sun_ref=(1.0, 1.0, 0.3), lit=lit)
-    bias = tuple(np.deg2rad(np.array([40.0, -60.0, 30.0])) / 3600.0)
-    suite = SensorSuite(1.0, Magnetometer(100e-9, MAG_BIAS), Gyro(1e-4, 1e-6, bias), 0.0, SunSensor(math.radians(0.5)))
-    mag, w_m, s_m, s_ok = _measurements(truth, suite, 7)
+    truth, suite, (mag, w_m, s_m, s_ok) = _run(n, eclipse_start)
     stream = MekfStream(suite, mag_bias_std=mag_bias_std)
     km = MK.kernel_state(1, 1.0, arw=1e-4, rrw=1e-6, mag_cov=suite.magnetometer.covariance, sun_std=math.radians(0.5),
                          mag_bias_std=mag_bias_std)
@@ -118,14 +112,7 @@ def test_compiled_stream_equals_python_stream(eclipse_start):
     200 nT magnetometer bias): the same fix sample, NIS to 1e-9 relative, attitude and biases within
     1e-10 (rad, of the priors), P within 1e-10 relative."""
     n = 3000
-    lit = np.ones(n + 1, dtype=bool)
-    lit[1000:1600] = False
-    if eclipse_start:
-        lit[:400] = False
-    truth = E.kinematic_truth(n, 1.0, _rate, _b_ref, sun_ref=(1.0, 1.0, 0.3), lit=lit)
-    bias = tuple(np.deg2rad(np.array([40.0, -60.0, 30.0])) / 3600.0)
-    suite = SensorSuite(1.0, Magnetometer(100e-9, MAG_BIAS), Gyro(1e-4, 1e-6, bias), 0.0, SunSensor(math.radians(0.5)))
-    mag, w_m, s_m, s_ok = _measurements(truth, suite, 7)
+    truth, suite, (mag, w_m, s_m, s_ok) = _run(n, eclipse_start)
     ref, fast = MekfStream(suite), MekfStream(suite, compiled=True)
     worst, accepted = np.zeros(4), [0, 0]
     for k in range(n + 1):

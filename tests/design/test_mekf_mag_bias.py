@@ -8,32 +8,21 @@ import math
 
 import numpy as np
 import pytest
+from kinematic import b_ref, wobble_rate  # tests/support
 from scipy.stats import binom
 
 from magtune_core.base.rotations import quat_mul, rotation_matrix
 from magtune_core.design import mekf
-from magtune_core.design.field import paper_field
 from magtune_core.design.node_params import ESTIMATOR_FIELDS
 from magtune_core.design.sensors import Gyro, Magnetometer, SensorSuite, SunSensor
 from magtune_core.sim import estimation as E
 from magtune_core.sim.batch import BatchEstimator
 
-W0 = 2 * math.pi / 5614.8
 LAG = 100  #: samples between the NEES samples of a window (tests/sim/test_estimation.py)
 MAG_BIAS = (2e-7, -2e-7, 2e-7)  #: simulated magnetometer bias [T]: the campaigns' 200 nT per axis
 GYRO_BIAS = (2e-4, -3e-4, 1.5e-4)
 
 
-def _b_ref(t):
-    """Eq. 26 along the orbit in the orbital axes at t = 0 (inertial): turns at ~2 W0."""
-    b = np.asarray(paper_field(W0)(t)).reshape(len(t), 3)
-    c, s = np.cos(-W0 * t), np.sin(-W0 * t)
-    return np.stack([c * b[:, 0] - s * b[:, 1], s * b[:, 0] + c * b[:, 1], b[:, 2]], -1)
-
-
-def _rate(t):
-    """Earth pointing with a slow wobble of 1e-3 rad/s."""
-    return np.stack([1e-3 * np.sin(2 * np.pi * t / 700), 1e-3 * np.cos(2 * np.pi * t / 900), -W0 + 0 * t], -1)
 
 
 def _suite(mag_bias=MAG_BIAS):
@@ -86,7 +75,7 @@ def test_zero_prior_is_the_six_state_filter():
     """A 9-state filter with the magnetometer-bias prior 0 and no random walk against the 6-state
     filter (P (6, 6)) on 800 samples of magnetometer and sun updates: the dm block stays exactly zero,
     the bias estimate exactly 0 and q, b, P equal to 1e-12 (measured: bit for bit)."""
-    truth = E.kinematic_truth(800, 1.0, _rate, _b_ref, sun_ref=(1.0, 1.0, 0.3))
+    truth = E.kinematic_truth(800, 1.0, wobble_rate, b_ref, sun_ref=(1.0, 1.0, 0.3))
     suite = _suite()
     mag = E.magnetometer(suite.magnetometer, truth.b_body, np.random.default_rng(2).standard_normal((801, 3)))
     p = mekf.MekfParams(1e-4, 1e-6)
@@ -108,7 +97,7 @@ def test_zero_prior_is_the_six_state_filter():
 @pytest.fixture(scope="module")
 def truth():
     """Four orbits (22 500 s) of the kinematic truth, Sun always visible."""
-    return E.kinematic_truth(22500, 1.0, _rate, _b_ref, sun_ref=(1.0, 1.0, 0.3))
+    return E.kinematic_truth(22500, 1.0, wobble_rate, b_ref, sun_ref=(1.0, 1.0, 0.3))
 
 
 @pytest.mark.parametrize("use_sun", [True, False])

@@ -6,13 +6,12 @@ import math
 
 import numpy as np
 import pytest
+from kinematic import b_ref, wobble_rate  # tests/support
 from scipy.stats import binom, chi2
 
-from magtune_core.design.field import paper_field
 from magtune_core.design.sensors import Gyro, Magnetometer, SensorSuite, SunSensor
 from magtune_core.sim import estimation as E
 
-W0 = 2 * math.pi / 5614.8
 #: Samples between the NEES samples of a window: the normalized error's autocorrelation is below 0.1
 #: at this lag for these sensors (measured: 0.04 at 100 s with sigma_v 1e-3), so the window samples
 #: are close to independent, which the chi-square band of their mean assumes.
@@ -20,16 +19,6 @@ LAG = 100
 BIAS = (2e-4, -3e-4, 1.5e-4)  #: simulated gyro bias [rad/s] (40-60 deg/h), inside the 5e-4 prior
 
 
-def _b_ref(t):
-    """Eq. 26 along the orbit, in the orbital axes at t = 0 (an inertial frame): turns at ~2 W0."""
-    b = np.asarray(paper_field(W0)(t)).reshape(len(t), 3)
-    c, s = np.cos(-W0 * t), np.sin(-W0 * t)
-    return np.stack([c * b[:, 0] - s * b[:, 1], s * b[:, 0] + c * b[:, 1], b[:, 2]], -1)
-
-
-def _rate(t):
-    """Earth pointing with a slow wobble of 1e-3 rad/s (the paper's dw(0) size)."""
-    return np.stack([1e-3 * np.sin(2 * np.pi * t / 700), 1e-3 * np.cos(2 * np.pi * t / 900), -W0 + 0 * t], -1)
 
 
 def _suite(arw=1e-3):
@@ -38,7 +27,7 @@ def _suite(arw=1e-3):
 
 @pytest.fixture(scope="module")
 def long_run():
-    truth = E.kinematic_truth(40000, 1.0, _rate, _b_ref, sun_ref=(1.0, 1.0, 0.3))
+    truth = E.kinematic_truth(40000, 1.0, wobble_rate, b_ref, sun_ref=(1.0, 1.0, 0.3))
     return E.run_mekf(truth, _suite(), seed=3)
 
 
@@ -77,7 +66,7 @@ def test_error_in_eclipse_grows_as_the_covariance_says():
     consistent: NEES samples LAG apart over the eclipse inside the chi-square 99 % band of their mean."""
     lit = np.ones(6001, dtype=bool)
     lit[2000:4000] = False
-    truth = E.kinematic_truth(6000, 1.0, _rate, _b_ref, sun_ref=(1.0, 1.0, 0.3), lit=lit)
+    truth = E.kinematic_truth(6000, 1.0, wobble_rate, b_ref, sun_ref=(1.0, 1.0, 0.3), lit=lit)
     nees, growth = [], []
     for seed in range(4):
         run = E.run_mekf(truth, _suite(1e-4), seed=seed)
