@@ -26,7 +26,8 @@ Health, two clocks:
              a dead node stalls the simulator and so /clock: a sim-time timeout would never expire.
   staleness  sim time, from the stamps only: at every sensor message, a stream whose last stamp
              lags the newest of the other by more than ``stale_timeout`` -> the logic steps with
-             ``stale`` at the newest stamp -> SAFE (stamps, not a clock: the manager is outside the
+             ``stale`` at the newest stamp -> SAFE, once the lagging stream stayed silent for
+             STALE_CONFIRM steady seconds (stamps, not a clock: the manager is outside the
              lockstep and may process samples well after /clock moved on, so "now minus last
              sample" fired spuriously at full speed; a stop of every stream is the liveness
              check's, or the simulator's missed steps'); it recovers by itself after
@@ -69,6 +70,10 @@ from . import common as c
 
 #: The sensor streams of the mode logic, by slot.
 STREAMS = ("sensors/magnetic_field", "sensors/attitude")
+#: Steady seconds a lagging stream must stay silent before the lag counts as stale: a manager behind the
+#: world may drain one subscription in a burst before the other (a one-off SAFE in CI at 3 s of lag), while
+#: a dropped stream stays silent; the stale step keeps the stamp where the lag was seen.
+STALE_CONFIRM = 0.5
 
 
 class BringUpError(RuntimeError):
@@ -111,6 +116,7 @@ class ModeManager(Node):
                                          "rejected_malformed", "rejected_stamp", "stale", "heartbeat_lost"],
                                   now_ns=lambda: max(0, *self.gate.last_ns))
         self.sync = c.PairSync(2)  # magnetometer, attitude (with the gyro) of t_k
+        self.lagging = None  # (slot, its last stamp, newest stamp, steady time) of a lag not yet confirmed
         self.pub_mode = self.create_publisher(Mode, c.TOPIC_MODE, c.MODE_QOS)
         self.create_subscription(DiagnosticArray, c.TOPIC_DIAGNOSTICS, self.on_diagnostics, c.DIAG_QOS)
         self.create_subscription(MagneticField, c.TOPIC_MAG, self.on_mag, c.LOCKSTEP_QOS, raw=True)
@@ -203,7 +209,10 @@ class ModeManager(Node):
                     self.diag.status = None
 
     def check_heartbeats(self):
-        """Liveness on steady time: a managed node silent for heartbeat_timeout s -> SAFE, named."""
+        """Liveness on steady time: a managed node silent for heartbeat_timeout s -> SAFE, named;
+        and a sensor stream's lag waiting for its confirmation (check_stale)."""
+        if self.lagging is not None:
+            self.check_stale()
         if not self.monitoring:
             return
         now = time.monotonic()
@@ -221,17 +230,29 @@ class ModeManager(Node):
 
     def check_stale(self):
         """Staleness on sim time, from the stamps: a sensor stream whose last stamp lags the newest
-        stamp of the other by more than stale_timeout -> the logic steps with ``stale``."""
+        stamp of the other by more than stale_timeout, and which has delivered nothing for
+        STALE_CONFIRM steady seconds since (two subscriptions of a manager behind the world may be
+        drained in bursts, one ahead of the other), -> the logic steps with ``stale`` at the stamp
+        where the lag was seen."""
         last = self.gate.last_ns
         if min(last) < 0:
             return
         lag = max(last) - min(last)
-        if lag > self.stale_ns:
-            slot = last.index(min(last))
-            self.diag.count("stale", f"{STREAMS[slot]} {lag * 1e-9:.1f} s behind the other sensor stream")
-            m = self.last or Measurements(rate=math.nan)
-            self.step(Measurements(m.rate, m.bdot, m.pointing_error, stale=True, field_step=m.field_step),
-                      max(last) * 1e-9)
+        slot = last.index(min(last))
+        if lag <= self.stale_ns:
+            self.lagging = None
+            return
+        lg = self.lagging
+        if lg is None or lg[0] != slot or lg[1] != last[slot]:  # a new lag: confirm it before acting
+            self.lagging = (slot, last[slot], max(last), time.monotonic())
+            return
+        if lg[3] is not None and time.monotonic() - lg[3] < STALE_CONFIRM:
+            return
+        at = lg[2] if lg[3] is not None else max(last)  # the first step at the stamp the lag was seen
+        self.lagging = (slot, last[slot], max(last), None)  # confirmed: later messages step at their stamp
+        self.diag.count("stale", f"{STREAMS[slot]} {lag * 1e-9:.1f} s behind the other sensor stream")
+        m = self.last or Measurements(rate=math.nan)
+        self.step(Measurements(m.rate, m.bdot, m.pointing_error, stale=True, field_step=m.field_step), at * 1e-9)
 
     # ---------------------------------------------------------------- mode logic
     def on_mag(self, data: bytes):
