@@ -59,7 +59,7 @@ def main() -> None:
                             attitude_noise_std=0.0)
     steps = spec.steps()
     print(f"campaign bench: {spec.campaign['environment']} environment, {a.orbits:g} orbits = {steps} steps of "
-          f"{spec.campaign['ts']:g} s, {spec.substeps} RK4 steps per Ts; cores {os.cpu_count()}")
+          f"{spec.campaign['ts']:g} s, {spec.substeps.levels} RK4 steps per Ts; cores {os.cpu_count()}")
     out = {}
 
     # 1. per-run loop: simulate() on the same dispersed runs, one after the other, in this process
@@ -69,7 +69,7 @@ def main() -> None:
     for i in range(a.loop_runs):
         r = campaign.draw_run(spec, i)
         p = replace(spec.p, inertia=r["inertia"])
-        res = simulate(spec.K[0], p, ts=spec.campaign["ts"], steps=steps, substeps=spec.substeps, dw0=r["dw0"], q0=r["q0"],
+        res = simulate(spec.K[0], p, ts=spec.campaign["ts"], steps=steps, substeps=spec.substeps.most, dw0=r["dw0"], q0=r["q0"],
                        dipole_limit=r["dipole_limit"], residual_dipole=r["residual_dipole"], environment="full",
                        env_options=spec.env_options(r["epoch"], r["raan_deg"]))
         loop_rows.append(float(np.linalg.norm(res.m, axis=1).max()))
@@ -114,7 +114,7 @@ def deployment(a) -> None:
                               else a.spec)
     spec.campaign.update(orbits=a.orbits, batch_size=a.batch_size)
     print(f"deployment bench: {spec.campaign['environment']} environment, {a.runs} runs x {a.orbits:g} orbits = "
-          f"{spec.steps()} steps of {spec.campaign['ts']:g} s, {spec.substeps} RK4 steps per Ts, batch {a.batch_size}; "
+          f"{spec.steps()} steps of {spec.campaign['ts']:g} s, {spec.substeps.levels} RK4 steps per Ts (by rate), batch {a.batch_size}; "
           f"cores {os.cpu_count()}")
     with tempfile.TemporaryDirectory() as tmp:
         l0 = load()
@@ -133,7 +133,7 @@ def deployment(a) -> None:
     print(f"1000 runs at the measured rate (under this load): {1000 * wall / a.runs:.0f} s; from the CPU per run on "
           f"2 idle cores: {1000 * cpu / 2:.0f} s (target 120 s; extrapolations, not a measurement)")
     if a.json:
-        Path(a.json).write_text(json.dumps(dict(runs=a.runs, orbits=a.orbits, substeps=spec.substeps, wall=wall,
+        Path(a.json).write_text(json.dumps(dict(runs=a.runs, orbits=a.orbits, substeps=list(spec.substeps.levels), wall=wall,
                                                 cpu_s_per_run=cpu, load_before=l0, load_after=l1,
                                                 batch_size=a.batch_size), indent=1))
 

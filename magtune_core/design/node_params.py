@@ -179,7 +179,11 @@ ESTIMATOR_FIELDS = (
 #: simulator: run length, lockstep, initial state, plant options, environment, outputs.
 SIMULATOR_FIELDS = (
     SAMPLE_PERIOD,
-    Field("substeps", "int", "RK4 sub-steps per step", 2, positive=True, bounds=(1, 1000)),
+    Field("substeps", "int", "RK4 sub-steps per step (the fewest when max_substeps > substeps)", 2, positive=True,
+          bounds=(1, 1000)),
+    Field("max_substeps", "int", "the RK4 sub-steps the run's fastest rate needs: the sub-steps are re-chosen every "
+          "step from the rate on the ladder substeps x 2^j up to the first level >= this (sim.substeps); "
+          "0 = substeps throughout", 0, nonnegative=True, bounds=(0, 1000)),
     Field("orbits", "float", "run length [orbits] (used when steps = 0)", 1.0, positive=True),
     Field("steps", "int", "run length [steps]; 0 = use orbits", 0, nonnegative=True),
     Field("initial_rate_error", "float[]", "dw(0) [rad/s], body axes", INITIAL_RATE_ERROR, size=3, unit="rad/s"),

@@ -44,8 +44,9 @@ from ..design.node_params import (
 from ..design.params import SpacecraftParams, check_sample_period
 from ..design.torquers import Torquers
 from ..sim.fullenv import FullEnvironmentOptions, full_params
-from ..sim.initial import initial_conditions, substeps_for_rate
+from ..sim.initial import initial_conditions
 from ..sim.simulate import initial_state
+from ..sim.substeps import MIN_SUBSTEPS, substeps_for_rate
 
 DEFAULT_SPACECRAFT = ROOT / "config" / "spacecraft.yaml"
 #: The SIL nodes of one satellite, in start order after the recorder.
@@ -150,8 +151,9 @@ def _plain(v):
 def initial_state_parameters(sc: SpacecraftParams, simulator_params: dict, attitude_deg, rate_deg, substeps, ts: float):
     """The simulator's ``initial_quaternion``/``initial_rate_error`` from the CLI's degrees
     (:func:`magtune_core.sim.initial.initial_conditions`) and the RK4 sub-steps (``substeps`` None:
-    :func:`~magtune_core.sim.initial.substeps_for_rate` of the initial inertial rate, 2 for the
-    paper's dw(0)). Returns (simulator_params, substeps); ConfigError for a bad state."""
+    re-chosen every step from the rate, :class:`magtune_core.sim.substeps.Substeps`, from 2 up to what the
+    initial inertial rate needs, the simulator's ``max_substeps``; 2 throughout from the paper's dw(0)).
+    Returns (simulator_params, substeps); ConfigError for a bad state."""
     if attitude_deg is not None or rate_deg is not None:
         q0, dw0 = initial_conditions(attitude_deg if attitude_deg is not None else (0.0, 0.0, 0.0),
                                      rate_deg if rate_deg is not None else (0.0, 0.0, 0.0))
@@ -162,7 +164,8 @@ def initial_state_parameters(sc: SpacecraftParams, simulator_params: dict, attit
     if substeps is None:
         q0 = simulator_params.get("initial_quaternion", (1.0, 0.0, 0.0, 0.0))
         dw0 = simulator_params.get("initial_rate_error", INITIAL_RATE_ERROR)
-        substeps = substeps_for_rate(initial_state(sc, dw0, q0)[4:], ts)
+        simulator_params["max_substeps"] = substeps_for_rate(initial_state(sc, dw0, q0)[4:], ts)
+        substeps = MIN_SUBSTEPS
     return simulator_params, substeps
 
 
@@ -347,9 +350,9 @@ class SilScenario:
         ``*_params``: extra ROS parameters of that node (every satellite).
         ``initial_attitude_deg`` (rotation vector) and ``initial_rate_deg`` (dw(0), body axes):
         the simulator's ``initial_quaternion``/``initial_rate_error``
-        (:func:`magtune_core.sim.initial.initial_conditions`); ``substeps`` None = chosen from
-        the initial rate (:func:`~magtune_core.sim.initial.substeps_for_rate`: 2 for the paper's
-        dw(0)). ``modes``: start the mode manager (``initial_mode``, default DETUMBLE with it,
+        (:func:`magtune_core.sim.initial.initial_conditions`); ``substeps`` None = re-chosen every
+        step from the rate (:class:`~magtune_core.sim.substeps.Substeps`: 2 throughout from the paper's
+        dw(0)), a number: that many throughout. ``modes``: start the mode manager (``initial_mode``, default DETUMBLE with it,
         POINTING without; ``mode_params`` its parameters, validated here). ``attitude``
         "estimator": start the attitude_estimator (``estimator_params``, validated here by
         ESTIMATOR_FIELDS) and fly on its estimate; the sensors get the estimator's default suite

@@ -76,6 +76,7 @@ from .batch_kernels import (
 )
 from .fullenv import FullEnvironmentOptions, _environment, environment_table, nominal_orbit_period
 from .metrics import pointing_error_deg
+from .substeps import Substeps
 
 #: Sensor noise is drawn per run in blocks of this many controller steps (design.sensors.NORMALS_PER_STEP
 #: normals per step: magnetometer, attitude, gyro), so the stream a run sees does not depend on its batch.
@@ -492,7 +493,7 @@ def _aux_blocks(sensors: SensorNoise):
     return lambda: np.stack([draw(g, NOISE_CHUNK, AUX_NORMALS) for g in gens])
 
 
-def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: int = 2,
+def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: int = 2, max_substeps: int = 0,
                    record_every: int = 1, orbit_periods=None, full_series: bool = False,
                    modes: BatchModes | None = None, estimator: BatchEstimator | None = None,
                    torquers: Torquers = NO_TORQUERS) -> BatchResult:
@@ -509,6 +510,7 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
     ``modes``: fly the flight modes (DETUMBLE: B-dot, ACQUISITION / POINTING: eq. 17, SAFE: zero), as
     :func:`magtune_core.sim.modes_loop.simulate_modes` does for one run; None: eq. 17 throughout (bit
     for bit the loop without modes). ``torquers`` (design.torquers.Torquers): as the SIL's nodes, every run.
+    ``max_substeps`` > ``substeps``: each run's sub-steps re-chosen every step from its rate (sim.substeps.Substeps).
 
     Returns
     -------
@@ -516,8 +518,8 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
         Histories (B, n_rec, .) at t = k Ts for k = 0, record_every, ..., and always the last step.
     """
     torquers.check(ts, "simulate_batch")
-    B, n, S = runs.size, int(steps), torquers.substeps(ts, int(substeps))  # the switch-off on the grid
-    per = 2 * S  # grid points per controller period (grid step h/2)
+    rule = Substeps.ladder(ts, int(substeps), max(int(substeps), int(max_substeps)), torquers)  # switch-off on the grid
+    B, n, S, per = runs.size, int(steps), rule.most, 2 * rule.most  # per: grid points per period (finest h / 2)
     tables = _EnvTables(runs, ts / per, per, duration=n * ts)
     T = np.asarray(orbit_periods if orbit_periods is not None else tables.periods, dtype=float)
     W0 = 2.0 * np.pi / T
@@ -537,7 +539,6 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
     J = np.ascontiguousarray(np.linalg.inv(I))
     hw = np.asarray(runs.p.wheel_momentum, dtype=float).reshape(3).copy()
     mres = np.ascontiguousarray(np.broadcast_to(np.asarray(runs.residual_dipole, float), (B, 3)).T)
-    h = ts / S
     K = np.ascontiguousarray(np.broadcast_to(np.asarray(runs.K, dtype=float), (B, 3, 6)))
     lim = np.broadcast_to(np.asarray(runs.dipole_limit, dtype=float).reshape(B, -1), (B, 3)).T.copy()  # (3, B)
     q0 = np.asarray(runs.q0, dtype=float)
@@ -569,13 +570,13 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
     sat_all = np.zeros(ang_all.shape, dtype=np.bool_)
     index = np.ascontiguousarray(tables.index, dtype=np.int64)
     plant = Plant(I, J, hw, mres, gg, drag, srp, A, cp, cd, es, ed)
-    law_lim, scale, weights, coupling = _torquer_arrays(torquers, lim, ts, S, B)
+    law_lim, scale, weights, coupling = _torquer_arrays(torquers, lim, ts, rule, B)
     ctrl = Controller(K, law_lim, W0, min_b2, scale, weights)
     sens = Sensors(noisy, noise, 0, mag_bias, mag_std, float(sensors.mag_quantum or 0.0), mag_on, mag_M, att_std,
                    gyro_avg, gyro_white, *coupling)
     out = Outputs(sat, weak, diverged, DIVERGED_RATE, bool(full_series), ang_all, mn_all, rec_slot, Q, W, X, M, Bb,
                   sat_all)
-    mstate = _modes_state(modes, runs, B, n, ts, bool(full_series))
+    mstate, levels = _modes_state(modes, runs, B, n, ts, bool(full_series)), _levels(rule)
     # controller steps in chunks of ENV_CHUNK (a divisor of NOISE_CHUNK): one environment table and one
     # compiled call per chunk (batch_kernels.closed_loop: sensors, controller, S RK4 steps per period)
     est, eio, aux_block = _estimator_state(estimator, sensors, B, n, R, ts, bool(full_series))
@@ -586,21 +587,31 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
             noise, gyro_avg = block()
             sens = sens._replace(noise=noise, gyro_avg=gyro_avg, noise_k0=kc)
         eio = _estimator_chunk(est, eio, tables, kc, k1, ts, aux_block)
-        closed_loop(y, Chunk(table, index, kc, kc, k1, n, per, S, h), plant, ctrl, sens, out, mstate, est, eio)
+        closed_loop(y, Chunk(table, index, kc, kc, k1, n, per, *levels), plant, ctrl, sens, out, mstate, est, eio)
     res = BatchResult(np.asarray(rec, dtype=float) * ts, Q, W, X, M, Bb, T, sat, weak, diverged, n,
-                      dict(ts=ts, substeps=S, environment=runs.environment, record_every=int(record_every)),
+                      dict(ts=ts, substeps=S, substep_levels=rule.levels, environment=runs.environment, record_every=int(record_every)),
                       pointing_error_deg(ang_all) if full_series else None, mn_all if full_series else None,
                       np.asarray(rec), sat_all if full_series else None)
     return _with_modes(_with_estimator(res, est, eio, full_series), mstate, full_series)
 
 
-def _torquer_arrays(torquers: Torquers, lim: np.ndarray, ts: float, S: int, B: int):
+def _torquer_arrays(torquers: Torquers, lim: np.ndarray, ts: float, rule: Substeps, B: int):
     """The kernel's view of :class:`~magtune_core.design.torquers.Torquers`: the laws' limits (3, B), the
-    drive's scale, the sub-step weights (S,) and (coupled, g C, the last drive (3, B))."""
+    drive's scale, the sub-step weights per level (levels, most; zero-padded) and (coupled, g C, the last
+    drive (3, B))."""
     g = torquers.sample_factor()
-    return (np.ascontiguousarray(torquers.law_limit(lim, ts)), float(torquers.command_scale(ts)),
-            np.ascontiguousarray(torquers.substep_weights(ts, S)),
+    wts = np.zeros((len(rule.levels), rule.most))
+    for i, s in enumerate(rule.levels):
+        wts[i, :s] = torquers.substep_weights(ts, s)
+    return (np.ascontiguousarray(torquers.law_limit(lim, ts)), float(torquers.command_scale(ts)), wts,
             (torquers.coupled and g > 0, np.ascontiguousarray(g * torquers.matrix), np.zeros((3, B))))
+
+
+def _levels(rule: Substeps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The kernel's view of :class:`~magtune_core.sim.substeps.Substeps`: the levels (L,) int64, the squared
+    rate each covers (L,) and the RK4 step Ts / level (L,) (the division dynamics.step does)."""
+    return (np.array(rule.levels, dtype=np.int64), rule.thresholds(),
+            np.array([rule.ts / s for s in rule.levels]))
 
 
 def _estimator_state(estimator: BatchEstimator | None, sensors: SensorNoise, B: int, n: int, R: int, ts: float,

@@ -17,7 +17,7 @@ single-run ``simulate`` to ~1e-12 (state):
   Harris-Priester density with the WGS-84 geodetic height (:mod:`magtune_core.env.atmosphere`),
   co-rotating-air wind, low-precision Sun and cylindrical shadow (:mod:`magtune_core.env.sun`).
 * :func:`closed_loop` = the loop body of ``simulate_batch`` (sensors, projection controller of paper
-  eq. 17 with saturation and weak-field guard, sample-and-hold, ``substeps`` classical RK4 steps,
+  eq. 17 with saturation and weak-field guard, sample-and-hold, classical RK4 steps re-chosen from the rate,
   quaternion renormalization, divergence flag), for each run over a chunk of controller steps; with
   :class:`Modes` ``on``, the flight modes pick the law each step (the mode machine and the B-dot law
   of :mod:`magtune_core.design.modes_kernel`, as :func:`magtune_core.sim.modes_loop.simulate_modes`).
@@ -431,9 +431,10 @@ class Chunk(NamedTuple):
     ka: int  #: first controller step advanced
     kb: int  #: one past the last controller step advanced
     n: int  #: the run's last controller step (recorded, not integrated over)
-    per: int  #: table rows per controller step (2 substeps)
-    S: int  #: RK4 steps per controller period
-    h: float  #: RK4 step [s]
+    per: int  #: table rows per controller step (2 x the finest level)
+    levels: np.ndarray  #: (L,) int64 RK4 steps per controller period, the ladder of sim.substeps.Substeps
+    thr: np.ndarray  #: (L,) the largest squared body rate [rad^2/s^2] each level covers
+    h: np.ndarray  #: (L,) RK4 step Ts / level [s]
 
 
 class Plant(NamedTuple):
@@ -461,7 +462,7 @@ class Controller(NamedTuple):
     W0: np.ndarray  #: (B,) orbit rate of the controller's linear state [rad/s]
     min_b2: float  #: weak-field guard: no command below this |b|^2 [T^2]
     scale: float  #: the torquers drive the law's dipole / scale (Torquers.command_scale; 1: as commanded)
-    weights: np.ndarray  #: (S,) the driven dipole's weight per RK4 step (Torquers.substep_weights)
+    weights: np.ndarray  #: (L, most) the driven dipole's weight per RK4 step of each level (Torquers.substep_weights)
 
 
 class Sensors(NamedTuple):
@@ -650,15 +651,14 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio):
     eio : EstimatorIO
         The estimator's reference rows, auxiliary normals and outputs.
     """
-    table, idx, kc, ka, kb, n, per, S, h = chunk
+    table, idx, kc, ka, kb, n, per, levels, thr, hs = chunk
     I, J, hw, mres, gg, drag, srp, A, cp, cd, es, ed = plant
     K, lim, W0, min_b2, cscale, wts = ctrl
     noisy, noise, noise_k0, mag_bias, mag_std, quantum, mag_on, mag_M, att_std, gyro_avg, gyro_white, coupled, Cg, \
         m_last = sens
     sat, weak, diverged, diverged_rate, full, ang_all, mn_all, rec_slot, Q, Wr, X, M, Bb, sat_all = out
     mon, MP, bk, bnorm, bmin, fa, mts = modes.on, modes.P, modes.k, modes.normalized, modes.min_field, modes.a, modes.ts
-    B = y.shape[1]
-    hh, h6 = 0.5 * h, h / 6.0
+    B, top = y.shape[1], levels.size - 1
     ys = np.empty(7)
     yt = np.empty(7)
     k1 = np.empty(7)
@@ -798,11 +798,19 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio):
                 Bb[b, r, 0], Bb[b, r, 1], Bb[b, r, 2] = bt0, bt1, bt2
             if k == n:
                 break
-            # sample and hold over [t_k, t_k+1): S RK4 steps with the stage environment rows
+            # sample and hold over [t_k, t_k+1): the fewest RK4 steps of the ladder that cover |w| (Substeps.at),
+            # their stage rows every r-th row of the finest grid
+            w2 = ys[4] * ys[4] + ys[5] * ys[5] + ys[6] * ys[6]
+            lv = 0
+            while lv < top and w2 > thr[lv]:
+                lv += 1
+            S, h = levels[lv], hs[lv]
+            r = levels[top] // S
+            hh, h6 = 0.5 * h, h / 6.0
             for i in range(S):
-                j0 = base + 2 * i
-                Ea, Eb, Ec = tab[j0], tab[j0 + 1], tab[j0 + 2]
-                wi = wts[i]  # the duty cycle: the driven dipole's share of this RK4 step (1: always on)
+                j0 = base + 2 * r * i
+                Ea, Eb, Ec = tab[j0], tab[j0 + r], tab[j0 + 2 * r]
+                wi = wts[lv, i]  # the duty cycle: the driven dipole's share of this RK4 step (1: always on)
                 e0, e1, e2 = s0 * wi, s1 * wi, s2 * wi
                 _rhs(Ea, ys, e0, e1, e2, Ib, Jb, hw, mr, gg, drag, srp, A, cp, cd, es, ed, k1)
                 for j in range(7):

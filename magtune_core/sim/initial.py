@@ -1,8 +1,9 @@
-"""Initial states from the user's degrees, and the RK4 step chosen from the initial rate.
+"""Initial states from the user's degrees.
 
 What ``magtune sil --initial-attitude-deg/--initial-rate-deg`` and deployment campaigns build a
 run from: an attitude as a rotation vector and a rate deviation, both in degrees at the interface
-and SI inside (q0, dw0 of :func:`magtune_core.sim.simulate.initial_state`).
+and SI inside (q0, dw0 of :func:`magtune_core.sim.simulate.initial_state`); the RK4 sub-steps such
+a run needs are :mod:`magtune_core.sim.substeps`'s.
 """
 from __future__ import annotations
 
@@ -11,26 +12,6 @@ import math
 import numpy as np
 
 from ..base.errors import ConfigError
-
-#: Largest rotation [rad] of the body during one RK4 sub-step: 0.05 rad is what the paper set-up's
-#: two sub-steps per second take at the nutation frequency of the momentum-biased body (0.082 rad/s x
-#: 0.5 s = 0.041 rad), so a tumbling run is integrated no less accurately per step than the paper's.
-MAX_STEP_ANGLE = 0.05
-#: Sub-steps of the paper reproduction (simulate's and the simulator node's default).
-MIN_SUBSTEPS = 2
-
-
-def substeps_for_rate(rate, ts: float, max_step_angle: float = MAX_STEP_ANGLE, minimum: int = MIN_SUBSTEPS) -> int:
-    """RK4 sub-steps per controller period so that |w| h <= ``max_step_angle`` (h = ts / substeps).
-
-    ``rate`` the body rate [rad/s] (a 3-vector or its norm). B-dot and the pointing law only remove
-    kinetic energy, so the initial rate bounds the run's; at least ``minimum`` (the paper's 2, so a
-    run from the paper's dw(0) keeps its exact arithmetic). E.g. 5 deg/s per axis at Ts = 1 s: 4.
-    """
-    w = float(np.linalg.norm(np.asarray(rate, dtype=float)))
-    if not math.isfinite(w):
-        raise ValueError(f"substeps_for_rate: rate must be finite, got {rate!r}")
-    return max(int(minimum), int(math.ceil(w * float(ts) / float(max_step_angle) - 1e-12)))
 
 
 def attitude_quaternion(rotation_deg, where="initial attitude") -> np.ndarray:

@@ -6,7 +6,7 @@ the truth): :class:`magtune_core.design.modes.ModeLogic` picks the law each cont
 :class:`~magtune_core.design.bdot.BdotController` in DETUMBLE, eq. 17
 (:class:`~magtune_core.design.law.ProjectionController`) in ACQUISITION and POINTING (the measured
 region of attraction covers every attitude, docs/modes.md), zero dipole in SAFE. The RK4 sub-steps
-come from the initial rate (:func:`magtune_core.sim.initial.substeps_for_rate`).
+are re-chosen every period from the rate (:class:`magtune_core.sim.substeps.Substeps`).
 
 Injected faults (:mod:`magtune_core.design.faults`) act as in the SIL: the sensor faults on the
 measured field and gyro rate (:func:`~magtune_core.design.faults.measure`; the law and the mode
@@ -32,15 +32,15 @@ from ..design.params import SpacecraftParams
 from ..design.torquers import NONE as NO_TORQUERS
 from ..design.torquers import Torquers
 from .dynamics import AttitudeDynamics
-from .initial import substeps_for_rate
 from .metrics import pointing_error_deg
 from .simulate import initial_state
+from .substeps import Substeps
 
 
 @dataclass
 class ModeRun:
     """Histories at t_k = k Ts: true ``q``, ``w``, dipole ``m``, ``mode`` (str per step), true pointing
-    error ``pointing_deg``; ``transitions`` in order; ``substeps`` used."""
+    error ``pointing_deg``; ``transitions`` in order; ``substeps`` the most used (the first periods')."""
 
     t: np.ndarray
     q: np.ndarray
@@ -86,8 +86,8 @@ def simulate_modes(K, p: SpacecraftParams | None = None, *, q0=(1.0, 0.0, 0.0, 0
     point = ProjectionController(K, lim)
     filt = FieldDerivativeFilter(ts, bdot_cutoff)
     y = initial_state(p, dw0, q0)
-    S = torquers.substeps(ts, substeps_for_rate(y[4:], ts))  # the duty cycle's switch-off on the grid
-    weights = torquers.substep_weights(ts, S) if torquers.off_time > 0 else None
+    rule = Substeps.for_rate(ts, y[4:], torquers=torquers)  # the duty cycle's switch-off on the grid
+    weights = rule.weights(torquers)
     n = int(round(orbits * p.orbit_period / ts))
     Y, M, modes = np.zeros((n + 1, 7)), np.zeros((n + 1, 3)), []
     state, fstate, transitions = ModeState(initial_mode, 0.0, "start"), FilterState(), []
@@ -131,10 +131,11 @@ def simulate_modes(K, p: SpacecraftParams | None = None, *, q0=(1.0, 0.0, 0.0, 0
         M[i] = applied
         modes.append(state.mode)
         if i < n:
-            y = dyn.step(t, y, ts, applied, S, weights)
+            S = rule.at(y)
+            y = dyn.step(t, y, ts, applied, S, weights[S])
     qv = np.linalg.norm(Y[:, 1:4], axis=1)
     return ModeRun(np.arange(n + 1) * ts, Y[:, :4], Y[:, 4:], M, np.array(modes), pointing_error_deg(qv),
-                   transitions, S)
+                   transitions, rule.most)
 
 
 def transition_table(transitions: list[Transition]) -> list[tuple]:

@@ -23,8 +23,8 @@ from ..design.torquers import NONE as NO_TORQUERS
 from ..design.torquers import Torquers
 from .dynamics import AttitudeDynamics
 from .fullenv import full_params, make_dynamics
-from .initial import substeps_for_rate
 from .metrics import figures_of_merit
+from .substeps import Substeps
 
 #: Initial rate error of the paper's simulation study, dw(0) [rad/s] (the simulator node's default too).
 DW0 = INITIAL_RATE_ERROR
@@ -97,8 +97,9 @@ def simulate(K, p: SpacecraftParams | None = None, *, ts: float = 1.0, orbits: f
     """Closed loop of the nonlinear model with the sample-and-hold projection controller.
 
     ``steps`` (default ``round(orbits * T / ts)``) controller periods are simulated; each
-    period is integrated with ``substeps`` RK4 steps with the dipole held (None: chosen from the
-    initial rate, :func:`magtune_core.sim.initial.substeps_for_rate`; 2 from the paper's dw(0)).
+    period is integrated with ``substeps`` RK4 steps with the dipole held (None: re-chosen every
+    period from the rate, :class:`magtune_core.sim.substeps.Substeps` from the initial one; 2 from the
+    paper's dw(0)).
     ``environment``: "paper" (eq. 26 field, circular orbit, gravity gradient + residual dipole)
     or "full" (J2 orbit, IGRF, drag, SRP; ``env_options`` a
     :class:`magtune_core.sim.fullenv.FullEnvironmentOptions`): see :mod:`magtune_core.sim.fullenv`. In
@@ -113,17 +114,16 @@ def simulate(K, p: SpacecraftParams | None = None, *, ts: float = 1.0, orbits: f
         Histories at t_k = k Ts, k = 0..steps, and ``info`` (saturated / weak-field steps, divergence).
     """
     p = p or SpacecraftParams()
-    if substeps is None:
-        substeps = substeps_for_rate(np.array([0.0, 0.0, -p.orbit_rate]) + np.asarray(dw0, float), ts)
-    substeps = torquers.substeps(ts, substeps)  # the duty cycle's switch-off on the sub-step grid
+    rule = (Substeps.for_rate(ts, np.array([0.0, 0.0, -p.orbit_rate]) + np.asarray(dw0, float), torquers=torquers)
+            if substeps is None else Substeps.ladder(ts, substeps, substeps, torquers))  # switch-off on the grid
     if dynamics is None:
         if environment == "full":
             p = full_params(p, env_options)
-        dynamics = make_dynamics(environment, p, ts=ts, substeps=substeps, residual_dipole=residual_dipole,
+        dynamics = make_dynamics(environment, p, ts=ts, substeps=rule.most, residual_dipole=residual_dipole,
                                  field=field, disturbances=disturbances, options=env_options)
     dyn = dynamics
     ctrl = ProjectionController(K, torquers.law_limit(dipole_limit, ts), min_field)
-    weights = torquers.substep_weights(ts, substeps) if torquers.off_time > 0 else None
+    weights = rule.weights(torquers)
     m_last = np.zeros(3)
     n = int(steps if steps is not None else round(orbits * p.orbit_period / ts))
     y = initial_state(p, dw0, q0)
@@ -143,7 +143,8 @@ def simulate(K, p: SpacecraftParams | None = None, *, ts: float = 1.0, orbits: f
         m_last = torquers.drive(out.m, ts)
         X[k], Bb[k], M[k] = x, b, m_last
         if k < n:
-            y = dyn.step(t[k], y, ts, m_last, substeps, weights)
+            S = rule.at(y)
+            y = dyn.step(t[k], y, ts, m_last, S, weights[S])
     return SimResult(t, Y[:, :4], Y[:, 4:], X, M, Bb, p.orbit_period,
-                     dict(saturated_steps=sat, weak_field_steps=weak, ts=ts, substeps=substeps,
+                     dict(saturated_steps=sat, weak_field_steps=weak, ts=ts, substeps=rule.most, substep_levels=rule.levels,
                           environment=environment))

@@ -76,9 +76,9 @@ from ..design.params import SpacecraftParams, load_spacecraft
 from ..design.torquers import Torquers
 from ..sim.batch import BatchEstimator, BatchModes, BatchRuns, SensorNoise, simulate_batch
 from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions, nominal_orbit_period, substeps_for
-from ..sim.initial import substeps_for_rate
 from ..sim.metrics import settling_time
 from ..sim.simulate import DW0
+from ..sim.substeps import Substeps, substeps_for_rate
 from . import cluster
 
 #: Section ``campaign``: what is run.
@@ -206,18 +206,19 @@ class CampaignSpec:
         return int(self.campaign["seed"])
 
     @property
-    def substeps(self) -> int:
-        """RK4 steps per Ts: ``campaign.substeps``, 0 = at most 0.5 s per step; a deployment campaign takes at
-        least what the fastest drawable initial rate needs (sim.initial.substeps_for_rate of the bound
-        |rate_mean| + rate_max + W0 per axis: one value for every run, so a batch is one integrator), raised to
-        the fewest that put a duty cycle's switch-off on the grid (design.torquers.Torquers.substeps)."""
-        s = int(self.campaign["substeps"])
-        s = s if s > 0 else substeps_for(self.campaign["ts"])
+    def substeps(self) -> Substeps:
+        """RK4 sub-steps per Ts (sim.substeps.Substeps): ``campaign.substeps`` > 0 that many throughout; 0 = from
+        at most 0.5 s per step (fullenv.substeps_for), re-chosen every step from each run's rate up to what the
+        fastest drawable initial rate needs (the bound |rate_mean| + rate_max + W0 per axis, deployment
+        campaigns); a duty cycle's switch-off on the grid (design.torquers.Torquers.substeps)."""
+        ts, s = self.campaign["ts"], int(self.campaign["substeps"])
+        need = s
         if self.campaign["modes"]:
             d = self.dispersions
             bound = np.abs(d["rate_mean"]) + d["rate_max"] + np.array([0.0, 0.0, self.p.orbit_rate])
-            s = max(s, substeps_for_rate(bound, self.campaign["ts"]))
-        return self.batch_torquers().substeps(self.campaign["ts"], s)  # a duty cycle's switch-off on the grid
+            need = substeps_for_rate(bound, ts)
+        fewest = max(s, need) if s > 0 else substeps_for(ts)
+        return Substeps.ladder(ts, fewest, max(fewest, need), self.batch_torquers())
 
     def batch_modes(self) -> BatchModes | None:
         """The flight modes every run flies (``campaign.modes``; section ``modes``), else None."""
@@ -516,7 +517,9 @@ def _simulate_rows(spec: CampaignSpec, jobs: list, steps: int, record_every: int
     """Simulate ``jobs`` [(gains index, run index)] as one batch; rows + downsampled histories."""
     draws = [draw_run(spec, i) for _, i in jobs]
     runs = _batch_runs(spec, draws, [g for g, _ in jobs])
-    res = simulate_batch(runs, ts=spec.campaign["ts"], steps=steps, substeps=spec.substeps, record_every=record_every,
+    rule = spec.substeps
+    res = simulate_batch(runs, ts=spec.campaign["ts"], steps=steps, substeps=rule.fewest, max_substeps=rule.most,
+                         record_every=record_every,
                          full_series=True, modes=spec.batch_modes(), estimator=spec.batch_estimator(),
                          torquers=spec.batch_torquers())
     t_all = np.arange(steps + 1) * spec.campaign["ts"]
@@ -726,7 +729,7 @@ def write_results(spec: CampaignSpec, runs: int, out: Path, results: list, batch
     status = [r["status"] for r in rows]
     meta = dict(name=spec.campaign["name"], spec=str(spec.path), seed=spec.seed, runs=runs,
                 total_runs=len(rows), gains=spec.gains_files, environment=spec.campaign["environment"],
-                orbits=spec.campaign["orbits"], ts=spec.campaign["ts"], substeps=spec.substeps,
+                orbits=spec.campaign["orbits"], ts=spec.campaign["ts"], substeps=list(spec.substeps.levels),
                 batch_size=spec.campaign["batch_size"], batches=len(batches),
                 counts={s: status.count(s) for s in STATUSES}, passed=int(sum(bool(r["passed"]) for r in rows)),
                 campaign=_plain(spec.campaign), dispersions=_plain(spec.dispersions), criteria=_plain(spec.criteria),

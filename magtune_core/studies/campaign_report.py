@@ -101,6 +101,12 @@ def _torquer_line(meta: dict) -> list:
             "(docs/torquers.md)."]
 
 
+def _substeps(levels) -> str:
+    """The RK4 sub-steps of campaign.json (a list of levels; an int in campaigns written before the ladder)."""
+    lv = levels if isinstance(levels, list) else [levels]
+    return f"{lv[0]} RK4 steps" if len(lv) == 1 else f"{lv[0]}-{lv[-1]} RK4 steps re-chosen from the rate"
+
+
 def write_report(out) -> str:
     """Plots and summary.md in the campaign directory ``out``; returns the markdown."""
     out = Path(out)
@@ -115,7 +121,7 @@ def write_report(out) -> str:
     lines = [f"# Monte Carlo campaign: {meta['name']}", "",
              f"Spec `{meta['spec']}`, seed {meta['seed']}, {meta['runs']} dispersed runs x {len(meta['gains'])} gains "
              f"file(s) = {n} runs; environment **{meta['environment']}**, {meta['orbits']:g} orbits, Ts = "
-             f"{meta['ts']:g} s ({meta['substeps']} RK4 steps per Ts), {meta['steps']} controller steps per run.",
+             f"{meta['ts']:g} s ({_substeps(meta['substeps'])} per Ts), {meta['steps']} controller steps per run.",
              f"Executed on {meta.get('scheduler')} with {meta.get('workers')} worker(s), {meta['batches']} batches of "
              f"<= {meta['batch_size']} runs, {meta['wall']:.1f} s wall ({meta['runs_per_second']:.2f} runs/s; task CPU "
              f"{meta.get('cpu_s_per_run', float('nan')):.3f} s per run).", *_torquer_line(meta), "",

@@ -162,8 +162,10 @@ def test_node_parameters_come_from_the_schemas():
     # plus the estimator's own 4 (gate_probability, init_angle, initial_bias_std, sun_wait; its other
     # fields are the other nodes' names), plus the faults of issue 30 (frozen_time, faults), plus the 4
     # torquer fields of issue 30 item 6 (coupling, off time, decay time, compensation), plus the estimator's
-    # magnetometer-bias states of issue 31 (initial_mag_bias_std, mag_bias_rw)
-    assert len(NODE_PARAMETERS) == 37 + 8 + 12 + 2 + 1 + 4 + 1 + 4 + 2 + 4 + 2 and {"initial_quaternion", "mag_quantum", "min_field", "seed"} <= names
+    # magnetometer-bias states of issue 31 (initial_mag_bias_std, mag_bias_rw), plus the simulator's
+    # max_substeps (the sub-steps re-chosen from the rate)
+    assert len(NODE_PARAMETERS) == 37 + 8 + 12 + 2 + 1 + 4 + 1 + 4 + 2 + 4 + 2 + 1
+    assert {"initial_quaternion", "mag_quantum", "min_field", "seed"} <= names
 
 
 def test_example_files_pass_the_strict_checks():

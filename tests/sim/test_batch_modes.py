@@ -12,6 +12,7 @@ from magtune_core.design.params import SpacecraftParams
 from magtune_core.sim.batch import BatchModes, BatchRuns, simulate_batch
 from magtune_core.sim.initial import initial_conditions
 from magtune_core.sim.modes_loop import simulate_modes
+from magtune_core.sim.substeps import Substeps
 
 #: Trajectory equality with the numpy loop: both integrate the same dynamics with the same RK4 steps and the
 #: same held dipoles; they differ by the association of a few sums and numpy's BLAS dot products (~1e-16 per
@@ -82,11 +83,15 @@ def deployments():
     cases = [((-100.0, 40.0, 90.0), (-4.0, 2.0, 5.0)), ((150.0, 10.0, -60.0), (5.0, -5.0, 1.0))]
     orbits = 2.2
     refs = [simulate_modes(K, p, q0=q0, dw0=dw0, orbits=orbits) for q0, dw0 in (initial_conditions(*c) for c in cases)]
-    assert {r.substeps for r in refs} == {3}  # both rates take 3 RK4 sub-steps (|w| h <= 0.05 rad)
+    assert {r.substeps for r in refs} == {4}  # both rates need 3 RK4 sub-steps (|w| h <= 0.05 rad): the ladder's 4
+    for r in refs:  # and both drop to 2 while detumbling: the batch follows the per-step choice
+        used = {Substeps(1.0, 2, 4).at(np.r_[q, w]) for q, w in zip(r.q, r.w)}
+        assert used == {2, 4}, used
     qs, ws = zip(*[initial_conditions(*c) for c in cases])
     runs = BatchRuns(K=K, inertia=np.tile(p.inertia, (2, 1)), residual_dipole=np.ones((2, 3)), dipole_limit=np.full(2, 50.0),
                      q0=np.array(qs), dw0=np.array(ws), p=p, environment="paper")
-    res = simulate_batch(runs, ts=1.0, steps=len(refs[0].t) - 1, substeps=3, full_series=True, modes=BatchModes())
+    res = simulate_batch(runs, ts=1.0, steps=len(refs[0].t) - 1, substeps=2, max_substeps=4, full_series=True,
+                         modes=BatchModes())
     return refs, res
 
 

@@ -14,8 +14,9 @@ from magtune_core.design.lq import lq_gains
 from magtune_core.design.model import AttitudeLTP
 from magtune_core.design.params import SpacecraftParams
 from magtune_core.sim.dynamics import AttitudeDynamics
-from magtune_core.sim.initial import attitude_quaternion, initial_conditions, substeps_for_rate
+from magtune_core.sim.initial import attitude_quaternion, initial_conditions
 from magtune_core.sim.simulate import DW0, initial_state, simulate
+from magtune_core.sim.substeps import substeps_for_rate
 
 
 def test_attitude_from_rotation_vector():

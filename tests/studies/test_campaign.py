@@ -381,7 +381,7 @@ def deployment(tmp_path_factory):
 def test_deployment_campaign_detumbles_and_points(deployment):
     spec, out = deployment
     cols = campaign.read_runs(out)
-    assert spec.substeps == 2  # |w| <= sqrt(3) 2 deg/s + W0 = 0.062 rad/s: 2 RK4 steps keep |w| h <= 0.05 rad
+    assert spec.substeps.levels == (2,)  # |w| <= sqrt(3) 2 deg/s + W0 = 0.062 rad/s: 2 RK4 steps keep |w| h <= 0.05 rad
     assert set(cols["status"]) == {"ok"} and len(cols["run"]) == 8
     det, pnt, sett = (cols[k].astype(float) for k in ("detumble_time", "pointing_time", "settled_time"))
     # detumbled: never before the 600-s persistence (exactly 600 s for a run drawn already calm: run 2, measured)
@@ -463,11 +463,11 @@ def test_torquers_section_reaches_every_run(reference, tmp_path):
     C = [float(x) for x in dipole_coupling([0.0, 0.0, 0.5]).ravel()]
     raw = dict(SPEC, torquers=dict(torquer_coupling=C, torquer_off_time=0.2))
     spec = campaign.load_spec(_write_spec(tmp_path, raw))
-    assert spec.substeps == 5 and spec.batch_torquers() == Torquers(tuple(C), 0.2)
+    assert spec.substeps.levels == (5,) and spec.batch_torquers() == Torquers(tuple(C), 0.2)
     campaign.run_campaign(spec, RUNS, tmp_path / "out", scheduler="synchronous", progress=False)
     cols, ref = campaign.read_runs(tmp_path / "out"), campaign.read_runs(reference)
     meta = yaml.safe_load((tmp_path / "out" / "campaign.json").read_text())
-    assert meta["substeps"] == 5 and meta["torquers"]["torquer_off_time"] == 0.2
+    assert meta["substeps"] == [5] and meta["torquers"]["torquer_off_time"] == 0.2
     jobs = [(0, i) for i in range(RUNS)]
     draws = [campaign.draw_run(spec, i) for _, i in jobs]
     res = simulate_batch(campaign._batch_runs(spec, draws, [0] * RUNS), ts=1.0, steps=spec.steps(), substeps=5,

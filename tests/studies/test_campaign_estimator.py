@@ -105,8 +105,9 @@ def test_estimator_figures_are_the_batched_runs(est_campaign):
     draws = [campaign.draw_run(spec, 1)]
     from magtune_core.sim.batch import simulate_batch
 
-    res = simulate_batch(campaign._batch_runs(spec, draws, [0]), ts=1.0, steps=spec.steps(), substeps=spec.substeps,
-                         full_series=True, estimator=spec.batch_estimator())
+    res = simulate_batch(campaign._batch_runs(spec, draws, [0]), ts=1.0, steps=spec.steps(),
+                         substeps=spec.substeps.fewest, max_substeps=spec.substeps.most, full_series=True,
+                         estimator=spec.batch_estimator())
     t = np.arange(spec.steps() + 1) * 1.0
     fig = campaign.estimation_figures(t, res.est_error[0], res.est_sigma[0], res.est_nees[0], res.orbit_period[0],
                                       spec.criteria)

@@ -6,8 +6,9 @@ residual dipole, eq. 26 field; other field models and disturbance torques plug i
 ``magtune_core.sim.fullenv.FullDynamics`` with ``environment: full`` (J2 orbit, IGRF degree
 ``igrf_degree``, gravity gradient with the actual radius, drag, SRP; switches ``env_*``; the
 nominal orbit period is the ``orbit_period`` given, which ``magtune sil`` derives once for every
-node from the actual orbit), integrated with the same RK4 step as the offline
-``magtune_core.sim.simulate.simulate``; the commanded dipole is held over each step (ZOH).
+node from the actual orbit), integrated with the same RK4 steps as the offline
+``magtune_core.sim.simulate.simulate`` (``substeps`` per step, re-chosen every step from the rate up to
+``max_substeps``: ``magtune_core.sim.substeps.Substeps``); the commanded dipole is held over each step (ZOH).
 
 Publishes (all stamped with simulated time t_k = k * ts):
   /clock                       rosgraph_msgs/Clock        (this node is the time source)
@@ -80,6 +81,7 @@ from magtune_core.design.params import SpacecraftParams
 from magtune_core.design.torquers import Torquers
 from magtune_core.sim.fullenv import FullEnvironmentOptions, make_dynamics
 from magtune_core.sim.simulate import DIVERGED_EXIT, SimResult, divergence, initial_state
+from magtune_core.sim.substeps import Substeps
 
 from . import common as c
 
@@ -132,8 +134,9 @@ class Simulator(Node):
             self.torquers.check(self.ts, "parameters")
         except ConfigError as exc:
             raise c._param_error(exc) from None
-        self.substeps = self.torquers.substeps(self.ts, self.substeps)  # the duty cycle's switch-off on the grid
-        self.weights = self.torquers.substep_weights(self.ts, self.substeps) if self.torquers.off_time > 0 else None
+        # the sub-steps re-chosen every step from the rate, the duty cycle's switch-off on the grid
+        self.rule = Substeps.ladder(self.ts, self.substeps, max(self.substeps, v["max_substeps"]), self.torquers)
+        self.substeps, self.weights = self.rule.most, self.rule.weights(self.torquers)
         return v
 
     def build_plant(self, v: dict) -> None:
@@ -364,7 +367,8 @@ class Simulator(Node):
             return
         if self.pub_markers is not None:
             self.publish_markers(k, m)
-        self.y = self.dyn.step(k * self.ts, self.y, self.ts, m, self.substeps, self.weights)
+        S = self.rule.at(self.y)
+        self.y = self.dyn.step(k * self.ts, self.y, self.ts, m, S, self.weights[S])
         self.m_last = m
         self.k = k + 1
         why = divergence(self.y)
