@@ -350,7 +350,7 @@ class _EnvTables:
 
     def __init__(self, runs: BatchRuns, dt: float, per_step: int, duration: float = 0.0):
         self.dt, self.per_step = float(dt), int(per_step)
-        self.runs = runs
+        self.runs, self._buf = runs, None
         if runs.environment == "full":
             unique = list(dict.fromkeys(runs.env_options))
             self.index = np.array([unique.index(o) for o in runs.env_options])
@@ -381,6 +381,13 @@ class _EnvTables:
             self.periods = np.full(runs.size, float(runs.p.orbit_period))
             self.index = np.zeros(runs.size, dtype=np.int64)
 
+    def _buffer(self, npts: int) -> np.ndarray:
+        """(U, npts, 15) rows reused from chunk to chunk (a fresh 100-MB table per chunk of a 250-run batch
+        costs its page faults every time); each chunk's rows are read before the next chunk's are written."""
+        if self._buf is None or self._buf.shape[1] < npts:
+            self._buf = np.empty((len(self.envs), npts + 64, 15))
+        return self._buf[:, :npts]
+
     def chunk(self, k0: int, k1: int) -> np.ndarray:
         """Rows for grid indices k0*per_step .. k1*per_step, shape (U, npts, 15): one table per distinct
         environment (run b reads ``[self.index[b]]``; U = 1 for "paper"), each contiguous (the compiled
@@ -394,7 +401,7 @@ class _EnvTables:
             hi = max(jb, st * min(jb // st + 4, last))
             j = np.arange(lo, hi + 1)
             t = j * self.dt
-            out = np.empty((len(self.envs), t.size, 15))
+            out = self._buffer(t.size)
             nodes = t[::st]  # lo is a node: the ephemeris is evaluated there only
             Y = self.orbits.states(nodes) if self.orbits is not None else None
             Yi = np.empty((6, t.size))
