@@ -7,4 +7,4 @@ cd "$root"
 . scripts/env.sh
 echo "ruff check:" >&2
 ruff check .
-exec python -m pytest -q -ra "$@"
+exec python -m pytest -q -ra --durations=20 "$@"

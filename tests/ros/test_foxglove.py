@@ -90,10 +90,11 @@ def test_sil_live_view_epoch_time_and_bag_selection(tmp_path):
         # log time = sim time of the last /clock the bridge received. The simulator publishes a step's
         # data just before its /clock, so in order the log time is that step's or the previous one
         # (Ts = 1 s); but DDS does not order delivery across topics, and under load the bridge has
-        # taken a /tf after three, once six, later /clock messages (seen in CI, real-time factor 40).
-        # Allowed: one step early to ten steps late (250 ms of wall time here); a log time on another
-        # clock (wall time, 0, the stamp of another run) is still ~1e18 or > 1e9 s off and fails.
-        assert stamp - 10**9 <= t <= stamp + 10 * 10**9
+        # taken a /tf after three, six, and on a slow CI machine 58 later /clock messages (real-time
+        # factor 40: 1.5 s of wall time behind). Allowed: one step early to 120 steps late (3 s of wall
+        # time here); a log time on another clock (wall time, 0, the stamp of another run) is still
+        # ~1e18 or > 1e9 s off and fails.
+        assert stamp - 10**9 <= t <= stamp + 120 * 10**9
         r = x.transform.rotation
         assert abs(r.w**2 + r.x**2 + r.y**2 + r.z**2 - 1) < 1e-12
     assert len(_decode(got, "/sim/truth")) == 5
