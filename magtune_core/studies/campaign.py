@@ -519,9 +519,8 @@ def _simulate_rows(spec: CampaignSpec, jobs: list, steps: int, record_every: int
     runs = _batch_runs(spec, draws, [g for g, _ in jobs])
     rule = spec.substeps
     res = simulate_batch(runs, ts=spec.campaign["ts"], steps=steps, substeps=rule.fewest, max_substeps=rule.most,
-                         record_every=record_every,
-                         full_series=True, modes=spec.batch_modes(), estimator=spec.batch_estimator(),
-                         torquers=spec.batch_torquers())
+                         record_every=record_every, full_series=True, modes=spec.batch_modes(),
+                         estimator=spec.batch_estimator(), torquers=spec.batch_torquers())
     t_all = np.arange(steps + 1) * spec.campaign["ts"]
     rows = []
     for b, ((g, i), r) in enumerate(zip(jobs, draws)):
