@@ -505,7 +505,13 @@ class PairSync:
 class StampGate:
     """Rejects inputs whose stamps are not newer than the last accepted one, older than
     ``max_age`` relative to the node's (simulated) clock, or more than ``max_age`` ahead of it
-    (``max_age_ns`` None: the stamps' order only, no clock read)."""
+    (``max_age_ns`` None: the stamps' order only, no clock read).
+
+    A sim clock still at 0 has not received /clock yet (rclpy's use_sim_time starts there): only
+    the order is checked then. The lockstep data readers can match the simulator before the
+    best-effort /clock reader does; a controller at 0 s was seen rejecting the sample of t = 3 s
+    as "in the future", so that step went unanswered and the seeded run differed from its twin.
+    """
 
     def __init__(self, node: Node, max_age_ns: int | None, n: int = 2):
         self.node = node
@@ -521,6 +527,9 @@ class StampGate:
             self.last_ns[slot] = ns
             return None
         now = self.node.get_clock().now().nanoseconds
+        if now == 0:  # no /clock yet
+            self.last_ns[slot] = ns
+            return None
         if now - ns > self.max_age_ns:
             return "stale_inputs", f"stamp {ns * 1e-9:.3f} s older than {self.max_age_ns * 1e-9:g} s (now {now * 1e-9:.3f} s)"
         if ns - now > self.max_age_ns:
