@@ -1,7 +1,7 @@
 """Estimation error of the MEKF for the paper's satellite (docs/estimation.md#measured-figures).
 
 Closed loop of the shipped gains (`config/gains/sigma_120.yaml`) for ``--orbits`` orbits at Ts = 1 s
-(truth), the default sensors of ``magtune_core.sim.estimation.default_suite`` on it, one seed per
+(truth), the default sensors of ``magtune_core.design.sensors.default_suite`` on it, one seed per
 case. Prints RMS error per body axis [deg], the fraction inside 3 sigma, mean NEES, gate counts.
 ``--seeds N``: also the mean NEES over seeds seed .. seed+N-1 with its standard error, the spread of the
 single-run means and the NEES's integrated autocorrelation time (docs/estimation.md#consistency).

@@ -6,7 +6,8 @@ each equation to its code and ``docs/architecture.md`` draws the layers. Bottom 
 * ``ltp``     general linear time-periodic analysis (no satellite);
 * ``base``    errors, parameter files and schema, rotations, topic table, ament lookup;
 * ``env``     space-environment physics (orbit, IGRF, Sun, atmosphere, torques);
-* ``design``  the satellite design problem, tuner, gains, field fit, flight control law;
+* ``onboard`` the flight software: law, B-dot, modes, attitude fix, MEKF, estimator, torquers;
+* ``design``  the satellite design problem, tuner, gains, field fit, simulated sensors, faults;
 * ``sim``     nonlinear dynamics, full-environment coupling, offline closed loop, metrics;
 * ``bags``    rosbag2-compatible MCAP bags;
 * ``ros``     runners of the ROS 2 nodes as subprocesses (no rclpy);

@@ -8,6 +8,7 @@ flight code (the controller node) imports no simulation code.
 from __future__ import annotations
 
 import ast
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -19,7 +20,10 @@ PKG = ROOT / "magtune_core"
 #: Layer rank of each subpackage, bottom (0) to top. An import must go to the same
 #: subpackage or to a strictly lower rank; ltp and base are both at the bottom and
 #: independent of each other.
-LAYERS = {"ltp": 0, "base": 0, "env": 1, "design": 2, "sim": 3, "bags": 3, "ros": 4, "studies": 5, "cli": 6}
+LAYERS = {"ltp": 0, "base": 0, "env": 1, "onboard": 2, "design": 3, "sim": 4, "bags": 4, "ros": 5, "studies": 6,
+          "cli": 7}
+#: What the on-board layer (the flight software) may import besides itself: no design, no simulation.
+ONBOARD_MAY_IMPORT = {"onboard", "base", "env"}
 
 
 def _module_name(path: Path) -> str:
@@ -74,7 +78,7 @@ def test_walker_sees_the_packages():
     g = _graph()
     assert {"magtune_core.ltp.hinf", "magtune_core.design.tuner", "magtune_core.cli"} <= set(g)
     assert "magtune_core.ltp.system" in g["magtune_core.ltp.hinf"]  # relative import resolved
-    assert "magtune_core.design.law" in g["magtune_core.sim.simulate"]
+    assert "magtune_core.onboard.law" in g["magtune_core.sim.simulate"]
 
 
 def test_no_import_circles():
@@ -175,3 +179,53 @@ def test_nodes_never_import_the_layer_that_launches_them():
                 [node.module or ""] if isinstance(node, ast.ImportFrom) else []
             bad += [f"{f.relative_to(ROOT)}: {n}" for n in names if n == "magtune_core.ros" or n.startswith("magtune_core.ros.")]
     assert not bad, bad
+
+
+def test_onboard_imports_only_base_and_env():
+    """The flight software's boundary: onboard/ imports only base and env (the on-board Earth
+    models), never the design problem, the simulation, studies, runners or the CLI."""
+    g = _graph()
+    bad = sorted(f"{m} -> {d}" for m, deps in g.items() if _layer(m) == "onboard"
+                 for d in deps if _layer(d) not in ONBOARD_MAY_IMPORT)
+    assert bad == [], bad
+    assert {"magtune_core.onboard.law", "magtune_core.onboard.mekf", "magtune_core.onboard.modes"} <= set(g)
+
+
+def _drawing_rows() -> dict[str, str]:
+    """The text of each layer's rows in the drawing of docs/architecture.md (``N  name/`` starts a row)."""
+    page = (ROOT / "docs" / "architecture.md").read_text()
+    drawing = page.split("```")[1]
+    rows: dict[str, str] = {}
+    current = None
+    for line in drawing.splitlines():
+        m = re.match(r"\s*\d+\s+(\w+)/\s", line)
+        if m:
+            current = m.group(1)
+        elif not line.strip() or line.strip() == "|":
+            current = None
+        if current:
+            rows[current] = rows.get(current, "") + " " + line
+    return rows
+
+
+def test_architecture_page_names_every_module():
+    """The drawing of docs/architecture.md names every module of the package in its layer's rows,
+    at the rank the import test uses."""
+    rows = _drawing_rows()
+    assert set(rows) == set(LAYERS), sorted(rows)
+    missing = [m for m in _modules() if len(m.split(".")) == 3 and m.split(".")[2] not in ("__init__", "__main__")
+               and not re.search(rf"(?<![\w.]){m.split('.')[2]}(?!\w)", rows[m.split(".")[1]])]
+    assert missing == [], f"modules missing from their layer in docs/architecture.md: {missing}"
+    page = (ROOT / "docs" / "architecture.md").read_text().split("```")[1]
+    for name, rank in LAYERS.items():
+        assert re.search(rf"^\s*{rank}\s+{name}/", page, re.M), f"{name}/ not drawn at rank {rank}"
+
+
+@pytest.mark.parametrize("node", ["controller.py", "attitude_estimator.py", "mode_manager.py"])
+def test_flight_nodes_run_the_onboard_layer(node):
+    """The flight nodes take their logic from onboard/ (law, B-dot, modes, estimator), not from design/
+    (they read the mission's files, SpacecraftParams and Gains, from there)."""
+    src = (ROOT / "ros2_ws" / "src" / "magtune_ros" / "magtune_ros" / node).read_text()
+    imported = set(re.findall(r"from magtune_core\.(\w+)\.(\w+) import", src))
+    assert {(lay, m) for lay, m in imported if lay == "design"} <= {("design", "params"), ("design", "gains")}, imported
+    assert any(lay == "onboard" for lay, _ in imported)

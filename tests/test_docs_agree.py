@@ -13,7 +13,7 @@ PKG = ROOT / "ros2_ws" / "src" / "magtune_ros"
 
 
 def test_readme_qos_depths_are_the_code_s():
-    code = (PKG / "magtune_ros" / "common.py").read_text()
+    code = (PKG / "magtune_ros" / "qos.py").read_text()
     depth = {name: int(d) for name, d in re.findall(r"^(\w+_QOS) = QoSProfile\([^)]*?depth=(\d+)", code, re.M | re.S)}
     assert set(depth) >= {"LOCKSTEP_QOS", "CLOCK_QOS", "DIAG_QOS"}, depth
     readme = (PKG / "README.md").read_text()

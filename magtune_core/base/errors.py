@@ -1,7 +1,7 @@
 """The one error type for anything a user can get wrong in a file or a parameter.
 
 Every command maps it to one line on stderr and exit status 2 (``magtune_core.cli``); the
-nodes map it to one line and exit status 2 too (``magtune_ros.common.run``).
+nodes map it to one line and exit status 2 too (``magtune_ros.main.run``).
 """
 from __future__ import annotations
 

@@ -93,3 +93,13 @@ def matrix_to_quat(R) -> np.ndarray:
         q = np.array([(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, s / 4])
     q /= np.linalg.norm(q)
     return -q if q[0] < 0 else q
+
+def skew_field(b) -> np.ndarray:
+    """S(b) of paper eq. (13), so that m x b = S(b) m; vectorized over leading axes of b."""
+    b = np.asarray(b, dtype=float)
+    S = np.zeros(b.shape[:-1] + (3, 3))
+    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
+    S[..., 0, 1], S[..., 0, 2] = bz, -by
+    S[..., 1, 0], S[..., 1, 2] = -bz, bx
+    S[..., 2, 0], S[..., 2, 1] = by, -bx
+    return S

@@ -19,7 +19,7 @@ from .errors import ConfigError
 
 #: Marks a field without default: it must be given.
 REQUIRED = object()
-#: Field kinds and the ROS 2 parameter type they map to (see magtune_ros.common.declare_schema).
+#: Field kinds and the ROS 2 parameter type they map to (see magtune_ros.params.declare_field).
 KINDS = ("float", "int", "bool", "str", "float[]", "str[]")
 _SEQUENCES = (list, tuple, np.ndarray, array.array)
 

@@ -16,6 +16,7 @@ from ..base.ament import ROOT, AmentNotFound
 from ..base.errors import ConfigError, SilError
 from ..base.paramfile import check_path
 from ..design.field import FIELD_MODELS
+from ..onboard.params import TS_DEFAULT
 from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions
 from ..studies.cluster import TlsFiles
 
@@ -70,9 +71,6 @@ def run_command(args) -> int:
     except CommandError as exc:
         print(f"{name}: {exc}", file=sys.stderr)
         return exc.code
-    except BrokenPipeError:  # output piped into head & co.: stop quietly, as POSIX tools do
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 141
     except KeyboardInterrupt:
         print(f"{name}: interrupted" + ("; all nodes stopped" if args.command == "sil" else ""), file=sys.stderr)
         return 130
@@ -152,7 +150,7 @@ def hold_constraint(args):
     checked: one line naming the option, exit 2, before any work."""
     from ..design.sampled import HoldConstraint
 
-    ts = 1.0 if args.ts is None else args.ts
+    ts = TS_DEFAULT if args.ts is None else args.ts
     gm = 2.0 if args.gain_margin is None else args.gain_margin
     if not (np.isfinite(ts) and ts > 0):
         raise ConfigError("--ts", None, f"must be a positive sample period in seconds, got {ts:g}")

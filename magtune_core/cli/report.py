@@ -7,7 +7,7 @@ from pathlib import Path
 from ..bags.scan import check_file
 from ..base.errors import ConfigError
 from ..base.topics import DIPOLE, TRUTH
-from ..design.law import DEFAULT_DIPOLE_LIMIT
+from ..onboard.law import DEFAULT_DIPOLE_LIMIT
 from ..studies import report
 from .bag import integrity_lines
 from .common import CommandError, check_output, plain_summary, say

@@ -11,6 +11,7 @@ from ..design.cmaes import CmaSettings
 from ..design.gains import load_gains, save_gains
 from ..design.pipeline import METHODS, InfeasibleStart, tune_gains, tune_robust_gains
 from ..design.tuner import TunerSettings
+from ..onboard.params import TS_DEFAULT
 from .common import (
     GAIN_MARGIN_HELP,
     START_SCALE_HELP,
@@ -60,7 +61,8 @@ def register(sub) -> None:
                    help="stop at the P-th consecutive iteration with r >= r_max (1 = the paper's rule)")
     t.add_argument("--ts", type=float, default=None,
                    help="controller sampling period written to the file [s] (default: the design spec's ts_min; "
-                        "given, the hold constraint is asked at this period only)")
+                        "given, the hold constraint is asked at this period only; refused with --spec, whose "
+                        "ts_min..ts_max own the sample periods)")
     t.add_argument("--robust", metavar="SPEC", default=None,
                    help="robust tuning: minimize the worst J over the model set of this robust spec "
                         "(magtune_core/design/robust.py; CMA-ES tuner)")
@@ -98,6 +100,9 @@ def _check_args(args):
             raise ConfigError("--" + name.replace("_", "-"), None, f"must be a positive integer, got {getattr(args, name)}")
     if not args.sigma > 0:
         raise ConfigError("--sigma", None, f"must be positive, got {args.sigma:g}")
+    if args.spec is not None and args.ts is not None:
+        raise ConfigError("--ts", None, f"the design spec {args.spec} owns the sample periods (ts_min, ts_max); "
+                                        "drop --ts, or drop --spec for a tune held at --ts alone")
     hold_constraint(args)
     return scheduler_options(args, "tune")
 
@@ -146,7 +151,7 @@ def _tune(args, model, out, req, start_K, executor) -> int:
     try:
         with stop if args.method == "cma" else _NoStop():
             res = tune_gains(model, args.sigma, method=args.method, seed=args.seed, start_K=start_K,
-                             start_name=args.start, workers=args.workers, ts=1.0 if args.ts is None else args.ts,
+                             start_name=args.start, workers=args.workers, ts=TS_DEFAULT if args.ts is None else args.ts,
                              gain_margin=2.0 if args.gain_margin is None else args.gain_margin,
                              cma=_cma_settings(args), requirements=req, executor=executor,
                              paper=TunerSettings(samples=args.samples, r_max=args.r_max, mu=args.mu,
@@ -261,7 +266,7 @@ def _run_robust(args, model, out, start_K=None, executor=None) -> int:
     try:
         res = tune_robust_gains(model, models, args.sigma, seed=args.seed,
                                 start_K=start_K, start_name=args.start,
-                                workers=args.workers, ts=1.0 if args.ts is None else args.ts,
+                                workers=args.workers, ts=TS_DEFAULT if args.ts is None else args.ts,
                                 gain_margin=2.0 if args.gain_margin is None else args.gain_margin,
                                 cma=_cma_settings(args), spec_name=args.robust, requirements=requirements_of(args),
                                 executor=executor)

@@ -19,7 +19,8 @@ import yaml
 from ..base.atomic import atomic_write
 from ..base.paramfile import read_ros_params
 from ..base.schema import Field, parse
-from .node_params import CONTROLLER_FIELDS, NODE_COMMON, NODE_PARAMETERS, SAMPLE_PERIOD
+from ..onboard.params import CONTROLLER_FIELDS, SAMPLE_PERIOD, TS_DEFAULT
+from .node_params import NODE_COMMON, NODE_PARAMETERS
 
 #: The controller's default node name: what a gains file is read for (``load_gains``).
 CONTROLLER_NODE = "controller"
@@ -35,7 +36,7 @@ class Gains:
 
     K: np.ndarray
     sigma: float
-    ts: float = 1.0
+    ts: float = TS_DEFAULT
     provenance: dict = field(default_factory=dict)
 
     #: The schema of a gains file (the controller node's own parameters among them). Bounds:

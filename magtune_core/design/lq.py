@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
+from ..onboard.params import TS_DEFAULT
 from .gains import Gains
 from .model import Z_ATT, AttitudeLTP
 
@@ -26,6 +27,6 @@ def lq_gain(model: AttitudeLTP, sigma: float) -> np.ndarray:
     return -np.linalg.solve(R, Bbar.T @ P)
 
 
-def lq_gains(model: AttitudeLTP, sigma: float, ts: float = 1.0) -> Gains:
+def lq_gains(model: AttitudeLTP, sigma: float, ts: float = TS_DEFAULT) -> Gains:
     """:func:`lq_gain` wrapped as :class:`~magtune_core.design.gains.Gains` with its provenance."""
     return Gains(lq_gain(model, sigma), sigma, ts, {"design": "lq_averaged", "design_field": model.field.name})

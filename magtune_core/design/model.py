@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..base.rotations import skew_field
 from .field import FourierField
 from .params import SpacecraftParams
 
@@ -38,15 +39,6 @@ def torque_input(p: SpacecraftParams) -> np.ndarray:
     return np.vstack([np.zeros((3, 3)), np.diag(1.0 / p.inertia)])
 
 
-def skew_field(b) -> np.ndarray:
-    """S(b) of paper eq. (13), so that m x b = S(b) m; vectorized over leading axes of b."""
-    b = np.asarray(b, dtype=float)
-    S = np.zeros(b.shape[:-1] + (3, 3))
-    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
-    S[..., 0, 1], S[..., 0, 2] = bz, -by
-    S[..., 1, 0], S[..., 1, 2] = -bz, bx
-    S[..., 2, 0], S[..., 2, 1] = by, -bx
-    return S
 
 
 def projector(b) -> np.ndarray:

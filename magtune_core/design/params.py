@@ -35,6 +35,7 @@ from ..base.errors import ConfigError
 from ..base.paramfile import read_ros_params
 from ..base.schema import Field, parse, parse_value
 from ..env.orbit import DEFAULT_EPOCH, OrbitConfig, keplerian_period, mean_frame_period
+from ..onboard.params import SAMPLE_PERIOD
 from .field import FIELD_MODELS, FourierField, paper_field
 
 #: Altitudes [m] the circular-orbit model accepts: below 150 km the orbit decays within hours,
@@ -102,7 +103,7 @@ class SpacecraftParams:
     field_model: str = "eq26"
     constant_field: np.ndarray = field(default_factory=lambda: np.array([2e-5, 0.0, 1e-5]))
 
-    #: The schema of ``config/spacecraft.yaml``: CLI and nodes (magtune_ros.common) declare and
+    #: The schema of ``config/spacecraft.yaml``: CLI and nodes (magtune_ros.params) declare and
     #: validate exactly these parameters. The physical data are required; the orbit (circular)
     #: and field model default to the paper's section 5; the period is derived (module docstring).
     FIELDS = (
@@ -201,6 +202,9 @@ def check_sample_period(ts: float, p: SpacecraftParams, where="ts") -> None:
     e.g. ts = 100 s for the paper's spacecraft, whose nutation period is 76.6 s)."""
     if not (isinstance(ts, (int, float)) and np.isfinite(ts) and ts > 0):
         raise ConfigError(where, None, f"expected a positive finite sample period in s, got {ts!r}")
+    lo, hi = SAMPLE_PERIOD.bounds
+    if not lo <= ts <= hi:
+        raise ConfigError(where, None, f"expected a sample period in [{lo:g}, {hi:g}] s, got {ts:g}")
     limit = p.nutation_period / 2.0
     if ts >= limit:
         raise ConfigError(where, None, f"sample period {ts:g} s does not resolve the nutation period "

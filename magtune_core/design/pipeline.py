@@ -27,6 +27,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..onboard.params import TS_DEFAULT
 from .cmaes import CmaSettings
 from .gains import Gains
 from .problem import Figures, cost_gradient, figures
@@ -107,7 +108,7 @@ def _run_cma(model, sigma, K0, steps, *, seed, workers, cma: CmaSettings, hold, 
 
 
 def tune_gains(model, sigma: float, *, method: str = "cma", seed: int = 0, start_K=None, start_name: str | None = None,
-               workers: int = 1, ts: float = 1.0, gain_margin: float = 2.0, cma: CmaSettings | None = None,
+               workers: int = 1, ts: float = TS_DEFAULT, gain_margin: float = 2.0, cma: CmaSettings | None = None,
                paper: TunerSettings | None = None, progress=None, requirements: Requirements | None = None,
                executor=None) -> TuneOutcome:
     """H-infinity tuning of K for one sigma on ``model`` (an ``AttitudeLTP``).
@@ -266,7 +267,7 @@ def requirement_provenance(model, K, req: Requirements, cache: dict | None = Non
 
 
 def tune_robust_gains(model, models, sigma: float, *, seed: int = 0, start_K=None, start_name: str | None = None,
-                      workers: int = 1, ts: float = 1.0, gain_margin: float = 2.0, cma: CmaSettings | None = None,
+                      workers: int = 1, ts: float = TS_DEFAULT, gain_margin: float = 2.0, cma: CmaSettings | None = None,
                       spec_name: str = "", requirements: Requirements | None = None, executor=None) -> TuneOutcome:
     """Robust tuning: minimize the worst J over ``models`` (``design.robust.model_set`` of a
     robust spec; ``model``: the nominal one) with the CMA-ES tuner (:func:`magtune_core.design.robust.tune_robust`);

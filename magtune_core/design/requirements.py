@@ -197,7 +197,7 @@ def spacecraft_dipole_limit(spacecraft_path) -> float:
     """The torquers' per-axis limit of a spacecraft file (its nodes' ``dipole_limit``, the weakest
     axis; the controller's default when the file gives none) [A m^2]."""
     from ..base.paramfile import read_ros_params
-    from .node_params import DEFAULT_DIPOLE_LIMIT
+    from ..onboard.params import DEFAULT_DIPOLE_LIMIT
 
     value = read_ros_params(spacecraft_path).get("dipole_limit", DEFAULT_DIPOLE_LIMIT)
     return float(np.min(np.asarray(value, dtype=float)))

@@ -27,7 +27,9 @@ import numpy as np
 from numba import njit
 from scipy.linalg import expm
 
-from .model import AttitudeLTP, skew_field
+from ..base.rotations import skew_field
+from ..onboard.params import TS_DEFAULT
+from .model import AttitudeLTP
 
 _RESCALE_EVERY = 32  #: interval products between renormalizations (keeps unstable products finite)
 
@@ -190,7 +192,7 @@ class HoldConstraint:
     gains of sigma = 120 / 240 are unstable when held at Ts = 1 s.
     """
 
-    ts: float = 1.0
+    ts: float = TS_DEFAULT
     gain_margin: float = 2.0
 
     def __post_init__(self):

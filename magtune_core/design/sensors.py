@@ -21,6 +21,7 @@ import numpy as np
 from ..base.rotations import cross
 from ..env.environment import body_to_eci
 from ..env.sun import shadow_cylindrical
+from ..onboard.params import TS_DEFAULT
 
 #: Standard normals per controller sample: magnetometer (3), attitude (3), gyro N_v (3), gyro N_u (3).
 NORMALS_PER_STEP = 12
@@ -50,7 +51,7 @@ class Magnetometer:
     """Three-axis magnetometer: b_m = quantize(M b + bias + noise_std n) [T].
 
     ``matrix`` is M = I + scale factors (diagonal) + misalignment (off-diagonal), row-major 9
-    values; ``quantum`` the LSB [T] (0: none). The torquers' field reaches it through design.torquers.
+    values; ``quantum`` the LSB [T] (0: none). The torquers' field reaches it through onboard.torquers.
     """
 
     noise_std: float = 0.0  #: white noise std per axis [T]
@@ -244,7 +245,7 @@ def position_fix(model: PositionFix, r_eci, v_eci, normals) -> tuple[np.ndarray,
 class SensorSuite:
     """The sensors of one satellite, from the parsed ``SENSOR_FIELDS`` (:meth:`from_values`)."""
 
-    ts: float = 1.0  #: sample period [s]
+    ts: float = TS_DEFAULT  #: sample period [s]
     magnetometer: Magnetometer = field(default_factory=Magnetometer)
     gyro: Gyro = field(default_factory=Gyro)
     attitude_std: float = 0.0  #: std of the attitude solution's error per axis [rad]
@@ -272,3 +273,12 @@ class SensorSuite:
 
 def _t(a) -> tuple:
     return tuple(float(x) for x in np.asarray(a, dtype=float).ravel())
+
+
+def default_suite(ts: float = TS_DEFAULT) -> SensorSuite:
+    """The estimator runs' default sensors (docs/estimation.md#parameters): 100 nT magnetometer, MEMS
+    gyro sigma_v 1e-4 rad/s^0.5 (0.34 deg/h^0.5), sigma_u 1e-6 rad/s^1.5, bias (40, -60, 30) deg/h,
+    whole-sphere coarse sun sensors 0.5 deg per axis, 10 m / 0.01 m/s position fix."""
+    bias = tuple(np.deg2rad(np.array([40.0, -60.0, 30.0])) / 3600.0)
+    return SensorSuite(ts, Magnetometer(100e-9), Gyro(1e-4, 1e-6, bias), 0.0, SunSensor(math.radians(0.5)),
+                       PositionFix(10.0, 0.01))

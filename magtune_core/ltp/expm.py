@@ -17,6 +17,11 @@ _THETA13 = 5.371920351148152
 def pade13_scaled(a: np.ndarray):
     """The Pade-13 approximant of exp(a / 2^s) and the squarings s that exp(a) still needs (Higham 2005).
 
+    Parameters
+    ----------
+    a : ndarray (..., n, n)
+        Stack of square real matrices (any leading batch axes).
+
     Returns
     -------
     r : ndarray (..., n, n)
@@ -48,6 +53,11 @@ def expm(a: np.ndarray) -> np.ndarray:
 
     Scaling and squaring with the Pade-13 approximant (Higham 2005), batched (scipy's expm takes one
     matrix per call): the interval transitions of the Magnus integrator.
+
+    Parameters
+    ----------
+    a : ndarray (..., n, n)
+        Stack of square real matrices (any leading batch axes).
 
     Returns
     -------

@@ -35,6 +35,13 @@ def periodic_gramian(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
     The T-periodic solution of the periodic Lyapunov equation P' = A P + P A^T + B B^T
     (Bittanti & Colaneri 2009), the Gramian behind :func:`h2norm`.
 
+    Parameters
+    ----------
+    sys : LTPSystem
+        The (stable) system, possibly batched; only A(t) and B(t) are used.
+    steps : int
+        Magnus intervals per period (the grid t_k = k T / steps).
+
     Returns
     -------
     ndarray (*batch, steps, n, n)
@@ -75,10 +82,22 @@ def _stein(a: np.ndarray, q: np.ndarray, tol: float = 1e-15, max_iter: int = 64)
 def h2norm(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
     """H2 norm sqrt((1/T) int_0^T tr(C P C^T) dt) of a stable, strictly proper LTP system.
 
+    Parameters
+    ----------
+    sys : LTPSystem
+        The stable system without feedthrough (D None or zero), possibly batched.
+    steps : int
+        Magnus intervals per period (Gramian grid and trapezoid rule of the time average).
+
     Returns
     -------
     ndarray (*batch)
         The periodic H2 norm per system (paper eq. 29 in the standard reading); a float array of shape ().
+
+    Raises
+    ------
+    ValueError
+        If ``sys`` has a feedthrough D(t) != 0 (its H2 norm is infinite).
     """
     if sys.has_feedthrough:
         raise ValueError("h2norm: the H2 norm of a system with a feedthrough D(t) != 0 is infinite")

@@ -21,6 +21,19 @@ Checking only "no Hamiltonian multiplier on the unit circle" can pass for gamma 
 (the stable subspace may lose its graph form inside the period); the junction test above
 catches exactly that, on every horizon that starts at a multiple of the period, which suffices
 because any finite-horizon gain window lies inside such a horizon (periodicity).
+
+:func:`hinfnorm` places levels gamma between gamma-tests (:func:`gamma_margins`: the periodic bounded
+real lemma, Bittanti & Colaneri 2009, ch. 9) until the bracket is within ``rtol``. Vectorized over a
+batch of systems (leading axes of the matrices): every round tests only the systems whose bracket is
+still open, as one flat batch of gamma-tests. First a bracket (a failing and a passing level) around
+``guess``: ``grid`` levels per system per round (default 1 for a single system, fewest tests; 4 for a
+batch, fewer rounds); then one level per system per round, placed from the margins of the passing
+levels (see the comment at the refinement in :func:`hinfnorm`), and two in the round that closes the
+bracket. ``spread`` (> 1) is the first bracketing ratio around ``guess``: a caller that knows the
+norms are within a few percent of the guess (an optimizer's population around its incumbent) passes
+e.g. 1.05 and saves the wide first bracket; it only changes the levels tested, never the result
+beyond ``rtol``. Accuracy: relative ``rtol`` of the bracket, plus the discretization error of
+``steps`` Magnus intervals (see tests and bench/).
 """
 from __future__ import annotations
 
@@ -49,6 +62,7 @@ def hamiltonian(sys: LTPSystem, gamma, t) -> np.ndarray:
     Parameters
     ----------
     sys : LTPSystem
+        The system, possibly batched.
     gamma : float or ndarray
         Level(s) > sup ||D||, broadcast against the batch axes of ``sys``.
     t : ndarray (k,)
@@ -96,6 +110,11 @@ def scattering(phi: np.ndarray):
     in which intervals join by the Redheffer star product (:func:`star`) without forming the growing
     part of the transition.
 
+    Parameters
+    ----------
+    phi : ndarray (..., 2n, 2n)
+        Hamiltonian transition matrices (state x first, costate p second).
+
     Returns
     -------
     E, G, Hs, F : ndarrays (..., n, n)
@@ -116,6 +135,13 @@ def star(a, b):
     Joining two scattering segments is one step of the structured doubling algorithm; the junction
     exists iff I - G_a Hs_b is invertible, i.e. no conjugate point of the Riccati equation there
     (bounded real lemma, module docstring).
+
+    Parameters
+    ----------
+    a : tuple (E, G, Hs, F) of ndarrays (..., n, n)
+        Scattering blocks of the earlier segment.
+    b : tuple (E, G, Hs, F) of ndarrays (..., n, n)
+        Scattering blocks of the later segment (batch axes broadcast against ``a``'s).
 
     Returns
     -------
@@ -220,6 +246,13 @@ def interval_scattering(omega: np.ndarray, growth: float = GROWTH):
     the same to 1e-7 for GROWTH = 1e4, 1e6 and 1e8 (measured), and 1e6 is ~20 % faster than 1e4.
     Tested in tests/ltp/test_hinf_kernel.py (a stiff loop against the truncated HTF).
 
+    Parameters
+    ----------
+    omega : ndarray (..., 2n, 2n)
+        Magnus exponents of the Hamiltonian, one per interval.
+    growth : float
+        Largest ||exp(Omega / 2^j)||_1 still squared as a matrix (default ``GROWTH``); ``np.inf``: plain exponential.
+
     Returns
     -------
     blocks : tuple of 4 ndarrays (..., n, n)
@@ -256,6 +289,15 @@ def period_scattering(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS):
 
     The numpy reference of the compiled kernel's period tree (:mod:`.hinf_kernel`): ``steps``
     4th-order Magnus intervals (Magnus 1954; two Gauss nodes) joined pairwise, earlier first.
+
+    Parameters
+    ----------
+    sys : LTPSystem
+        The system, possibly batched.
+    gamma : float or ndarray
+        Level(s) > sup ||D||, broadcast against the batch axes of ``sys``.
+    steps : int
+        Magnus intervals per period.
 
     Returns
     -------
@@ -297,6 +339,17 @@ def gamma_test(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS, return_decay: 
     It tends to 1 as gamma falls to the norm (like exp(-c sqrt(gamma - norm)) at a generic
     peak), which ``hinfnorm`` uses to place its next levels.
 
+    Parameters
+    ----------
+    sys : LTPSystem
+        The system, possibly batched.
+    gamma : float or ndarray
+        Level(s) tested, broadcast against the batch axes of ``sys``.
+    steps : int
+        Magnus intervals per period.
+    return_decay : bool
+        Also return the decay rho of the Hamiltonian closed loop.
+
     Returns
     -------
     passed : ndarray of bool, broadcast shape of the batch and ``gamma``
@@ -321,6 +374,17 @@ def gamma_margins(sys: LTPSystem, gamma, steps: int = DEFAULT_STEPS, growth: flo
     gamma: a frequency peak), or a conjugate point inside the period (then the largest junction
     eigenvalue kappa -> 1, with 1 - kappa ~ linear in gamma: the finite-horizon Riccati solution
     escapes). ``hinfnorm`` extrapolates both to place its levels.
+
+    Parameters
+    ----------
+    sys : LTPSystem
+        The system, possibly batched.
+    gamma : float or ndarray
+        Level(s) tested, broadcast against the batch axes of ``sys``.
+    steps : int
+        Magnus intervals per period.
+    growth : float
+        Largest ||exp(Omega / 2^j)||_1 squared as a matrix (:func:`interval_scattering`); ``np.inf``: plain exponential.
 
     Returns
     -------
@@ -375,6 +439,13 @@ def feedthrough_bound(sys: LTPSystem, samples: int = 256) -> np.ndarray:
 
     (R = gamma^2 I - D^T D of the bounded real lemma must be positive definite.)
 
+    Parameters
+    ----------
+    sys : LTPSystem
+        The system, possibly batched.
+    samples : int
+        Equally spaced times of one period at which D(t) is evaluated.
+
     Returns
     -------
     ndarray (*batch)
@@ -391,20 +462,20 @@ def hinfnorm(sys: LTPSystem, rtol: float = 1e-6, steps: int = DEFAULT_STEPS, gue
              grid: int | None = None, spread: float | None = None) -> np.ndarray:
     """H-infinity (L2-induced) norm of a stable LTP system, paper eq. (21); inf if unstable.
 
-    Levels gamma placed between gamma-tests (:func:`gamma_margins`: the periodic bounded real lemma,
-    Bittanti & Colaneri 2009, ch. 9) until the bracket is within ``rtol``.
-
-    Vectorized over a batch of systems (leading axes of the matrices): every round tests only
-    the systems whose bracket is still open, as one flat batch of gamma-tests. First a bracket
-    (a failing and a passing level) around ``guess``: ``grid`` levels per system per round
-    (default 1 for a single system, fewest tests; 4 for a batch, fewer rounds); then one level
-    per system per round, placed from the margins of the passing levels (see the comment at
-    the refinement), and two in the round that closes the bracket. ``spread`` (> 1) is the first bracketing ratio
-    around ``guess``: a caller that knows the norms are within a few percent of the guess (an
-    optimizer's population around its incumbent) passes e.g. 1.05 and saves the wide first
-    bracket; it only changes the levels tested, never the result beyond ``rtol``.
-    Accuracy: relative ``rtol`` of the bracket, plus the discretization error of ``steps``
-    Magnus intervals (see tests and bench/).
+    Parameters
+    ----------
+    sys : LTPSystem
+        The system, possibly batched (leading axes of its matrices); levels placed as the module docstring describes.
+    rtol : float
+        Relative width of the final bracket of gamma-tests (:func:`gamma_margins`: periodic bounded real lemma, Bittanti & Colaneri 2009, ch. 9).
+    steps : int
+        Magnus intervals per period (their discretization error adds to ``rtol``: see tests and bench/).
+    guess : float or ndarray (*batch), optional
+        Centre of the first bracket (default: max(2 sup ||D||, the time-averaged LTI system's peak gain or else ||B|| ||C|| / decay rate)).
+    grid : int, optional
+        Levels per system per bracketing round (default 1 for a single system, fewest tests; 4 for a batch, fewer rounds).
+    spread : float, optional
+        First bracketing ratio (> 1) around ``guess`` (default 1.25 with ``grid`` 1, else 4); never changes the result beyond ``rtol``.
 
     Returns
     -------
@@ -498,6 +569,15 @@ def predict_norm(hist: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray
     predicted at the higher of the margins' zeros (a margin that is not the binding one vanishes
     further down).
 
+    Parameters
+    ----------
+    hist : ndarray (*batch, 3, 3)
+        Rows (gamma, (ln rho)^2, 1 - kappa) of the last three passing levels, nearest the norm first.
+    lo : ndarray (*batch)
+        Highest level known to fail (lower end of the bracket); the prediction must lie above it.
+    hi : ndarray (*batch)
+        Lowest level known to pass (upper end of the bracket).
+
     Returns
     -------
     ndarray (*batch)
@@ -516,6 +596,15 @@ def quadratic_zero(g: np.ndarray, m: np.ndarray, lo: np.ndarray) -> np.ndarray:
     ``g`` (*batch, 3) passing levels nearest the norm first, ``m`` (*batch, 3, q) the margins there.
     Newton form m(x) = m_1 + f_12 (x - g_1) + f_123 (x - g_1)(x - g_2); the root of smaller
     magnitude in x - g_1 (numerically stable form 2c / (-b - sign(b) sqrt(b^2 - 4ac))).
+
+    Parameters
+    ----------
+    g : ndarray (*batch, 3)
+        Passing levels, nearest the norm first.
+    m : ndarray (*batch, 3, q)
+        The q margins at those levels.
+    lo : float or ndarray (*batch)
+        Lower bound of the zero (a level known to fail).
 
     Returns
     -------
@@ -537,6 +626,19 @@ def margin_zero(g: np.ndarray, m: np.ndarray, lo: np.ndarray, line=True, points:
     bend). The zero gamma0 of the three-point fit is the root, nearest g[0], of
     ln(m1/m2) ln((g2 - x)/(g3 - x)) = ln(m2/m3) ln((g1 - x)/(g2 - x)) on a log grid of distances
     below g[0] (down to ``lo``).
+
+    Parameters
+    ----------
+    g : ndarray (*batch, 3)
+        Passing levels, nearest the norm first (NaN where unknown; only the first three are read).
+    m : ndarray (*batch, 3, q)
+        The q margins at those levels.
+    lo : float or ndarray (*batch)
+        Lower end of the scan (a level known to fail).
+    line : bool or ndarray of bool (*batch)
+        Whether the two-point line fit is allowed (near the norm only).
+    points : int
+        Points of the log-spaced scan (distances 1e-9 .. 1 of g[0] - lo below g[0]).
 
     Returns
     -------
@@ -574,6 +676,13 @@ def exponent_polynomial(sys: LTPSystem, steps: int = DEFAULT_STEPS):
     1/gamma, so its three coefficients are computed once per system and every gamma-test of
     :func:`hinfnorm` forms its exponents by two scaled additions instead of sampling and assembling
     the Hamiltonian again (~0.5 ms of a ~1.5 ms test at 64 steps, bench/bench_kernel.py).
+
+    Parameters
+    ----------
+    sys : LTPSystem
+        The system, possibly batched.
+    steps : int
+        Magnus intervals per period.
 
     Returns
     -------

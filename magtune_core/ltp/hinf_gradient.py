@@ -227,10 +227,28 @@ def hinfnorm_gradient(sys: LTPSystem, steps: int = DEFAULT_STEPS, rtol: float = 
     to ``rtol`` (the gradient's relative error is ~ (gamma - J) / J times the curvature: ~4e-5 at
     rtol 1e-8 on the shipped gains, measured; keep rtol <= 1e-9).
 
+    Parameters
+    ----------
+    sys : LTPSystem
+        One stable system without feedthrough (no batch axes).
+    steps : int
+        Magnus intervals per period (the gradient is that of the norm discretized on them).
+    rtol : float
+        Relative tolerance of :func:`.hinf.hinfnorm` for J, the level at which the gradient is taken.
+    theta : float
+        Largest ||Omega / m||_1 of a sub-step (each Magnus interval is cut into m equal sub-steps).
+
     Returns
     -------
     HinfGradient
         J, the node gradients dA, dB, dC and the colliding multiplier pair.
+
+    Raises
+    ------
+    ValueError
+        If ``sys`` has a feedthrough D (:attr:`.LTPSystem.has_feedthrough`) or is unstable (J = inf).
+    ArithmeticError
+        If the scattering blocks of the Hamiltonian flow at level J are not finite.
     """
     if sys.has_feedthrough:
         raise ValueError("hinfnorm_gradient: systems with feedthrough D are not supported")

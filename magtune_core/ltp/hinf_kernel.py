@@ -481,9 +481,19 @@ def gamma_test_omegas(omega, margins, growth=_GROWTH):
     over worker processes, which was faster (bench/bench_kernel.py: 26 ms/gain with 2 processes
     against 32 with 2 threads at 256 steps; the processes also share the Python around the kernel).
 
+    Parameters
+    ----------
+    omega : ndarray (N, steps, 2n, 2n)
+        Magnus exponents of the Hamiltonian at one level gamma per system (e.g. :func:`exponents_at`).
+    margins : bool
+        Also compute the decay rho (kappa is computed either way).
+    growth : float
+        Largest ||exp(Omega / 2^j)||_1 squared as a matrix (see above; default 1e6).
+
     Returns
     -------
     passed : ndarray of bool (N,)
+        True where the test passes: ||G||_inf < gamma.
     rho : ndarray (N,)
         Decay of the Hamiltonian closed loop over one period (NaN where failed or not asked).
     kappa : ndarray (N,)
@@ -506,7 +516,15 @@ def compile_all(n: int = 6, steps: int = 8) -> None:
     ~24 s threaded); ``scripts/bootstrap.sh`` calls this once per change of this file (or of
     :mod:`.small_linalg`, whose routines these entry points compile with them), so that
     compilation happens at install time, as a C extension's would. The inputs are a stable
-    n-state Hamiltonian's exponents (any values of the right types compile the same code)."""
+    n-state Hamiltonian's exponents (any values of the right types compile the same code).
+
+    Parameters
+    ----------
+    n : int
+        State dimension of the dummy system (the Hamiltonian is 2n x 2n).
+    steps : int
+        Magnus intervals of the dummy system.
+    """
     a = -np.eye(n)
     ham = np.zeros((2 * n, 2 * n))
     ham[:n, :n], ham[n:, n:], ham[:n, n:], ham[n:, :n] = a, -a.T, 0.1 * np.eye(n), -0.1 * np.eye(n)

@@ -24,8 +24,12 @@ def fourier_coefficients(sys: LTPSystem, name: str, max_harmonic: int, samples: 
 
     Parameters
     ----------
+    sys : LTPSystem
+        One system (no batch axes).
     name : str
         Which matrix of ``sys``: "A", "B", "C" or "D".
+    max_harmonic : int
+        Highest harmonic M kept (m = -M..M, frequencies m W, W = 2 pi / T).
     samples : int, optional
         FFT length (default: at least 4 per harmonic kept, and 64).
 
@@ -33,6 +37,11 @@ def fourier_coefficients(sys: LTPSystem, name: str, max_harmonic: int, samples: 
     -------
     ndarray (2 max_harmonic + 1, r, c), complex
         X_m, m ascending from -max_harmonic.
+
+    Raises
+    ------
+    ValueError
+        If ``sys`` has batch axes.
     """
     samples = samples or max(64, 4 * (2 * max_harmonic + 1))
     t = np.arange(samples) * sys.period / samples
@@ -52,6 +61,15 @@ def htf_system(sys: LTPSystem, harmonics: int, margin: int | None = None):
     ``harmonics``: the result is (nearly) the compression P G(s) P of the true operator. Cutting
     the state as well puts the bare averaged dynamics at the edge harmonics, whose spurious
     peaks can exceed the true norm (seen on the rotated LTI test case).
+
+    Parameters
+    ----------
+    sys : LTPSystem
+        One system (no batch axes).
+    harmonics : int
+        Harmonics |n| <= ``harmonics`` kept in the inputs and outputs.
+    margin : int, optional
+        Extra harmonics kept in the state only (default: ``harmonics``).
 
     Returns
     -------
@@ -95,6 +113,21 @@ def lti_hinfnorm(A, B, C, D, rtol: float = 1e-9, max_iter: int = 50) -> tuple[fl
     Boyd-Balakrishnan / Bruinsma-Steinbuch: gamma is a singular value at w iff jw is an
     eigenvalue of the Hamiltonian below; iterate on the midpoints of the imaginary eigenvalues.
 
+    Parameters
+    ----------
+    A : ndarray (n, n)
+        State matrix (real or complex).
+    B : ndarray (n, m)
+        Input matrix.
+    C : ndarray (p, n)
+        Output matrix.
+    D : ndarray (p, m)
+        Feedthrough.
+    rtol : float
+        Relative accuracy at which the iteration stops.
+    max_iter : int
+        Largest number of Hamiltonian eigenvalue iterations.
+
     Returns
     -------
     (norm, w_peak) : tuple of float
@@ -135,6 +168,17 @@ def htf_hinfnorm(sys: LTPSystem, harmonics: int = 8, margin: int | None = None, 
 
     Paper eqs. (9)-(10) truncated (Zhou & Hagiwara 2002b), the norm of the truncation by
     :func:`lti_hinfnorm`: the independent cross-check of the exact :func:`.hinf.hinfnorm` (eq. 21).
+
+    Parameters
+    ----------
+    sys : LTPSystem
+        One stable system (no batch axes).
+    harmonics : int
+        Harmonics |n| <= ``harmonics`` kept in the inputs and outputs (:func:`htf_system`).
+    margin : int, optional
+        Extra harmonics kept in the state only (default: ``harmonics``).
+    rtol : float
+        Relative accuracy of :func:`lti_hinfnorm`.
 
     Returns
     -------

@@ -22,10 +22,26 @@ from .system import LTPSystem, interval_grid, interval_transitions
 def peak_to_peak(sys: LTPSystem, steps: int = 2048, periods: int = 3, outputs: int = 64) -> float:
     """sup_t max_i sum_j int |g_ij(t, tau)| dtau over ``outputs`` output times per period.
 
+    Parameters
+    ----------
+    sys : LTPSystem
+        One stable system (no batch axes).
+    steps : int
+        Intervals per period of the uniform grid (transitions, trapezoid rule in tau).
+    periods : int
+        Periods of the impulse response integrated back from each output time (truncation).
+    outputs : int
+        Output times t_m per period (every ``steps // outputs``-th grid point).
+
     Returns
     -------
     float
         The L-inf-induced (peak-to-peak) gain, eq. 29 read literally: max over output times and rows.
+
+    Raises
+    ------
+    ValueError
+        If ``sys`` has batch axes.
     """
     phi = interval_transitions(sys, steps)  # phi_k = phi(t_{k+1}, t_k), (steps, n, n)
     if phi.ndim != 3:

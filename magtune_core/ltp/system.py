@@ -34,7 +34,26 @@ DEFAULT_STEPS = 64
 
 @dataclass(frozen=True)
 class LTPSystem:
-    """x' = A(t) x + B(t) u, y = C(t) x + D(t) u with T-periodic matrices (paper eq. 7)."""
+    """x' = A(t) x + B(t) u, y = C(t) x + D(t) u with T-periodic matrices (paper eq. 7).
+
+    Parameters
+    ----------
+    A : ndarray (*batch, n, n) or callable
+        State matrix, constant or ``t -> ndarray (*batch, len(t), n, n)``.
+    B : ndarray (*batch, n, m) or callable
+        Input matrix, constant or ``t -> ndarray (*batch, len(t), n, m)``.
+    C : ndarray (*batch, p, n) or callable
+        Output matrix, constant or ``t -> ndarray (*batch, len(t), p, n)``.
+    D : ndarray (*batch, p, m) or callable, optional
+        Feedthrough, constant or callable as above; None (default) means D = 0.
+    period : float
+        Period T of the matrices (time unit of the model: s for the attitude model).
+
+    Raises
+    ------
+    ValueError
+        If ``period`` is not a positive finite number.
+    """
 
     A: MatrixLike
     B: MatrixLike
@@ -47,7 +66,26 @@ class LTPSystem:
             raise ValueError(f"LTPSystem: period must be a positive finite number, got {self.period!r}")
 
     def sample(self, name: str, t) -> np.ndarray:
-        """Matrix ``name`` at times t: shape (*batch, len(t), r, c) (constants broadcast)."""
+        """Matrix ``name`` at times t: shape (*batch, len(t), r, c) (constants broadcast).
+
+        Parameters
+        ----------
+        name : str
+            Which matrix: "A", "B", "C" or "D".
+        t : float or array_like (k,)
+            Times (time unit of ``period``).
+
+        Returns
+        -------
+        ndarray (*batch, k, r, c)
+            A callable matrix evaluated at ``t``; a constant one as (*batch, 1, r, c), which broadcasts
+            against the time axis; D = None as zeros (1, p, m).
+
+        Raises
+        ------
+        ValueError
+            If a callable matrix returns fewer than 3 axes or a time axis (-3) of length other than len(t).
+        """
         t = np.atleast_1d(np.asarray(t, dtype=float))
         M = getattr(self, name)
         if M is None:  # D defaults to zero
@@ -64,7 +102,13 @@ class LTPSystem:
 
     @property
     def has_feedthrough(self) -> bool:
-        """True if D(t) is given and not identically zero (the gamma-test then needs gamma > sup ||D||)."""
+        """True if D(t) is given and not identically zero (the gamma-test then needs gamma > sup ||D||).
+
+        Returns
+        -------
+        bool
+            True if D is a callable (assumed nonzero) or a constant with a nonzero entry.
+        """
         return self.D is not None and (callable(self.D) or np.any(np.asarray(self.D)))
 
 
@@ -72,6 +116,22 @@ def interval_grid(period: float, steps: int):
     """Interval start times t_k = k h, the step h, and the 2 Gauss nodes of every interval (steps, 2).
 
     The grid of the 4th-order Magnus integrator (Gauss-Legendre nodes t_k + (1/2 -+ sqrt(3)/6) h).
+
+    Parameters
+    ----------
+    period : float
+        Period T (time unit of the system).
+    steps : int
+        Number of intervals per period.
+
+    Returns
+    -------
+    t0 : ndarray (steps,)
+        Interval start times k h.
+    h : float
+        Interval length T / steps.
+    nodes : ndarray (steps, 2)
+        The two Gauss-Legendre nodes of every interval.
     """
     h = period / steps
     t0 = np.arange(steps) * h
@@ -103,6 +163,13 @@ def magnus_exponent(M1: np.ndarray, M2: np.ndarray, h: float) -> np.ndarray:
 def magnus_exponentials(M1: np.ndarray, M2: np.ndarray, h: float) -> np.ndarray:
     """exp of the 4th-order Magnus exponent (:func:`magnus_exponent`) of each interval.
 
+    Parameters
+    ----------
+    M1, M2 : ndarray (..., k, k)
+        The generator at the two Gauss nodes of each interval.
+    h : float
+        Interval length.
+
     Returns
     -------
     ndarray (..., k, k)
@@ -113,6 +180,15 @@ def magnus_exponentials(M1: np.ndarray, M2: np.ndarray, h: float) -> np.ndarray:
 
 def generator_at_nodes(fun: Callable[[np.ndarray], np.ndarray], period: float, steps: int):
     """Sample ``fun`` at the Gauss nodes of :func:`interval_grid`: the input of :func:`magnus_exponent`.
+
+    Parameters
+    ----------
+    fun : callable
+        ``t -> ndarray (..., len(t), k, k)`` (or (..., 1, k, k) if time-invariant): the generator.
+    period : float
+        Period T (time unit of the system).
+    steps : int
+        Number of intervals per period.
 
     Returns
     -------
@@ -133,6 +209,13 @@ def interval_transitions(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarr
 
     The transition matrix of paper eqs. (2)-(3), by the 4th-order Magnus expansion (Magnus 1954).
 
+    Parameters
+    ----------
+    sys : LTPSystem
+        The system, possibly batched (leading axes of its matrices).
+    steps : int
+        Magnus intervals per period.
+
     Returns
     -------
     ndarray (*batch, steps, n, n)
@@ -146,6 +229,11 @@ def chain_product(phis: np.ndarray) -> np.ndarray:
     """Ordered product phi_{N-1} ... phi_1 phi_0 over axis -3, by pairwise (tree) reduction.
 
     (phi(t_N, t_0) from interval transitions, paper eq. 2; the tree keeps the round-off ~log N.)
+
+    Parameters
+    ----------
+    phis : ndarray (..., N, n, n)
+        The factors phi_0 .. phi_{N-1} along axis -3 (N >= 1), earliest first.
 
     Returns
     -------
@@ -163,6 +251,13 @@ def chain_product(phis: np.ndarray) -> np.ndarray:
 def monodromy(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
     """Monodromy matrix psi_A(0) = phi_A(T, 0) (paper eq. 4), shape (*batch, n, n).
 
+    Parameters
+    ----------
+    sys : LTPSystem
+        The system, possibly batched (leading axes of its matrices).
+    steps : int
+        Magnus intervals per period.
+
     Returns
     -------
     ndarray (*batch, n, n)
@@ -173,6 +268,13 @@ def monodromy(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
 
 def multipliers(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
     """Characteristic multipliers: eigenvalues of the monodromy matrix (paper Theorem 2.1).
+
+    Parameters
+    ----------
+    sys : LTPSystem
+        The system, possibly batched (leading axes of its matrices).
+    steps : int
+        Magnus intervals per period.
 
     Returns
     -------
@@ -194,6 +296,13 @@ def multipliers(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
 def spectral_radius(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
     """rho(psi_A(0)) = max |multiplier| (paper eq. 30); the system is stable iff < 1.
 
+    Parameters
+    ----------
+    sys : LTPSystem
+        The system, possibly batched (leading axes of its matrices).
+    steps : int
+        Magnus intervals per period.
+
     Returns
     -------
     ndarray (*batch)
@@ -204,6 +313,13 @@ def spectral_radius(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
 
 def is_stable(sys: LTPSystem, steps: int = DEFAULT_STEPS) -> np.ndarray:
     """Uniform exponential stability test of paper Theorem 2.1.
+
+    Parameters
+    ----------
+    sys : LTPSystem
+        The system, possibly batched (leading axes of its matrices).
+    steps : int
+        Magnus intervals per period.
 
     Returns
     -------

@@ -28,21 +28,14 @@ from ..base.paramfile import check_path, check_ros_params, load_ros_params, load
 from ..base.schema import parse
 from ..base.topics import TOPIC_ATTITUDE, TOPIC_ESTIMATE
 from ..design import faults as fl
-from ..design.estimator import default_suite
 from ..design.fitfield import field_for_spacecraft
 from ..design.gains import CONTROLLER_NODE, Gains
-from ..design.modes import DETUMBLE, POINTING, ModeParams
-from ..design.node_params import (
-    BDOT_FIELDS,
-    ESTIMATOR_FIELDS,
-    INITIAL_RATE_ERROR,
-    MANAGER_FIELDS,
-    MODE_FIELDS,
-    MODE_NAMES,
-    TORQUER_FIELDS,
-)
+from ..design.node_params import INITIAL_RATE_ERROR
 from ..design.params import SpacecraftParams, check_sample_period
-from ..design.torquers import Torquers
+from ..design.sensors import default_suite
+from ..onboard.modes import DETUMBLE, POINTING, ModeParams
+from ..onboard.params import BDOT_FIELDS, ESTIMATOR_FIELDS, MANAGER_FIELDS, MODE_FIELDS, MODE_NAMES, TORQUER_FIELDS
+from ..onboard.torquers import Torquers
 from ..sim.fullenv import FullEnvironmentOptions, full_params
 from ..sim.initial import initial_conditions
 from ..sim.simulate import initial_state
@@ -193,7 +186,7 @@ def check_modes_arguments(modes: bool, initial_mode, mode_params) -> tuple[str, 
 def check_attitude_arguments(attitude: str, sensor_params, estimator_params, modes: bool, field) -> tuple[dict, dict]:
     """The sensors' and the estimator's parameters for ``attitude`` ("truth": unchanged, no
     estimator), validated by ESTIMATOR_FIELDS before anything starts (ConfigError: one line).
-    With the estimator the sensors default to :func:`magtune_core.design.estimator.default_suite`
+    With the estimator the sensors default to :func:`magtune_core.design.sensors.default_suite`
     (the filter's own model), the explicit ``sensor_params`` on top."""
     sensor_params = dict(sensor_params or {})
     if attitude not in ATTITUDE_SOURCES:
@@ -229,7 +222,7 @@ SCENARIO_KEYS = ("faults", "torquers")
 def load_scenario_file(path) -> dict:
     """A scenario file: YAML with ``faults:``, a list of mappings of
     :data:`magtune_core.design.faults.FAULT_FIELDS` (``{kind: mag_dropout, t: 3000, duration: 30}``),
-    and ``torquers:``, a mapping of :data:`magtune_core.design.node_params.TORQUER_FIELDS`
+    and ``torquers:``, a mapping of :data:`magtune_core.onboard.params.TORQUER_FIELDS`
     (coupling into the magnetometer, duty cycle; docs/torquers.md).
 
     Returns
@@ -282,6 +275,15 @@ class Satellite:
     #: the gains file's parameters for the controller, as read (provenance included)
     gains_params: dict
     ts: float
+
+
+def run_sample_period(ts, sc: SpacecraftParams, gains: dict) -> float:
+    """The run's sample period [s]: ``--ts`` checked before anything uses it (range, Nyquist; one
+    line naming ``--ts``), else the shortest of the gains files' (each checked by its schema)."""
+    if ts is None:
+        return min(g.ts for g in gains.values())
+    check_sample_period(ts, sc, "--ts")
+    return float(ts)
 
 
 @dataclass(frozen=True)
@@ -356,7 +358,7 @@ class SilScenario:
         POINTING without; ``mode_params`` its parameters, validated here). ``attitude``
         "estimator": start the attitude_estimator (``estimator_params``, validated here by
         ESTIMATOR_FIELDS) and fly on its estimate; the sensors get the estimator's default suite
-        (design.estimator.default_suite) unless ``sensor_params`` set them. ``faults``: injected faults
+        (design.sensors.default_suite) unless ``sensor_params`` set them. ``faults``: injected faults
         (:mod:`magtune_core.design.faults`: Fault objects, ``KIND@T...`` specs or mappings), validated here.
         ``torquers``: TORQUER_FIELDS values, validated here (errors name ``torquers_source``).
 
@@ -375,7 +377,7 @@ class SilScenario:
         sc = SpacecraftParams.from_mapping(merge_ros_params(sc_doc), spacecraft, strict=True)
         simulator_params, substeps = initial_state_parameters(
             sc, dict(simulator_params or {}), initial_attitude_deg, initial_rate_deg, substeps,
-            float(ts if ts is not None else min(g.ts for g in gains.values())))
+            run_sample_period(ts, sc, gains))
         mode, mparams = check_modes_arguments(modes, initial_mode, mode_params)
         faults = check_fault_arguments(faults, epoch_time)
         sensor_params, eparams = check_attitude_arguments(attitude, sensor_params, estimator_params, modes, field)

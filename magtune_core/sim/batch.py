@@ -14,7 +14,7 @@ IGRF and environment table). Here a batch of B runs is one Dask task:
   RK4 stages with a degree-7 Lagrange polynomial: ~1e-9 relative on the field, below the rounding
   jitter of the Julian date itself, see env_rows);
 * the sensors, the sample-and-hold projection controller (paper eq. 17 with per-axis saturation
-  and the weak-field guard, :mod:`magtune_core.design.law`) and ``substeps`` classical RK4 steps
+  and the weak-field guard, :mod:`magtune_core.onboard.law`) and ``substeps`` classical RK4 steps
   (same stages, same fixed step, same end-of-interval quaternion renormalization as
   :meth:`AttitudeDynamics.step`) run in the compiled :func:`~magtune_core.sim.batch_kernels.closed_loop`.
 
@@ -47,20 +47,21 @@ from typing import Sequence
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from ..design.bdot import FieldDerivativeFilter, bdot_gain, geomagnetic_inclination
-from ..design.law import DEFAULT_MIN_FIELD
-from ..design.mekf import MAG_BIAS_STD
-from ..design.mekf_kernel import kernel_state
-from ..design.modes import DETUMBLE, MODES, ModeParams
-from ..design.modes_kernel import GUARDS, MODE_CODE, kernel_params
 from ..design.params import SpacecraftParams
 from ..design.sensors import AUX_NORMALS, GYRO_U, NORMALS_PER_STEP, Gyro, aux_rng, draw, gyro_bias_walk, gyro_from
-from ..design.torquers import NONE as NO_TORQUERS
-from ..design.torquers import Torquers
 from ..env.environment import Environment
 from ..env.igrf import IGRF
 from ..env.orbit import eci_to_orbital, initial_state, orbital_rate
 from ..env.sun import shadow_cylindrical
+from ..onboard.bdot import FieldDerivativeFilter, bdot_gain, geomagnetic_inclination
+from ..onboard.law import DEFAULT_MIN_FIELD
+from ..onboard.mekf import MAG_BIAS_STD
+from ..onboard.mekf_kernel import kernel_state
+from ..onboard.modes import DETUMBLE, MODES, ModeParams
+from ..onboard.modes_kernel import GUARDS, MODE_CODE, kernel_params
+from ..onboard.params import TS_DEFAULT
+from ..onboard.torquers import NONE as NO_TORQUERS
+from ..onboard.torquers import Torquers
 from .batch_kernels import (
     Chunk,
     Controller,
@@ -129,10 +130,10 @@ class SensorNoise:
 
 @dataclass(frozen=True)
 class BatchModes:
-    """Fly the flight modes in the batch (:mod:`magtune_core.design.modes`, B-dot of :mod:`magtune_core.design.bdot`).
+    """Fly the flight modes in the batch (:mod:`magtune_core.onboard.modes`, B-dot of :mod:`magtune_core.onboard.bdot`).
 
     ``params`` the mode machine's thresholds and timers; ``bdot_gain`` k [N m s] (0: the Avanzini-Giulietti
-    rule :func:`~magtune_core.design.bdot.bdot_gain` from the nominal spacecraft ``BatchRuns.p``: the flight
+    rule :func:`~magtune_core.onboard.bdot.bdot_gain` from the nominal spacecraft ``BatchRuns.p``: the flight
     software knows the nominal inertia, not a run's dispersed one); ``bdot_cutoff`` of the derivative filter
     [rad/s]; every run starts in ``initial_mode``. The fields of ``MODE_FIELDS`` and ``BDOT_FIELDS``.
     """
@@ -152,7 +153,7 @@ class BatchModes:
 @dataclass(frozen=True)
 class BatchEstimator:
     """Fly the attitude estimator in the batch: the controller reads the MEKF's estimate
-    (:mod:`magtune_core.design.mekf_kernel`, equal to :class:`magtune_core.design.estimator.MekfStream`)
+    (:mod:`magtune_core.onboard.mekf_kernel`, equal to :class:`magtune_core.onboard.estimator.MekfStream`)
     instead of the truth plus attitude noise, as ``magtune sil --attitude estimator`` does.
 
     The filter's model of the sensors (``mag_noise_std`` [T], ``gyro_arw`` sigma_v, ``gyro_rrw`` sigma_u,
@@ -236,7 +237,7 @@ class BatchResult:
     record_index: np.ndarray | None = None
     saturated: np.ndarray | None = None
     #: with modes (:class:`BatchModes`): ``mode`` (B, N+1) int8 mode code after each instant's decision (with
-    #: ``full_series``; code = index in design.modes.MODES), ``transitions`` (B,) count, ``detumble_time`` the
+    #: ``full_series``; code = index in onboard.modes.MODES), ``transitions`` (B,) count, ``detumble_time`` the
     #: first instant DETUMBLE was left and ``pointing_time`` the first instant POINTING was entered [s] (nan:
     #: never), ``final_mode`` (B,) code at the last instant
     mode: np.ndarray | None = None
@@ -500,7 +501,7 @@ def _aux_blocks(sensors: SensorNoise):
     return lambda: np.stack([draw(g, NOISE_CHUNK, AUX_NORMALS) for g in gens])
 
 
-def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: int = 2, max_substeps: int = 0,
+def simulate_batch(runs: BatchRuns, *, ts: float = TS_DEFAULT, steps: int, substeps: int = 2, max_substeps: int = 0,
                    record_every: int = 1, orbit_periods=None, full_series: bool = False,
                    modes: BatchModes | None = None, estimator: BatchEstimator | None = None,
                    torquers: Torquers = NO_TORQUERS) -> BatchResult:
@@ -516,7 +517,7 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
     Control law of paper eq. (17) with per-axis saturation; set-up of paper section 5.
     ``modes``: fly the flight modes (DETUMBLE: B-dot, ACQUISITION / POINTING: eq. 17, SAFE: zero), as
     :func:`magtune_core.sim.modes_loop.simulate_modes` does for one run; None: eq. 17 throughout (bit
-    for bit the loop without modes). ``torquers`` (design.torquers.Torquers): as the SIL's nodes, every run.
+    for bit the loop without modes). ``torquers`` (onboard.torquers.Torquers): as the SIL's nodes, every run.
     ``max_substeps`` > ``substeps``: each run's sub-steps re-chosen every step from its rate (sim.substeps.Substeps).
 
     Returns
@@ -603,7 +604,7 @@ def simulate_batch(runs: BatchRuns, *, ts: float = 1.0, steps: int, substeps: in
 
 
 def _torquer_arrays(torquers: Torquers, lim: np.ndarray, ts: float, rule: Substeps, B: int):
-    """The kernel's view of :class:`~magtune_core.design.torquers.Torquers`: the laws' limits (3, B), the
+    """The kernel's view of :class:`~magtune_core.onboard.torquers.Torquers`: the laws' limits (3, B), the
     drive's scale, the sub-step weights per level (levels, most; zero-padded) and (coupled, g C, the last
     drive (3, B))."""
     g = torquers.sample_factor()

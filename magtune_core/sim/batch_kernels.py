@@ -20,7 +20,7 @@ single-run ``simulate`` to ~1e-12 (state):
   eq. 17 with saturation and weak-field guard, sample-and-hold, classical RK4 steps re-chosen from the rate,
   quaternion renormalization, divergence flag), for each run over a chunk of controller steps; with
   :class:`Modes` ``on``, the flight modes pick the law each step (the mode machine and the B-dot law
-  of :mod:`magtune_core.design.modes_kernel`, as :func:`magtune_core.sim.modes_loop.simulate_modes`).
+  of :mod:`magtune_core.onboard.modes_kernel`, as :func:`magtune_core.sim.modes_loop.simulate_modes`).
 
 Compiled on first use and cached on disk (``cache=True``: ~40 s once per installation, in
 ``__pycache__`` next to this file; the Dask workers load the cached machine code). ``error_model="numpy"``:
@@ -34,12 +34,12 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..design.mekf_kernel import matrix_quat, rotation, stream_step
-from ..design.modes_kernel import MODE_CODE, KernelModeParams, bdot_dipole, filter_step, mode_step
 from ..env.atmosphere import HP_HEIGHT_KM, HP_RHO_MAX, HP_RHO_MIN, RA_LAG
 from ..env.earth import F_WGS84, GM_EARTH, J2, J3, J4, JD_J2000, OMEGA_EARTH, R_EARTH, R_WGS84, SECONDS_PER_DAY
 from ..env.igrf import IGRF_RADIUS, NT
 from ..env.sun import AU, OBLIQUITY_J2000, SOLAR_PRESSURE_1AU
+from ..onboard.mekf_kernel import matrix_quat, rotation, stream_step
+from ..onboard.modes_kernel import MODE_CODE, KernelModeParams, bdot_dipole, filter_step, mode_step
 
 #: heights, rho_min, rho_max, scale heights of rho_min and rho_max per interval (atmosphere.harris_priester_bounds)
 _HP = np.ascontiguousarray(np.vstack([HP_HEIGHT_KM, HP_RHO_MIN, HP_RHO_MAX] + [
@@ -458,7 +458,7 @@ class Controller(NamedTuple):
     """Per-run projection controller (paper eq. 17) with saturation and the weak-field guard."""
 
     K: np.ndarray  #: (B, 3, 6) gains
-    lim: np.ndarray  #: (3, B) the laws' dipole limits [A m^2] (design.torquers.Torquers.law_limit)
+    lim: np.ndarray  #: (3, B) the laws' dipole limits [A m^2] (onboard.torquers.Torquers.law_limit)
     W0: np.ndarray  #: (B,) orbit rate of the controller's linear state [rad/s]
     min_b2: float  #: weak-field guard: no command below this |b|^2 [T^2]
     scale: float  #: the torquers drive the law's dipole / scale (Torquers.command_scale; 1: as commanded)
@@ -479,7 +479,7 @@ class Sensors(NamedTuple):
     att_std: np.ndarray  #: (B,) attitude-determination error std [rad]
     gyro_avg: np.ndarray  #: (B, CHUNK, 3) (beta_k + beta_k+1)/2 of the Farrenkopf bias walk [rad/s]
     gyro_white: np.ndarray  #: (B,) std of the gyro's white part sqrt(sigma_v^2/Ts + sigma_u^2 Ts/12) [rad/s]
-    coupled: bool  #: the torquers' field reaches the magnetometer (design.torquers)
+    coupled: bool  #: the torquers' field reaches the magnetometer (onboard.torquers)
     C: np.ndarray  #: (3, 3) g C: the coupling times the field left at the sample [T/(A m^2)]
     m_last: np.ndarray  #: (3, B) the dipole each run's torquers drove over the last period [A m^2] (updated)
 
@@ -514,13 +514,13 @@ class Modes(NamedTuple):
     """
 
     on: bool  #: fly the modes
-    P: KernelModeParams  #: thresholds and timers (design.modes.ModeParams)
+    P: KernelModeParams  #: thresholds and timers (onboard.modes.ModeParams)
     k: np.ndarray  #: (B,) B-dot gain [N m s] (normalized law) or [A m^2 s / T] (raw)
-    normalized: bool  #: the normalized B-dot law (design.bdot.BdotController)
+    normalized: bool  #: the normalized B-dot law (onboard.bdot.BdotController)
     min_field: float  #: B-dot weak-field guard [T]
     a: float  #: derivative-filter pole exp(-cutoff Ts)
     ts: float  #: controller period [s] (sim time t_k = k ts)
-    mode: np.ndarray  #: (B,) int64 current mode code (design.modes_kernel.MODE_CODE)
+    mode: np.ndarray  #: (B,) int64 current mode code (onboard.modes_kernel.MODE_CODE)
     pending: np.ndarray  #: (B, 7) guard start times [s] (nan: not holding)
     fb: np.ndarray  #: (B, 3) previous measured field [T] (filter memory)
     fy: np.ndarray  #: (B, 3) previous filter output [T/s]
@@ -532,7 +532,7 @@ class Modes(NamedTuple):
 
 
 class EstimatorIO(NamedTuple):
-    """What the estimator in the loop reads besides the sensors' normals (:class:`~magtune_core.design.mekf_kernel.KernelMekf`
+    """What the estimator in the loop reads besides the sensors' normals (:class:`~magtune_core.onboard.mekf_kernel.KernelMekf`
     holds the filters) and what it writes."""
 
     #: (U, steps of the chunk, 13) at the controller instants: R_oi (ECI -> orbital, row-major 9), unit
@@ -553,7 +553,7 @@ class EstimatorIO(NamedTuple):
 @njit(cache=True, error_model="numpy")
 def _estimate(est, eio, u, b, r, k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1, fo2, bm0, bm1, bm2, wm0, wm1, wm2, full):
     """The estimator of run ``b`` (environment rows ``u``) at step ``k`` (the attitude_estimator node's sample): the sun sensor on the
-    true attitude (a0..a3, body w.r.t. orbital), the MEKF step (design.mekf_kernel.stream_step) on the
+    true attitude (a0..a3, body w.r.t. orbital), the MEKF step (onboard.mekf_kernel.stream_step) on the
     measured field and the previous gyro sample against the reference vectors in ECI (the field of the
     table rotated back with R_oi^T, the Sun of date), the estimate in orbital axes. Returns (have, q_bo (4,),
     rate (3,)): the controller's attitude and rate (gyro minus the estimated bias)."""
@@ -599,7 +599,7 @@ def _estimate(est, eio, u, b, r, k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1, fo2,
         return False, qe, rate
     qe = matrix_quat(Roi @ rotation(est.q[b]))
     rate[0], rate[1], rate[2] = wm0 - est.b[b, 0], wm1 - est.b[b, 1], wm2 - est.b[b, 2]
-    if full:  # dtheta with q_true = q_est (x) exp(dtheta/2) (design.mekf.attitude_error)
+    if full:  # dtheta with q_true = q_est (x) exp(dtheta/2) (onboard.mekf.attitude_error)
         e0 = qe[0] * a0 + qe[1] * a1 + qe[2] * a2 + qe[3] * a3
         e1 = qe[0] * a1 - qe[1] * a0 - qe[2] * a3 + qe[3] * a2
         e2 = qe[0] * a2 + qe[1] * a3 - qe[2] * a0 - qe[3] * a1
@@ -645,7 +645,7 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio):
     modes : Modes
         With ``on``: the mode machine's state per run (updated), the law per mode (DETUMBLE: B-dot,
         ACQUISITION and POINTING: eq. 17, SAFE: zero dipole) and the mode series (``full``).
-    est : design.mekf_kernel.KernelMekf
+    est : onboard.mekf_kernel.KernelMekf
         With ``on``: the MEKF of every run (updated); the controller reads its estimate (zero dipole before
         the coarse fix) instead of the truth plus attitude noise.
     eio : EstimatorIO
@@ -685,7 +685,7 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio):
             qm0, qm1, qm2, qm3 = q0, q1, q2, q3
             wm0, wm1, wm2 = ys[4], ys[5], ys[6]
             bm0, bm1, bm2 = bt0, bt1, bt2
-            if coupled:  # the field at the magnetometer: + g C m_last (design.torquers.Torquers.field)
+            if coupled:  # the field at the magnetometer: + g C m_last (onboard.torquers.Torquers.field)
                 ml0, ml1, ml2 = m_last[0, b], m_last[1, b], m_last[2, b]
                 bm0 = bt0 + (Cg[0, 0] * ml0 + Cg[0, 1] * ml1 + Cg[0, 2] * ml2)
                 bm1 = bt1 + (Cg[1, 0] * ml0 + Cg[1, 1] * ml1 + Cg[1, 2] * ml2)
@@ -760,7 +760,7 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio):
                 modes.mode[b] = md
                 if full:
                     modes.mode_all[b, k] = md
-            if md == _DET:  # B-dot rate damping (design.bdot.BdotController)
+            if md == _DET:  # B-dot rate damping (onboard.bdot.BdotController)
                 s0, s1, s2, wk, st = bdot_dipole(bm0, bm1, bm2, d0, d1, d2, bk[b], bnorm, bmin, lim[0, b], lim[1, b],
                                                  lim[2, b])
                 if wk:
@@ -781,7 +781,7 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio):
             else:
                 weak[b] += 1
                 s0 = s1 = s2 = 0.0
-            if cscale != 1.0:  # the duty cycle's compensation: drive m / c (design.torquers.Torquers.drive)
+            if cscale != 1.0:  # the duty cycle's compensation: drive m / c (onboard.torquers.Torquers.drive)
                 s0, s1, s2 = s0 / cscale, s1 / cscale, s2 / cscale
             m_last[0, b], m_last[1, b], m_last[2, b] = s0, s1, s2
             if full:

@@ -43,9 +43,9 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..base.rotations import cross, dcm_floats, rotation_matrix
-from ..design.law import saturate
 from ..design.params import SpacecraftParams
 from ..env.environment import residual_dipole_torque
+from ..onboard.law import saturate
 
 FieldFn = Callable[[float], np.ndarray]
 TorqueFn = Callable[[float, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
@@ -220,7 +220,7 @@ class AttitudeDynamics:
     Returns y(t + dt), an ndarray (7,): the response of one sample period of the controller.
 
         ``weights`` (substeps,) scales the dipole per sub-step: the torquers' duty cycle
-        (:meth:`magtune_core.design.torquers.Torquers.substep_weights`; None: held throughout).
+        (:meth:`magtune_core.onboard.torquers.Torquers.substep_weights`; None: held throughout).
         Deterministic (fixed steps, fixed operation order); the quaternion is renormalized at
         the end of the interval.
         """

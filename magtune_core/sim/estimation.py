@@ -3,8 +3,8 @@
 The truth is a sequence of attitudes q_bo(t_k) (body w.r.t. orbital axes, e.g. a
 :class:`magtune_core.sim.simulate.SimResult`) turned into the inertial attitude the gyro sees
 (:func:`truth_along`); the sensors are those of :mod:`magtune_core.design.sensors` with a seed;
-the filter :mod:`magtune_core.design.mekf` starts from a coarse fix
-(:mod:`magtune_core.design.attitude_fix`). On-board models: in the full environment IGRF at the
+the filter :mod:`magtune_core.onboard.mekf` starts from a coarse fix
+(:mod:`magtune_core.onboard.attitude_fix`). On-board models: in the full environment IGRF at the
 position fix (degree configurable) and the Sun model of :mod:`magtune_core.env.sun`; in the paper
 environment the environment's own field (eq. 26), so the filter is not biased by a model the truth
 does not use. Equations and figures: docs/estimation.md.
@@ -18,8 +18,6 @@ import numpy as np
 from scipy.stats import chi2
 
 from ..base.rotations import matrix_to_quat, quat_mul, rotation_matrix
-from ..design.estimator import MekfStream, OnboardModels, default_suite  # noqa: F401 - default_suite: the offline runs' suite
-from ..design.mekf import MAG_BIAS_STD, attitude_error, quat_rotvec, rotvec_quat
 from ..design.params import SpacecraftParams
 from ..design.sensors import (
     AUX_NORMALS,
@@ -30,6 +28,7 @@ from ..design.sensors import (
     SUN,
     SensorSuite,
     aux_rng,
+    default_suite,
     draw,
     gyro,
     magnetometer,
@@ -38,6 +37,8 @@ from ..design.sensors import (
 )
 from ..env.environment import Environment, body_to_eci
 from ..env.sun import shadow_cylindrical
+from ..onboard.estimator import MekfStream, OnboardModels
+from ..onboard.mekf import MAG_BIAS_STD, attitude_error, quat_rotvec, rotvec_quat
 from .fullenv import FullEnvironmentOptions
 
 
@@ -122,7 +123,7 @@ def truth_along(t, q_bo, p: SpacecraftParams | None = None, environment: str = "
 def onboard_field(truth: Truth, p: SpacecraftParams | None = None, igrf_degree: int = 10):
     """The on-board field model ``(k, r_meas) -> b_ref [T]`` (reference axes) of ``truth``'s
     environment: IGRF of ``igrf_degree`` at the measured position (full,
-    :class:`magtune_core.design.estimator.OnboardModels`, as the node), eq. 26 (paper)."""
+    :class:`magtune_core.onboard.estimator.OnboardModels`, as the node), eq. 26 (paper)."""
     if truth.environment != "full":
         return lambda k, r_meas: truth.b_ref[k]
     models = OnboardModels("full", truth.jd0, igrf_degree)
@@ -132,7 +133,7 @@ def onboard_field(truth: Truth, p: SpacecraftParams | None = None, igrf_degree: 
 def onboard_sun(truth: Truth):
     """The on-board Sun model ``(k, r_meas) -> unit satellite-Sun vector`` (reference axes): in the
     full environment the Sun position of date minus the measured position
-    (:meth:`magtune_core.design.estimator.OnboardModels.sun`); otherwise the truth's own ``sun_ref``."""
+    (:meth:`magtune_core.onboard.estimator.OnboardModels.sun`); otherwise the truth's own ``sun_ref``."""
     if truth.environment != "full":
         return lambda k, r_meas: truth.sun_ref[k]
     models = OnboardModels("full", truth.jd0, 1)
@@ -146,7 +147,7 @@ class MekfRun:
     t: np.ndarray
     q: np.ndarray  #: (N+1, 4) estimate after the updates at t_k
     bias: np.ndarray  #: (N+1, 3) estimated gyro bias [rad/s]
-    P: np.ndarray  #: (N+1, 9, 9) of [dtheta; db; dm] (design.mekf)
+    P: np.ndarray  #: (N+1, 9, 9) of [dtheta; db; dm] (onboard.mekf)
     error: np.ndarray  #: (N+1, 3) attitude error dtheta [rad], body axes (q_true = q (x) exp(dtheta/2))
     bias_error: np.ndarray  #: (N+1, 3) true minus estimated bias [rad/s]
     nees: np.ndarray  #: (N+1,) attitude NEES dtheta^T P_tt^-1 dtheta (3 dof)

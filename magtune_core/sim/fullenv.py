@@ -17,7 +17,7 @@ constant rate W0, eq. (26) field, gravity gradient 3 W0^2 c x (I c), residual di
   :mod:`magtune_core.env.srp`, :mod:`magtune_core.env.sun`, box of :mod:`magtune_core.env.geometry`), each switchable.
 
 Controller state. The controller is the paper's: its linear state stays
-``x = [dq; dw] = [q_vec; w - [0, 0, -W0]]`` (:func:`magtune_core.design.law.linear_state`), with dq now measured
+``x = [dq; dw] = [q_vec; w - [0, 0, -W0]]`` (:func:`magtune_core.onboard.law.linear_state`), with dq now measured
 against the actual orbital frame and W0 the *nominal* rate. In the full environment W0 is set
 to the mean orbital-frame rate of the actual orbit (:func:`nominal_orbit_period`: mean of
 ``-w_oi,z`` over the first orbits; 2 pi/5611.2 s for the default orbit, vs the paper's 5614.8 s),

@@ -2,9 +2,9 @@
 
 One run, numpy, perfect sensors (the measurements the mode logic sees are the gyro rate, the
 filtered |db/dt| of the measured field and the attitude estimate's pointing error, here equal to
-the truth): :class:`magtune_core.design.modes.ModeLogic` picks the law each controller period,
-:class:`~magtune_core.design.bdot.BdotController` in DETUMBLE, eq. 17
-(:class:`~magtune_core.design.law.ProjectionController`) in ACQUISITION and POINTING (the measured
+the truth): :class:`magtune_core.onboard.modes.ModeLogic` picks the law each controller period,
+:class:`~magtune_core.onboard.bdot.BdotController` in DETUMBLE, eq. 17
+(:class:`~magtune_core.onboard.law.ProjectionController`) in ACQUISITION and POINTING (the measured
 region of attraction covers every attitude, docs/modes.md), zero dipole in SAFE. The RK4 sub-steps
 are re-chosen every period from the rate (:class:`magtune_core.sim.substeps.Substeps`).
 
@@ -25,12 +25,13 @@ import numpy as np
 
 from ..base.errors import ConfigError
 from ..design import faults as fl
-from ..design.bdot import BdotController, FieldDerivativeFilter, FilterState, bdot_gain, geomagnetic_inclination
-from ..design.law import DEFAULT_DIPOLE_LIMIT, ProjectionController, linear_state
-from ..design.modes import DETUMBLE, SAFE, Measurements, ModeLogic, ModeParams, ModeState, Transition
 from ..design.params import SpacecraftParams
-from ..design.torquers import NONE as NO_TORQUERS
-from ..design.torquers import Torquers
+from ..onboard.bdot import BdotController, FieldDerivativeFilter, FilterState, bdot_gain, geomagnetic_inclination
+from ..onboard.law import DEFAULT_DIPOLE_LIMIT, ProjectionController, linear_state
+from ..onboard.modes import DETUMBLE, SAFE, Measurements, ModeLogic, ModeParams, ModeState, Transition
+from ..onboard.params import TS_DEFAULT
+from ..onboard.torquers import NONE as NO_TORQUERS
+from ..onboard.torquers import Torquers
 from .dynamics import AttitudeDynamics
 from .metrics import pointing_error_deg
 from .simulate import initial_state
@@ -53,19 +54,19 @@ class ModeRun:
 
 
 def simulate_modes(K, p: SpacecraftParams | None = None, *, q0=(1.0, 0.0, 0.0, 0.0), dw0=(0.0, 0.0, 0.0),
-                   ts: float = 1.0, orbits: float = 6.0, mode_params: ModeParams | None = None,
+                   ts: float = TS_DEFAULT, orbits: float = 6.0, mode_params: ModeParams | None = None,
                    bdot_k: float = 0.0, bdot_cutoff: float = 0.2, dipole_limit=DEFAULT_DIPOLE_LIMIT,
                    residual_dipole=(1.0, 1.0, 1.0), initial_mode: str = DETUMBLE,
                    stale=None, faults=(), stale_timeout: float = 3.0, torquers: Torquers = NO_TORQUERS) -> ModeRun:
     """Fly the mode logic from ``(q0, dw0)`` (:func:`magtune_core.sim.initial.initial_conditions`)
     for ``orbits``, paper environment (eq. 26 field, gravity gradient, residual dipole, section 5).
 
-    ``bdot_k`` 0 = the Avanzini-Giulietti rule (:func:`~magtune_core.design.bdot.bdot_gain`);
+    ``bdot_k`` 0 = the Avanzini-Giulietti rule (:func:`~magtune_core.onboard.bdot.bdot_gain`);
     ``stale`` an optional function t -> bool (a sensor-outage script; the loop then holds SAFE's
     zero dipole and the logic recovers by itself); ``faults`` injected faults (a sequence of
     :class:`~magtune_core.design.faults.Fault` or spec strings; ``sensors_killed`` is SIL only);
     ``stale_timeout`` [s] the mode manager's staleness limit of a silent magnetometer; ``torquers``
-    (:class:`magtune_core.design.torquers.Torquers`) their field at the magnetometer (the applied dipole of
+    (:class:`magtune_core.onboard.torquers.Torquers`) their field at the magnetometer (the applied dipole of
     the last period's drive), the duty cycle and its compensation, as the SIL's nodes.
 
     Returns

@@ -5,7 +5,7 @@ and hold scheme" with period Ts; the plant is the nonlinear model of ``dynamics`
 pitch wheel, gravity gradient, residual dipole 1 A m^2 per axis, eq. 26 field), integrated with
 fixed-step RK4 so that runs are bit-for-bit reproducible.
 
-The controller law and the state construction (:mod:`magtune_core.design.law`:
+The controller law and the state construction (:mod:`magtune_core.onboard.law`:
 ``ProjectionController``, ``linear_state``) are the ones the ROS 2 controller node calls, so the SIL loop
 reproduces this function's trajectory exactly when sensor noise is zero.
 """
@@ -16,11 +16,12 @@ from dataclasses import field as dc_field
 
 import numpy as np
 
-from ..design.law import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD, ProjectionController, linear_state
 from ..design.node_params import INITIAL_RATE_ERROR
 from ..design.params import SpacecraftParams
-from ..design.torquers import NONE as NO_TORQUERS
-from ..design.torquers import Torquers
+from ..onboard.law import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD, ProjectionController, linear_state
+from ..onboard.params import TS_DEFAULT
+from ..onboard.torquers import NONE as NO_TORQUERS
+from ..onboard.torquers import Torquers
 from .dynamics import AttitudeDynamics
 from .fullenv import full_params, make_dynamics
 from .metrics import figures_of_merit
@@ -88,7 +89,7 @@ def initial_state(p: SpacecraftParams, dw0=DW0, q0=(1.0, 0.0, 0.0, 0.0)) -> np.n
     return np.concatenate([q0 / np.linalg.norm(q0), np.array([0.0, 0.0, -p.orbit_rate]) + np.asarray(dw0, float)])
 
 
-def simulate(K, p: SpacecraftParams | None = None, *, ts: float = 1.0, orbits: float = 1.0,
+def simulate(K, p: SpacecraftParams | None = None, *, ts: float = TS_DEFAULT, orbits: float = 1.0,
              steps: int | None = None, substeps: int | None = 2, dw0=DW0, q0=(1.0, 0.0, 0.0, 0.0),
              dipole_limit=DEFAULT_DIPOLE_LIMIT, min_field=DEFAULT_MIN_FIELD,
              residual_dipole=(1.0, 1.0, 1.0), field=None, disturbances=(),
@@ -105,7 +106,7 @@ def simulate(K, p: SpacecraftParams | None = None, *, ts: float = 1.0, orbits: f
     :class:`magtune_core.sim.fullenv.FullEnvironmentOptions`): see :mod:`magtune_core.sim.fullenv`. In
     "full", T and W0 are the actual orbit's nominal values (``fullenv.full_params``).
     The control law is paper eq. (17), m = S(b)^T K x / |b|^2, saturated per axis; the set-up is
-    the simulation study of paper section 5. ``torquers`` (:class:`magtune_core.design.torquers.Torquers`):
+    the simulation study of paper section 5. ``torquers`` (:class:`magtune_core.onboard.torquers.Torquers`):
     their field in the field the law reads, the duty cycle and its compensation (default: none).
 
     Returns

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..design.torquers import NONE as NO_TORQUERS
-from ..design.torquers import Torquers
+from ..onboard.torquers import NONE as NO_TORQUERS
+from ..onboard.torquers import Torquers
 
 #: Largest rotation [rad] of the body during one RK4 sub-step: 0.05 rad is what the paper set-up's
 #: two sub-steps per second take at the nutation frequency of the momentum-biased body (0.082 rad/s x
@@ -46,7 +46,7 @@ class Substeps:
     """The ladder of sub-steps ``fewest * 2**j`` <= ``most`` and the rate each level covers.
 
     ``fewest``: the paper's 2, or what puts a duty cycle's switch-off on the grid
-    (:meth:`magtune_core.design.torquers.Torquers.substeps`); ``most``: the level the fastest rate of
+    (:meth:`magtune_core.onboard.torquers.Torquers.substeps`); ``most``: the level the fastest rate of
     the run needs (the finest grid, ``Ts / (2 most)``). ``fewest == most``: a fixed number of sub-steps.
     """
 

@@ -70,10 +70,10 @@ from ..base.errors import ConfigError
 from ..base.paramfile import load_user_yaml
 from ..base.schema import Field, parse
 from ..design.gains import load_gains
-from ..design.modes import MODES, POINTING, ModeParams
-from ..design.node_params import BDOT_FIELDS, ESTIMATOR_FIELDS, MODE_FIELDS, TORQUER_FIELDS, check_modes
 from ..design.params import SpacecraftParams, load_spacecraft
-from ..design.torquers import Torquers
+from ..onboard.modes import MODES, POINTING, ModeParams
+from ..onboard.params import BDOT_FIELDS, ESTIMATOR_FIELDS, MODE_FIELDS, TORQUER_FIELDS, check_modes
+from ..onboard.torquers import Torquers
 from ..sim.batch import BatchEstimator, BatchModes, BatchRuns, SensorNoise, simulate_batch
 from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions, nominal_orbit_period, substeps_for
 from ..sim.metrics import settling_time
@@ -158,10 +158,10 @@ CRITERIA_FIELDS = (
 )
 
 #: Section ``modes`` (with ``campaign.modes``): the mode machine's and the B-dot law's schema, the one the
-#: mode manager node, the controller and the offline mode loop read (design/node_params.py).
+#: mode manager node, the controller and the offline mode loop read (onboard/params.py).
 MODES_SECTION_FIELDS = MODE_FIELDS + BDOT_FIELDS
 #: Section ``estimator`` (with ``campaign.attitude: estimator``): the filter's fields of the attitude_estimator
-#: node's schema (design/node_params.py ESTIMATOR_FIELDS, the same Field objects: names, defaults, bounds).
+#: node's schema (onboard/params.py ESTIMATOR_FIELDS, the same Field objects: names, defaults, bounds).
 ESTIMATOR_SECTION_FIELDS = tuple(f for f in ESTIMATOR_FIELDS if f.name in BatchEstimator.__dataclass_fields__)
 
 SECTIONS = {"campaign": CAMPAIGN_FIELDS, "dispersions": DISPERSION_FIELDS, "criteria": CRITERIA_FIELDS,
@@ -210,7 +210,7 @@ class CampaignSpec:
         """RK4 sub-steps per Ts (sim.substeps.Substeps): ``campaign.substeps`` > 0 that many throughout; 0 = from
         at most 0.5 s per step (fullenv.substeps_for), re-chosen every step from each run's rate up to what the
         fastest drawable initial rate needs (the bound |rate_mean| + rate_max + W0 per axis, deployment
-        campaigns); a duty cycle's switch-off on the grid (design.torquers.Torquers.substeps)."""
+        campaigns); a duty cycle's switch-off on the grid (onboard.torquers.Torquers.substeps)."""
         ts, s = self.campaign["ts"], int(self.campaign["substeps"])
         need = s
         if self.campaign["modes"]:

@@ -1,6 +1,6 @@
 """Region of attraction of the pointing law (paper eq. 17) from arbitrary attitudes, by batched simulation.
 
-B-dot detumbling (design/bdot.py) leaves the attitude arbitrary and the body rate at a few orbital
+B-dot detumbling (onboard/bdot.py) leaves the attitude arbitrary and the body rate at a few orbital
 rates, while the gains of eq. 17 are tuned on the model linearized about the nominal attitude.
 This study flies the shipped pointing law (:func:`magtune_core.sim.batch.simulate_batch`, paper
 environment) from initial attitude errors drawn on a grid of angles with random axes and initial
@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..design.params import SpacecraftParams
+from ..onboard.params import TS_DEFAULT
 from ..sim.batch import BatchRuns, simulate_batch
 
 
@@ -42,7 +43,7 @@ def deployment_draws(angles_deg, rate_scales, per_cell: int, orbit_rate: float, 
 
 def capture_region(K, p: SpacecraftParams | None = None, *, angles_deg=tuple(range(10, 181, 10)),
                    rate_scales=(1.0, 2.0, 4.0), per_cell: int = 8, seed: int = 0, orbits: float = 3.0,
-                   ts: float = 1.0, capture_deg: float = 5.0, settle_orbits: float = 0.5,
+                   ts: float = TS_DEFAULT, capture_deg: float = 5.0, settle_orbits: float = 0.5,
                    dipole_limit: float = 50.0) -> dict:
     """Fly eq. 17 with gain ``K`` (3, 6) from the draws of :func:`deployment_draws`; paper environment.
 

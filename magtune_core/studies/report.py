@@ -42,8 +42,8 @@ from ..base import jsonout
 from ..base.atomic import atomic_savefig, atomic_write
 from ..base.rotations import rotation_matrix
 from ..base.topics import DIPOLE, TOPIC_DIPOLE, TOPIC_INERTIAL_RATE, TOPIC_TRUTH, TRUTH
-from ..design.law import DEFAULT_DIPOLE_LIMIT, linear_state
 from ..design.params import SpacecraftParams
+from ..onboard.law import DEFAULT_DIPOLE_LIMIT, linear_state
 from ..sim.metrics import figures_of_merit, pointing_error_deg
 from . import report_estimation, report_modes
 

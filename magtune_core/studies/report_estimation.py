@@ -3,7 +3,7 @@
 From the bag only: the estimate ``estimate/attitude`` (sensor_msgs/Imu: orientation = body w.r.t. orbital
 axes, orientation_covariance = the attitude block of the MEKF's P, body axes) against the truth
 ``sim/truth`` (nav_msgs/Odometry), matched by header stamp. Error dtheta in body axes with
-q_true = q_est (x) exp(dtheta/2) (:func:`magtune_core.design.mekf.attitude_error`, the filter's own error
+q_true = q_est (x) exp(dtheta/2) (:func:`magtune_core.onboard.mekf.attitude_error`, the filter's own error
 definition, so its covariance bounds it), NEES dtheta^T P^-1 dtheta (3 dof; Bar-Shalom, Li & Kirubarajan
 2001, sec. 5.4.2; Markley & Crassidis 2014, sec. 6.2 for the filter).
 
@@ -29,7 +29,7 @@ from ..bags.decode import Decoder, stamp_ns
 from ..base import jsonout
 from ..base.atomic import atomic_savefig, atomic_write
 from ..base.topics import ESTIMATE, TOPIC_ESTIMATE, TOPIC_TRUTH, TRUTH
-from ..design.mekf import attitude_error
+from ..onboard.mekf import attitude_error
 from ..sim.estimation import nees_windows
 
 #: NEES window: N samples LAG seconds apart (the chi-square band of their mean assumes independent samples).

@@ -16,7 +16,7 @@ from pathlib import Path
 from .. import bags as baglib
 from ..bags.decode import Decoder, stamp_ns
 from ..base.topics import MODE, TOPIC_MODE
-from ..design.modes import ACQUISITION, DETUMBLE, POINTING, SAFE
+from ..onboard.modes import ACQUISITION, DETUMBLE, POINTING, SAFE
 
 MODE_TYPE = "magtune_interfaces/msg/Mode"
 #: The fields of ros2_ws/src/magtune_interfaces/msg/Mode.msg (constants left out: not needed to decode).
@@ -82,7 +82,7 @@ def load_modes(path, topic: str = MODE) -> list[ModeChange]:
 
 
 def _label(i: int) -> str:
-    from ..design.modes import MODES
+    from ..onboard.modes import MODES
 
     return MODES[i] if 0 <= int(i) < len(MODES) else str(i)
 

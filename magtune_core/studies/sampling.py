@@ -39,8 +39,8 @@ from ..base.ament import ROOT
 from ..base.atomic import atomic_savefig, atomic_write
 from ..base.workers import worker_pool
 from ..design.gains import load_gains
-from ..design.law import DEFAULT_DIPOLE_LIMIT
 from ..design.params import load_spacecraft
+from ..onboard.law import DEFAULT_DIPOLE_LIMIT
 from ..sim.fullenv import FullEnvironmentOptions, substeps_for
 from ..sim.metrics import settling_time
 from ..sim.simulate import simulate

@@ -100,6 +100,10 @@ def test_sample_period_must_resolve_nutation():
 @pytest.mark.parametrize("extra, words", [
     (["--orbits", "-1"], "--orbits"), (["--orbits", "nan"], "--orbits"), (["--steps", "0"], "--steps"),
     (["--ts", "100"], "nutation"), (["--ts", "-1"], "sample period"), (["--substeps", "0"], "--substeps"),
+    # nan/inf reached the sub-step rule before validation (traceback, exit 1); 1e-300 passed the runner and
+    # the controller refused it (exit 1): all refused by the runner now, naming --ts
+    (["--ts", "nan"], "--ts: expected a positive finite"), (["--ts", "inf"], "--ts: expected a positive finite"),
+    (["--ts", "0"], "--ts: expected a positive finite"), (["--ts", "1e-300"], "--ts: expected a sample period in"),
     (["--timeout", "-5"], "--timeout"), (["--rtf", "inf"], "--rtf"), (["--lockstep-timeout", "0"], "--lockstep-timeout"),
     (["--results", "/proc/no/such.npz"], "--results"), (["--log-dir", "/proc/version/logs"], "--log-dir"),
 ])

@@ -90,6 +90,8 @@ def test_tune_refuses_options_of_the_other_method(argv, option, method, capsys):
     (["tune", "--sigma", "60", "--gain-margin", "0.5"], "--gain-margin"),
     (["tune", "--sigma", "60", "--gain-margin", "nan"], "--gain-margin"),
     (["tune", "--sigma", "60", "--ts", "0"], "--ts"),
+    # the spec owns the sample periods: --ts beside --spec was silently replaced by the spec's ts_min
+    (["tune", "--sigma", "60", "--spec", "config/design.yaml", "--ts", "5"], "--ts: the design spec"),
     (["front", "--sigmas", "60", "--gain-margin", "inf"], "--gain-margin"),
 ])
 def test_hold_constraint_options_are_checked_first(argv, option, tmp_path, capsys):

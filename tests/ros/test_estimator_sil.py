@@ -1,5 +1,5 @@
 """The attitude_estimator node in the SIL (``magtune sil --attitude estimator``): its output is
-the core's MEKF (design.estimator.MekfStream, what run_mekf runs) on the recorded raw sensor
+the core's MEKF (onboard.estimator.MekfStream, what run_mekf runs) on the recorded raw sensor
 messages, its error stays inside its 3-sigma bounds, a bad parameter is one line and exit 2."""
 from __future__ import annotations
 
@@ -12,9 +12,10 @@ import pytest
 from magtune_core import bags as baglib
 from magtune_core.bags.decode import Decoder, stamp_ns
 from magtune_core.base.schema import parse
-from magtune_core.design.mekf import attitude_error
-from magtune_core.design.node_params import ESTIMATOR_FIELDS
 from magtune_core.design.params import load_spacecraft
+from magtune_core.onboard.estimator import FilterModel, MekfStream
+from magtune_core.onboard.mekf import attitude_error
+from magtune_core.onboard.params import ESTIMATOR_FIELDS
 from magtune_core.ros import process, sil
 
 pytestmark = pytest.mark.ros
@@ -45,16 +46,15 @@ def _q(o):
 
 
 def test_node_output_is_the_core_estimator_on_the_recorded_measurements(recorded):
-    """Replay: the node's own functions (models_from, suite_from, MekfStream) on the bag's raw
+    """Replay: the node's own functions (models_from, FilterModel.from_values, MekfStream) on the bag's raw
     messages. Same float64 inputs and arithmetic: equal to 1e-9 rad / 1e-12 (round-off of the
     frame change; one sun sample arriving late at a shadow boundary would show as a difference,
     none in this lit run)."""
     sys.path.insert(0, "ros2_ws/src/magtune_ros")
-    from magtune_core.design.estimator import MekfStream
-    from magtune_ros.attitude_estimator import models_from, suite_from  # rclpy: built package
+    from magtune_ros.attitude_estimator import models_from  # rclpy: built package
 
     v = parse({"environment": "full"}, ESTIMATOR_FIELDS, "test")
-    models, stream = models_from(v, load_spacecraft("config/spacecraft.yaml")), MekfStream(suite_from(v))
+    models, stream = models_from(v, load_spacecraft("config/spacecraft.yaml")), MekfStream(FilterModel.from_values(v))
     est, imu, mag, sun, pos = (recorded[t] for t in ("/estimate/attitude", "/sensors/imu", "/sensors/magnetic_field",
                                                      "/sensors/sun", "/sensors/position"))
     # every sample estimated (the last one may end with the run before the recorder has it)

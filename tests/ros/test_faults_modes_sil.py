@@ -15,7 +15,7 @@ import pytest
 
 from magtune_core import bags as bag
 from magtune_core.bags.decode import Decoder
-from magtune_core.design.modes import DETUMBLE, POINTING, SAFE
+from magtune_core.onboard.modes import DETUMBLE, POINTING, SAFE
 from magtune_core.ros import sil
 from magtune_core.studies.report_modes import load_modes
 

@@ -12,8 +12,8 @@ import pytest
 from magtune_core.bags.reader import iter_messages
 from magtune_core.base.errors import ConfigError
 from magtune_core.design.gains import load_gains
-from magtune_core.design.modes import ACQUISITION, DETUMBLE, POINTING
 from magtune_core.design.params import SpacecraftParams
+from magtune_core.onboard.modes import ACQUISITION, DETUMBLE, POINTING
 from magtune_core.ros import process, sil
 from magtune_core.sim.initial import initial_conditions
 from magtune_core.sim.modes_loop import simulate_modes

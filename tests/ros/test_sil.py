@@ -16,8 +16,8 @@ import pytest
 
 from magtune_core.base.errors import ConfigError, SilError
 from magtune_core.design.gains import Gains, load_gains, save_gains
-from magtune_core.design.law import ProjectionController, linear_state
 from magtune_core.design.params import SpacecraftParams
+from magtune_core.onboard.law import ProjectionController, linear_state
 from magtune_core.ros import process, scenario, sil
 from magtune_core.sim.simulate import simulate
 
@@ -131,18 +131,20 @@ def test_controller_rejects_bad_inputs(live_controller, gains60):
 
     sys.path.insert(0, str(process.package_prefix() / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}"
                            / "site-packages"))
-    from magtune_ros import common as c
+    from magtune_core.base.topics import TOPIC_ATTITUDE, TOPIC_DIPOLE, TOPIC_MAG
+    from magtune_ros.inputs import ns_to_stamp, sec_to_ns, stamp_to_ns
+    from magtune_ros.qos import CLOCK_QOS, LOCKSTEP_QOS
 
     node, ctx, proc = live_controller
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
     cmds, diags = [], {}
-    node.create_subscription(Vector3Stamped, c.TOPIC_DIPOLE, cmds.append, c.LOCKSTEP_QOS)
+    node.create_subscription(Vector3Stamped, TOPIC_DIPOLE, cmds.append, LOCKSTEP_QOS)
     node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diags.update(
         {kv.key: kv.value for st in m.status if st.name == "magtune/controller" for kv in st.values}), 10)
-    pub_clock = node.create_publisher(Clock, "/clock", c.CLOCK_QOS)
-    pub_mag = node.create_publisher(MagneticField, c.TOPIC_MAG, c.LOCKSTEP_QOS)
-    pub_att = node.create_publisher(Imu, c.TOPIC_ATTITUDE, c.LOCKSTEP_QOS)
+    pub_clock = node.create_publisher(Clock, "/clock", CLOCK_QOS)
+    pub_mag = node.create_publisher(MagneticField, TOPIC_MAG, LOCKSTEP_QOS)
+    pub_att = node.create_publisher(Imu, TOPIC_ATTITUDE, LOCKSTEP_QOS)
 
     def spin(cond, timeout):
         end = time.monotonic() + timeout
@@ -156,13 +158,13 @@ def test_controller_rejects_bad_inputs(live_controller, gains60):
 
     def set_clock(t):
         msg = Clock()
-        msg.clock = c.ns_to_stamp(c.sec_to_ns(t))
+        msg.clock = ns_to_stamp(sec_to_ns(t))
         for _ in range(3):  # best-effort TimeSource subscription: repeat, then let it land
             pub_clock.publish(msg)
             spin(lambda: False, 0.05)
 
     def send(t, b=(2e-5, 1e-5, 5e-6), q=(1.0, 0.0, 0.0, 0.0), w=(1e-3, 2e-3, -1e-3)):
-        stamp = c.ns_to_stamp(c.sec_to_ns(t))
+        stamp = ns_to_stamp(sec_to_ns(t))
         m = MagneticField()
         m.header.stamp = stamp
         m.magnetic_field.x, m.magnetic_field.y, m.magnetic_field.z = b
@@ -174,9 +176,9 @@ def test_controller_rejects_bad_inputs(live_controller, gains60):
         pub_att.publish(a)
 
     def expect_command(t, timeout=5.0):
-        ok = spin(lambda: any(c.stamp_to_ns(m.header.stamp) == c.sec_to_ns(t) for m in cmds), timeout)
+        ok = spin(lambda: any(stamp_to_ns(m.header.stamp) == sec_to_ns(t) for m in cmds), timeout)
         assert ok, f"no command for t={t}"
-        m = [m for m in cmds if c.stamp_to_ns(m.header.stamp) == c.sec_to_ns(t)][-1]
+        m = [m for m in cmds if stamp_to_ns(m.header.stamp) == sec_to_ns(t)][-1]
         return np.array([m.vector.x, m.vector.y, m.vector.z])
 
     # before any /clock the node's sim clock is 0: the stamps' order only (in the SIL the data
@@ -209,8 +211,8 @@ def test_controller_rejects_bad_inputs(live_controller, gains60):
             "rejected_stamp": 4, "commands": 4, "rejected_implausible": 1}
     ok = spin(lambda: all(int(diags.get(k, -1)) == v for k, v in want.items()), 10.0)
     assert ok, f"diagnostics {diags} != expected {want}"
-    stamps = sorted(c.stamp_to_ns(m.header.stamp) for m in cmds)
-    assert stamps == [c.sec_to_ns(t) for t in (9.0, 10.0, 12.0, 19.0)]  # nothing for rejected inputs
+    stamps = sorted(stamp_to_ns(m.header.stamp) for m in cmds)
+    assert stamps == [sec_to_ns(t) for t in (9.0, 10.0, 12.0, 19.0)]  # nothing for rejected inputs
     # stale data: the clock runs on without inputs -> held dipole zeroed once, node alive
     set_clock(25.0)
     assert spin(lambda: int(diags.get("stale_data", 0)) == 1, 5.0), diags

@@ -1,7 +1,7 @@
 """The torquers in the SIL (issue 30 item 6): the simulator publishes their field at the
 magnetometer, the sensors add it, the controller duty-cycles and compensates, and the simulator
 switches the torquers off on its sub-step grid. The run equals the offline loop with the same
-:class:`magtune_core.design.torquers.Torquers`.
+:class:`magtune_core.onboard.torquers.Torquers`.
 
 Isolated as every SIL test: a DomainLock ROS_DOMAIN_ID, LOCALHOST discovery, processes stopped in
 ``finally`` (magtune_core.ros.sil)."""
@@ -10,7 +10,7 @@ import pytest
 
 from magtune_core.design.gains import load_gains
 from magtune_core.design.params import SpacecraftParams
-from magtune_core.design.torquers import Torquers, dipole_coupling
+from magtune_core.onboard.torquers import Torquers, dipole_coupling
 from magtune_core.ros import sil
 from magtune_core.sim.simulate import simulate
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from magtune_core.design.gains import load_gains
-from magtune_core.design.law import ProjectionController, linear_state
 from magtune_core.design.params import load_spacecraft
+from magtune_core.onboard.law import ProjectionController, linear_state
 from magtune_core.sim.batch import BatchRuns, SensorNoise, simulate_batch
 from magtune_core.sim.fullenv import FullEnvironmentOptions
 from magtune_core.sim.simulate import simulate
@@ -217,7 +217,7 @@ def test_torquer_coupling_and_duty_cycle_equal_the_single_run(setup, environment
     """The torquers' field in the measured field (always on, then duty-cycled with a decaying field)
     and the compensated drive on the sub-step grid: every run of the batch equals ``simulate`` with
     the same Torquers, to the TOL of the plain loop."""
-    from magtune_core.design.torquers import Torquers, dipole_coupling
+    from magtune_core.onboard.torquers import Torquers, dipole_coupling
 
     s = setup
     opts = ([FullEnvironmentOptions(raan_deg=r, epoch=datetime(2026, m, 5)) for r, m in ((0.0, 1), (40.0, 6), (200.0, 11))]

@@ -9,9 +9,7 @@ import numpy as np
 import pytest
 
 from magtune_core.base.rotations import matrix_to_quat, rotation_matrix
-from magtune_core.design.estimator import MekfStream
 from magtune_core.design.gains import load_gains
-from magtune_core.design.mekf import attitude_error
 from magtune_core.design.params import load_spacecraft
 from magtune_core.design.sensors import (
     AUX_NORMALS,
@@ -31,6 +29,8 @@ from magtune_core.design.sensors import (
 from magtune_core.env.environment import Environment
 from magtune_core.env.orbit import eci_to_orbital
 from magtune_core.env.sun import shadow_cylindrical
+from magtune_core.onboard.estimator import MekfStream
+from magtune_core.onboard.mekf import attitude_error
 from magtune_core.sim.batch import NOISE_CHUNK, BatchEstimator, BatchRuns, SensorNoise, simulate_batch
 from magtune_core.sim.fullenv import FullEnvironmentOptions
 
@@ -96,7 +96,7 @@ def test_batched_filter_equals_python_filter_on_the_same_measurements(batch, b):
     The 6-state filter contracts these (each update weighs the new sample): ~2e-12 rad. The 9 states
     (200 nT bias, the default 300 nT prior) carry them ~60x further while the bias is weakly observed
     (t = 30-300 s): measured 1.3e-10 rad, 5e-10 (gyro bias), 3e-10 (P), 7e-11 (magnetometer bias); the
-    kernel itself equals the Python filter on identical inputs to ~1e-13 (tests/design/test_mekf_kernel.py)."""
+    kernel itself equals the Python filter on identical inputs to ~1e-13 (tests/onboard/test_mekf_kernel.py)."""
     p, opts, sens, est, res = batch
     states, R_oi, w_m, lit = _python_filter(p, opts[b], sens, est, res, b)
     assert lit.all() and res.est_k0[b] == 0 and res.no_attitude_steps[b] == 0  # lit at t = 0: the Davenport fix

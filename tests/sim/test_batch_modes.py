@@ -1,4 +1,4 @@
-"""The flight modes in the batched simulation (design/modes_kernel.py in sim/batch_kernels.closed_loop)
+"""The flight modes in the batched simulation (onboard/modes_kernel.py in sim/batch_kernels.closed_loop)
 against the Python ModeLogic and the offline numpy mode loop (sim/modes_loop.simulate_modes)."""
 import math
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from magtune_core.design.gains import load_gains
-from magtune_core.design.modes import MODES, SAFE, Measurements, ModeLogic, ModeParams, ModeState
-from magtune_core.design.modes_kernel import GUARDS, MODE_CODE, kernel_params, mode_step
 from magtune_core.design.params import SpacecraftParams
+from magtune_core.onboard.modes import MODES, SAFE, Measurements, ModeLogic, ModeParams, ModeState
+from magtune_core.onboard.modes_kernel import GUARDS, MODE_CODE, kernel_params, mode_step
 from magtune_core.sim.batch import BatchModes, BatchRuns, simulate_batch
 from magtune_core.sim.initial import initial_conditions
 from magtune_core.sim.modes_loop import simulate_modes

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from magtune_core.base.rotations import quat_mul, rotation_matrix
-from magtune_core.design.law import linear_state, saturate
 from magtune_core.design.model import skew_field, state_matrix, torque_input
 from magtune_core.design.params import SpacecraftParams
+from magtune_core.onboard.law import linear_state, saturate
 from magtune_core.sim.dynamics import AttitudeDynamics, numerical_jacobian
 
 

@@ -9,8 +9,8 @@ import pytest
 
 from magtune_core.base.errors import ConfigError
 from magtune_core.design.gains import load_gains
-from magtune_core.design.modes import ACQUISITION, DETUMBLE, POINTING, SAFE
 from magtune_core.design.params import SpacecraftParams
+from magtune_core.onboard.modes import ACQUISITION, DETUMBLE, POINTING, SAFE
 from magtune_core.sim.modes_loop import simulate_modes
 
 P = SpacecraftParams()

@@ -3,8 +3,8 @@ detumbled, captured and pointed; a sensor outage sends it to SAFE and it comes b
 import numpy as np
 
 from magtune_core.design.gains import load_gains
-from magtune_core.design.modes import ACQUISITION, DETUMBLE, POINTING, SAFE
 from magtune_core.design.params import SpacecraftParams
+from magtune_core.onboard.modes import ACQUISITION, DETUMBLE, POINTING, SAFE
 from magtune_core.sim.initial import initial_conditions
 from magtune_core.sim.modes_loop import simulate_modes, transition_table
 

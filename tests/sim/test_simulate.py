@@ -3,10 +3,10 @@ nonlinear model, paper section 5 set-up."""
 import numpy as np
 import pytest
 
-from magtune_core.design.law import ProjectionController
 from magtune_core.design.lq import lq_gains
 from magtune_core.design.model import AttitudeLTP, projection_dipole
 from magtune_core.design.params import SpacecraftParams
+from magtune_core.onboard.law import ProjectionController
 from magtune_core.sim.simulate import SimResult, simulate
 
 

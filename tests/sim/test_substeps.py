@@ -6,7 +6,7 @@ import pytest
 from detumble import angle, dop853_run, rk4_run, tumble  # tests/support
 
 from magtune_core.design.params import SpacecraftParams
-from magtune_core.design.torquers import Torquers
+from magtune_core.onboard.torquers import Torquers
 from magtune_core.sim.simulate import DW0
 from magtune_core.sim.substeps import Substeps, substeps_for_rate
 

@@ -457,7 +457,7 @@ def test_torquers_section_reaches_every_run(reference, tmp_path):
     Torquers on the same draws (same code path, so equal exactly), the switch-off on the RK4 grid (5 sub-steps
     at ts 1 s, off 0.2 s), recorded in campaign.json, and not the reference's (the coupling and the
     duty cycle change every run)."""
-    from magtune_core.design.torquers import Torquers, dipole_coupling
+    from magtune_core.onboard.torquers import Torquers, dipole_coupling
     from magtune_core.sim.batch import simulate_batch
 
     C = [float(x) for x in dipole_coupling([0.0, 0.0, 0.5]).ravel()]

@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from magtune_core.base.errors import ConfigError
-from magtune_core.design.node_params import ESTIMATOR_FIELDS
+from magtune_core.onboard.params import ESTIMATOR_FIELDS
 from magtune_core.sim.batch import BatchEstimator
 from magtune_core.studies import campaign, campaign_report
 

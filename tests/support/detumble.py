@@ -6,8 +6,8 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from magtune_core.base.rotations import quat_mul
-from magtune_core.design.bdot import BdotController, FieldDerivativeFilter, FilterState, bdot_gain
 from magtune_core.design.params import SpacecraftParams
+from magtune_core.onboard.bdot import BdotController, FieldDerivativeFilter, FilterState, bdot_gain
 from magtune_core.sim.dynamics import AttitudeDynamics
 from magtune_core.sim.initial import initial_conditions
 from magtune_core.sim.simulate import initial_state

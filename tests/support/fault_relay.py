@@ -29,7 +29,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import Imu, MagneticField
 
-from magtune_ros.common import LOCKSTEP_QOS
+from magtune_ros.qos import LOCKSTEP_QOS
 
 
 def main(argv=None):

@@ -1,5 +1,5 @@
 """The kinematic truth of the estimator tests: the paper's field along the orbit seen from an inertial
-frame, and an Earth-pointing body with a slow wobble (tests/design/test_mekf*.py, tests/sim/test_estimation.py)."""
+frame, and an Earth-pointing body with a slow wobble (tests/onboard/test_mekf*.py, tests/sim/test_estimation.py)."""
 import math
 
 import numpy as np

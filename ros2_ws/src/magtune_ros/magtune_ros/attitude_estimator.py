@@ -1,11 +1,11 @@
 """Attitude estimator node, managed (lifecycle): raw sensors in, attitude and rate estimate out.
 
-The MEKF of magtune_core.design.mekf fed one sample at a time by
-magtune_core.design.estimator.MekfStream (coarse fix, propagation with the previous gyro sample,
+The MEKF of magtune_core.onboard.mekf fed one sample at a time by
+magtune_core.onboard.estimator.MekfStream (coarse fix, propagation with the previous gyro sample,
 gated magnetometer and sun updates) against the on-board models of
-magtune_core.design.estimator.OnboardModels: the node only moves messages (docs/estimation.md).
-configure validates ESTIMATOR_FIELDS (design/node_params.py) and the spacecraft file and builds
-the filter; activate creates the topics below (magtune_ros.common.ManagedNode).
+magtune_core.onboard.estimator.OnboardModels: the node only moves messages (docs/estimation.md).
+configure validates ESTIMATOR_FIELDS (onboard/params.py) and the spacecraft file and builds
+the filter; activate creates the topics below (magtune_ros.lifecycle.ManagedNode).
 
 Subscribes (LOCKSTEP_QOS):
   sensors/imu             sensor_msgs/Imu            gyro rate [rad/s], body axes
@@ -31,7 +31,7 @@ orientation_covariance[0] = -1 (unknown; the
 controller commands zero dipole).
 
 The node is on the lockstep's critical path (sensors -> estimator -> controller), so it takes its
-inputs serialized (raw) and reads only the fields it uses (common.raw_imu, raw_magnetic_field,
+inputs serialized (raw) and reads only the fields it uses (raw.raw_imu, raw_magnetic_field,
 raw_vector3_stamped, raw_odometry), runs the filter compiled (MekfStream(compiled=True), the same
 equations as the core's Python filter within 1e-10 rad) and fills a preallocated message.
 """
@@ -45,22 +45,21 @@ from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import Imu, MagneticField
 
-from magtune_core.design.estimator import MekfStream, OnboardModels
-from magtune_core.design.node_params import ESTIMATOR_FIELDS
+from magtune_core.base.topics import FRAME_BODY, TOPIC_ESTIMATE, TOPIC_IMU, TOPIC_MAG, TOPIC_POSITION, TOPIC_SUN
 from magtune_core.design.params import SpacecraftParams
-from magtune_core.design.sensors import Gyro, Magnetometer, SensorSuite, SunSensor
+from magtune_core.onboard.estimator import FilterModel, MekfStream, OnboardModels
+from magtune_core.onboard.params import ESTIMATOR_FIELDS
 
-from . import common as c
+from .inputs import PairSync, StampGate, finite, now_wall, ns_to_stamp, sec_to_ns
+from .lifecycle import ManagedNode
+from .main import run
+from .params import check_ts, declare_overrides, from_schema, parse_fields
+from .qos import LOCKSTEP_QOS
+from .raw import raw_imu, raw_magnetic_field, raw_odometry, raw_vector3_stamped
 
 #: The estimate's topic (relative): ``magtune sil --attitude estimator`` remaps the controller's
 #: sensors/attitude to it.
-TOPIC_ESTIMATE = c.TOPIC_ESTIMATE
-
-
-def suite_from(v: dict) -> SensorSuite:
-    """The filter's sensor model from the parsed ESTIMATOR_FIELDS (what MekfStream reads)."""
-    return SensorSuite(float(v["ts"]), Magnetometer(float(v["mag_noise_std"])),
-                       Gyro(float(v["gyro_arw"]), float(v["gyro_rrw"])), 0.0, SunSensor(float(v["sun_noise_std"])))
+TOPIC_ESTIMATE = TOPIC_ESTIMATE
 
 
 def models_from(v: dict, p: SpacecraftParams) -> OnboardModels:
@@ -70,7 +69,9 @@ def models_from(v: dict, p: SpacecraftParams) -> OnboardModels:
     return OnboardModels("paper", p.orbit_config().jd0, paper_field=p.field(), orbit_rate=p.orbit_rate)
 
 
-class AttitudeEstimator(c.ManagedNode):
+class AttitudeEstimator(ManagedNode):
+    """The attitude_estimator node, managed (lifecycle): the MEKF on sensors/imu, sensors/magnetic_field (full: sensors/sun,
+    sensors/position), estimate/attitude out; configure builds the filter, activate creates the topics."""
     NODE_NAME = "attitude_estimator"
 
     def __init__(self):
@@ -83,68 +84,74 @@ class AttitudeEstimator(c.ManagedNode):
     # ---------------------------------------------------------------- lifecycle
     def configure(self):
         """Validate the parameters and the spacecraft file; build the filter and the on-board models."""
-        v = c.parse_fields(self, ESTIMATOR_FIELDS)
-        p = c.from_schema(self, SpacecraftParams)
-        c.declare_overrides(self)
+        v = parse_fields(self, ESTIMATOR_FIELDS)
+        p = from_schema(self, SpacecraftParams)
+        check_ts(v["ts"], p)
+        declare_overrides(self)
         self.values, self.full = v, v["environment"] == "full"
-        self.suite, self.models = suite_from(v), models_from(v, p)
+        self.model, self.models = FilterModel.from_values(v), models_from(v, p)
         self.msg = Imu()
-        self.msg.header.frame_id = c.FRAME_BODY
+        self.msg.header.frame_id = FRAME_BODY
         self.msg.linear_acceleration_covariance[0] = -1.0
-        self.rate_var = self.suite.gyro.white_std(self.suite.ts) ** 2 * np.eye(3)  # the gyro's white part
+        self.rate_var = self.model.gyro_white_std() ** 2 * np.eye(3)  # the gyro's white part
         self.unknown = np.array([-1.0] + [0.0] * 8)  # REP-145's "not known" covariance
 
     def activate(self):
         """A fresh filter (an activation restarts from the coarse fix), then the topics."""
         v = self.values
-        self.stream = MekfStream(self.suite, bias_std=v["initial_bias_std"], gate_probability=v["gate_probability"],
+        self.stream = MekfStream(self.model, bias_std=v["initial_bias_std"], gate_probability=v["gate_probability"],
                                  init_angle=v["init_angle"], mag_bias_std=v["initial_mag_bias_std"],
                                  mag_bias_rw=v["mag_bias_rw"], compiled=True)
-        self.ts_ns = c.sec_to_ns(self.suite.ts)
-        self.gate = c.StampGate(self, 2 * self.ts_ns, n=4)
-        self.sync = c.PairSync(3 if self.full else 2)  # imu, mag (, position): same stamp t_k
+        self.ts_ns = sec_to_ns(self.model.ts)
+        self.gate = StampGate(self, 2 * self.ts_ns, n=4)
+        self.sync = PairSync(3 if self.full else 2)  # imu, mag (, position): same stamp t_k
         self.suns: dict = {}
         self.last_ns, self.w_prev, self.pending = -1, None, None
-        self.pub = self.data_publisher(Imu, TOPIC_ESTIMATE, c.LOCKSTEP_QOS)
-        self.data_subscription(Imu, c.TOPIC_IMU, self.on_imu, c.LOCKSTEP_QOS, raw=True)
-        self.data_subscription(MagneticField, c.TOPIC_MAG, self.on_mag, c.LOCKSTEP_QOS, raw=True)
+        self.pub = self.data_publisher(Imu, TOPIC_ESTIMATE, LOCKSTEP_QOS)
+        self.data_subscription(Imu, TOPIC_IMU, self.on_imu, LOCKSTEP_QOS, raw=True)
+        self.data_subscription(MagneticField, TOPIC_MAG, self.on_mag, LOCKSTEP_QOS, raw=True)
         if self.full:
-            self.data_subscription(Vector3Stamped, c.TOPIC_SUN, self.on_sun, c.LOCKSTEP_QOS, raw=True)
-            self.data_subscription(Odometry, c.TOPIC_POSITION, self.on_position, c.LOCKSTEP_QOS, raw=True)
+            self.data_subscription(Vector3Stamped, TOPIC_SUN, self.on_sun, LOCKSTEP_QOS, raw=True)
+            self.data_subscription(Odometry, TOPIC_POSITION, self.on_position, LOCKSTEP_QOS, raw=True)
 
     # ---------------------------------------------------------------- inputs (serialized messages)
     def on_imu(self, data: bytes):
-        f = c.raw_imu(data)
+        """sensors/imu (raw bytes): rejects and counts a malformed message or a non-finite gyro rate; else stamp-gated and paired by stamp."""
+        f = raw_imu(data)
         if f is None:
             return self.diag.count("rejected_malformed", "malformed sensors/imu message")
-        if not c.finite(*f[2]):
+        if not finite(*f[2]):
             return self.diag.count("rejected_nonfinite", "non-finite gyro rate")
         self._input(0, f[0], f[2])
 
     def on_mag(self, data: bytes):
-        f = c.raw_magnetic_field(data)
+        """sensors/magnetic_field (raw): rejects and counts a malformed message or a non-finite or zero field; else stamp-gated and paired."""
+        f = raw_magnetic_field(data)
         if f is None:
             return self.diag.count("rejected_malformed", "malformed sensors/magnetic_field message")
         b = f[1]
-        if not c.finite(*b) or b[0] == b[1] == b[2] == 0.0:
+        if not finite(*b) or b[0] == b[1] == b[2] == 0.0:
             return self.diag.count("rejected_nonfinite", "non-finite or zero magnetic field")
         self._input(1, f[0], b)
 
     def on_position(self, data: bytes):
-        f = c.raw_odometry(data)
+        """sensors/position (raw, full environment): rejects and counts a malformed, non-finite or zero fix; else stamp-gated and paired."""
+        f = raw_odometry(data)
         if f is None:
             return self.diag.count("rejected_malformed", "malformed sensors/position message")
         p, v = f[1], f[2]
-        if not c.finite(*p, *v) or p[0] == p[1] == p[2] == 0.0:
+        if not finite(*p, *v) or p[0] == p[1] == p[2] == 0.0:
             return self.diag.count("rejected_nonfinite", "non-finite or zero position fix")
         self._input(2, f[0], (np.array(p), np.array(v)))
 
     def on_sun(self, data: bytes):
-        f = c.raw_vector3_stamped(data)
+        """sensors/sun (raw): rejects and counts a malformed or non-unit vector and a sample of a step already estimated (sun_late);
+        keeps it by stamp and runs the step that was waiting for it."""
+        f = raw_vector3_stamped(data)
         if f is None:
             return self.diag.count("rejected_malformed", "malformed sensors/sun message")
         ns, (x, y, z) = f
-        n = math.sqrt(x * x + y * y + z * z) if c.finite(x, y, z) else 0.0
+        n = math.sqrt(x * x + y * y + z * z) if finite(x, y, z) else 0.0
         if not abs(n - 1.0) < 1e-3:
             return self.diag.count("rejected_nonfinite", "sun vector not finite and unit")
         if ns <= self.last_ns:
@@ -167,10 +174,11 @@ class AttitudeEstimator(c.ManagedNode):
             self._process(*self.pending[:2])
         if not self.full or ns in self.suns or not self.models.lit(self._t(ns), group[2][0]):
             return self._process(ns, group)
-        self.pending = (ns, group, c.now_wall())
+        self.pending = (ns, group, now_wall())
 
     def check_pending(self):
-        if self.pending is not None and c.now_wall() - self.pending[2] > self.values["sun_wait"]:
+        """Steady-time timer (20 Hz): a sample waiting for its sun message more than ``sun_wait`` wall s goes on without it (sun_missing)."""
+        if self.pending is not None and now_wall() - self.pending[2] > self.values["sun_wait"]:
             self.diag.count("sun_missing", "no sun sample for a step predicted lit")
             self._process(*self.pending[:2])
 
@@ -179,7 +187,7 @@ class AttitudeEstimator(c.ManagedNode):
 
     # ---------------------------------------------------------------- the step
     def _process(self, ns, group):
-        """One MEKF step of sample ``ns`` (design.estimator.MekfStream.step) and its estimate."""
+        """One MEKF step of sample ``ns`` (onboard.estimator.MekfStream.step) and its estimate."""
         self.pending = None
         self.last_ns = ns
         w, b = group[0], group[1]
@@ -210,8 +218,10 @@ class AttitudeEstimator(c.ManagedNode):
         self.publish(ns, t, out.state, r, v)
 
     def publish(self, ns, t, state, r, v):
+        """Publish estimate/attitude of sample ``ns``: the attitude w.r.t. the orbital axes with the MEKF's covariance, gyro rate minus the
+        estimated bias."""
         m = self.msg
-        m.header.stamp = c.ns_to_stamp(ns)
+        m.header.stamp = ns_to_stamp(ns)
         q = self.models.to_orbital(state.q, t, r, v)
         o = m.orientation
         o.w, o.x, o.y, o.z = float(q[0]), float(q[1]), float(q[2]), float(q[3])
@@ -228,7 +238,7 @@ class AttitudeEstimator(c.ManagedNode):
         """The sample's message without an estimate: orientation_covariance[0] = -1 (REP-145's
         "not known"), so the lockstep goes on and the controller holds the torquers off."""
         m = self.msg
-        m.header.stamp = c.ns_to_stamp(ns)
+        m.header.stamp = ns_to_stamp(ns)
         m.orientation.w, m.orientation.x, m.orientation.y, m.orientation.z = 1.0, 0.0, 0.0, 0.0
         m.orientation_covariance = self.unknown.copy()
         w = self.w_prev
@@ -238,7 +248,8 @@ class AttitudeEstimator(c.ManagedNode):
 
 
 def main(args=None):
-    return c.run(AttitudeEstimator, args)
+    """Entry point of the attitude_estimator node (console script): run(AttitudeEstimator)'s exit status."""
+    return run(AttitudeEstimator, args)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """Sensors node, managed (lifecycle): truth in, raw and controller measurements out (models:
 magtune_core.design.sensors). configure loads and validates the parameters and builds the models;
-activate seeds the noise and creates the topics below (magtune_ros.common.ManagedNode).
+activate seeds the noise and creates the topics below (magtune_ros.lifecycle.ManagedNode).
 
 Subscribes:
   sim/truth              nav_msgs/Odometry          attitude q (see simulator.py)
@@ -29,7 +29,7 @@ Publishes (stamp = truth stamp):
                          stale_inputs, sun_samples, sun_eclipse, sun_out_of_fov, faulted_samples, mag_dropped
 Faults (parameter ``faults``, magtune_core.design.faults): the magnetometer and gyro faults act on
 the samples of their sim time (``faults.measure``); a dropped magnetometer sample is not published.
-QoS: magtune_ros.common.LOCKSTEP_QOS. Noise: one row of design.sensors.NORMALS_PER_STEP standard
+QoS: magtune_ros.qos.LOCKSTEP_QOS. Noise: one row of design.sensors.NORMALS_PER_STEP standard
 normals per sample from numpy default_rng(seed), drawn only when some noise or bias is set (so
 zero-noise runs pass the truth through bit for bit); sun and position from sensors.aux_rng(seed).
 """
@@ -43,19 +43,41 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, MagneticField
 
 from magtune_core.base.errors import ConfigError
+from magtune_core.base.topics import (
+    FRAME_BODY,
+    FRAME_ECI,
+    TOPIC_ATTITUDE,
+    TOPIC_IMU,
+    TOPIC_INERTIAL_RATE,
+    TOPIC_MAG,
+    TOPIC_ORBIT,
+    TOPIC_POSITION,
+    TOPIC_SUN,
+    TOPIC_TORQUER_FIELD,
+    TOPIC_TRUE_FIELD,
+    TOPIC_TRUE_SUN,
+    TOPIC_TRUTH,
+)
 from magtune_core.design import faults as fl
 from magtune_core.design import sensors as s
-from magtune_core.design.node_params import FAULTS, SENSOR_FIELDS, TORQUER_FIELDS, check_sensors
-from magtune_core.design.torquers import Torquers
+from magtune_core.design.node_params import FAULTS, SENSOR_FIELDS, check_sensors
+from magtune_core.onboard.params import TORQUER_FIELDS
+from magtune_core.onboard.torquers import Torquers
 
-from . import common as c
+from .inputs import PairSync, StampGate, finite, sec_to_ns, stamp_to_ns
+from .lifecycle import ManagedNode
+from .main import run
+from .params import check, param_error, parse_fields
+from .qos import LOCKSTEP_QOS
 
 
 def _cov3(var: float) -> list:
     return [var, 0.0, 0.0, 0.0, var, 0.0, 0.0, 0.0, var]
 
 
-class AttitudeSensors(c.ManagedNode):
+class AttitudeSensors(ManagedNode):
+    """The attitude_sensors node, managed (lifecycle): the simulator's sim/* truth in, the noisy sensors/* measurements of each t_k out;
+    configure builds the sensor models, activate seeds the noise and creates the topics."""
     NODE_NAME = "attitude_sensors"
 
     def __init__(self):
@@ -66,15 +88,15 @@ class AttitudeSensors(c.ManagedNode):
     # ---------------------------------------------------------------- lifecycle
     def configure(self):
         """Load and validate the sensor parameters; build the sensor models (design.sensors)."""
-        v = c.parse_fields(self, SENSOR_FIELDS)
-        c.check(check_sensors, v, self)
+        v = parse_fields(self, SENSOR_FIELDS)
+        check(check_sensors, v, self)
         self.values = v
         self.suite = s.SensorSuite.from_values(v)
-        self.coupled = Torquers.from_values(c.parse_fields(self, TORQUER_FIELDS)).coupled
+        self.coupled = Torquers.from_values(parse_fields(self, TORQUER_FIELDS)).coupled
         try:
-            self.faults = fl.from_list(c.parse_fields(self, (FAULTS,))["faults"], "faults")
+            self.faults = fl.from_list(parse_fields(self, (FAULTS,))["faults"], "faults")
         except ConfigError as exc:
-            raise c._param_error(exc) from None
+            raise param_error(exc) from None
         self.make_messages()
 
     def activate(self):
@@ -84,49 +106,50 @@ class AttitudeSensors(c.ManagedNode):
         self.rng, self.aux = np.random.default_rng(v["seed"]), s.aux_rng(v["seed"])
         self.beta = np.asarray(self.suite.gyro.bias, dtype=float)  # gyro bias before the next sample
         self.fault_state = fl.FaultState()
-        self.gate = c.StampGate(self, 2 * c.sec_to_ns(self.suite.ts), n=6)
+        self.gate = StampGate(self, 2 * sec_to_ns(self.suite.ts), n=6)
         # field, truth (attitude), inertial rate (and the torquers' field when coupled): same stamp t_k
-        self.sync = c.PairSync(4 if self.coupled else 3)
-        self.sync_orbit = c.PairSync(3)  # truth, orbit, Sun (full environment)
-        self.pub_mag = self.data_publisher(MagneticField, c.TOPIC_MAG, c.LOCKSTEP_QOS)
-        self.pub_imu = self.data_publisher(Imu, c.TOPIC_IMU, c.LOCKSTEP_QOS)
-        self.pub_att = self.data_publisher(Imu, c.TOPIC_ATTITUDE, c.LOCKSTEP_QOS)
-        self.pub_sun = self.data_publisher(Vector3Stamped, c.TOPIC_SUN, c.LOCKSTEP_QOS)
-        self.pub_pos = self.data_publisher(Odometry, c.TOPIC_POSITION, c.LOCKSTEP_QOS)
-        self.data_subscription(Odometry, c.TOPIC_TRUTH, self.on_truth, c.LOCKSTEP_QOS)
-        self.data_subscription(MagneticField, c.TOPIC_TRUE_FIELD, self.on_field, c.LOCKSTEP_QOS)
-        self.data_subscription(Vector3Stamped, c.TOPIC_INERTIAL_RATE, self.on_rate, c.LOCKSTEP_QOS)
-        self.data_subscription(Odometry, c.TOPIC_ORBIT, self.on_orbit, c.LOCKSTEP_QOS)
-        self.data_subscription(Vector3Stamped, c.TOPIC_TRUE_SUN, self.on_sun, c.LOCKSTEP_QOS)
+        self.sync = PairSync(4 if self.coupled else 3)
+        self.sync_orbit = PairSync(3)  # truth, orbit, Sun (full environment)
+        self.pub_mag = self.data_publisher(MagneticField, TOPIC_MAG, LOCKSTEP_QOS)
+        self.pub_imu = self.data_publisher(Imu, TOPIC_IMU, LOCKSTEP_QOS)
+        self.pub_att = self.data_publisher(Imu, TOPIC_ATTITUDE, LOCKSTEP_QOS)
+        self.pub_sun = self.data_publisher(Vector3Stamped, TOPIC_SUN, LOCKSTEP_QOS)
+        self.pub_pos = self.data_publisher(Odometry, TOPIC_POSITION, LOCKSTEP_QOS)
+        self.data_subscription(Odometry, TOPIC_TRUTH, self.on_truth, LOCKSTEP_QOS)
+        self.data_subscription(MagneticField, TOPIC_TRUE_FIELD, self.on_field, LOCKSTEP_QOS)
+        self.data_subscription(Vector3Stamped, TOPIC_INERTIAL_RATE, self.on_rate, LOCKSTEP_QOS)
+        self.data_subscription(Odometry, TOPIC_ORBIT, self.on_orbit, LOCKSTEP_QOS)
+        self.data_subscription(Vector3Stamped, TOPIC_TRUE_SUN, self.on_sun, LOCKSTEP_QOS)
         if self.coupled:
-            self.data_subscription(MagneticField, c.TOPIC_TORQUER_FIELD, self.on_torquer_field, c.LOCKSTEP_QOS)
+            self.data_subscription(MagneticField, TOPIC_TORQUER_FIELD, self.on_torquer_field, LOCKSTEP_QOS)
 
     def make_messages(self):
         """Preallocated messages with their frames and (constant) covariances."""
         su = self.suite
         self.msg_mag = MagneticField()
-        self.msg_mag.header.frame_id = c.FRAME_BODY
+        self.msg_mag.header.frame_id = FRAME_BODY
         self.msg_mag.magnetic_field_covariance = su.magnetometer.covariance.ravel().tolist()
         g2 = su.gyro.white_std(su.ts) ** 2
         self.msg_imu, self.msg_att = Imu(), Imu()
         for m in (self.msg_imu, self.msg_att):
-            m.header.frame_id = c.FRAME_BODY
+            m.header.frame_id = FRAME_BODY
             m.angular_velocity_covariance = _cov3(g2)
             m.linear_acceleration_covariance[0] = -1.0
         self.msg_imu.orientation_covariance[0] = -1.0
         self.msg_att.orientation_covariance = _cov3(su.attitude_std**2)
         self.msg_sun = Vector3Stamped()
-        self.msg_sun.header.frame_id = c.FRAME_BODY
+        self.msg_sun.header.frame_id = FRAME_BODY
         self.msg_pos = Odometry()
-        self.msg_pos.header.frame_id = self.msg_pos.child_frame_id = c.FRAME_ECI
+        self.msg_pos.header.frame_id = self.msg_pos.child_frame_id = FRAME_ECI
         p2, v2 = su.position.noise_std**2, su.position.velocity_noise_std**2
         self.msg_pos.pose.covariance = np.diag([p2, p2, p2, -1.0, -1.0, -1.0]).ravel().tolist()
         self.msg_pos.twist.covariance = np.diag([v2, v2, v2, -1.0, -1.0, -1.0]).ravel().tolist()
 
     # ---------------------------------------------------------------- inputs
     def on_truth(self, msg: Odometry):
+        """sim/truth: rejects and counts a non-finite state or a non-unit quaternion; else stamp-gated and paired for both measurement sets."""
         o, w = msg.pose.pose.orientation, msg.twist.twist.angular
-        if not c.finite(o.w, o.x, o.y, o.z, w.x, w.y, w.z):
+        if not finite(o.w, o.x, o.y, o.z, w.x, w.y, w.z):
             return self.diag.count("rejected_nonfinite", "non-finite truth state")
         if abs(math.sqrt(o.w * o.w + o.x * o.x + o.y * o.y + o.z * o.z) - 1.0) > 1e-6:
             return self.diag.count("rejected_quaternion", "truth quaternion not unit")
@@ -135,49 +158,56 @@ class AttitudeSensors(c.ManagedNode):
             self._pair(self.sync_orbit, 0, msg, self.publish_orbit)
 
     def on_rate(self, msg: Vector3Stamped):
+        """sim/inertial_rate (the gyro's input): rejects and counts a non-finite rate; else stamp-gated and paired by stamp."""
         w = msg.vector
-        if not c.finite(w.x, w.y, w.z):
+        if not finite(w.x, w.y, w.z):
             return self.diag.count("rejected_nonfinite", "non-finite inertial rate")
         if self._accept(2, msg):
             self._pair(self.sync, 2, msg, self.publish)
 
     def on_field(self, msg: MagneticField):
+        """sim/magnetic_field (the magnetometer's input): rejects and counts a non-finite field; else stamp-gated and paired by stamp."""
         b = msg.magnetic_field
-        if not c.finite(b.x, b.y, b.z):
+        if not finite(b.x, b.y, b.z):
             return self.diag.count("rejected_nonfinite", "non-finite true field")
         if self._accept(0, msg):
             self._pair(self.sync, 0, msg, self.publish)
 
     def on_torquer_field(self, msg: MagneticField):
+        """sim/torquer_field (coupled torquers only): rejects and counts a non-finite field; else stamp-gated and paired, added to
+        the field the magnetometer reads."""
         b = msg.magnetic_field
-        if not c.finite(b.x, b.y, b.z):
+        if not finite(b.x, b.y, b.z):
             return self.diag.count("rejected_nonfinite", "non-finite torquer field")
         if self._accept(5, msg):
             self._pair(self.sync, 3, msg, self.publish)
 
     def on_orbit(self, msg: Odometry):
+        """sim/orbit (full environment): rejects and counts a non-finite r, v; else stamp-gated and paired with truth and Sun for the
+        sun sensor and the position fix."""
         p, v = msg.pose.pose.position, msg.twist.twist.linear
-        if not c.finite(p.x, p.y, p.z, v.x, v.y, v.z):
+        if not finite(p.x, p.y, p.z, v.x, v.y, v.z):
             return self.diag.count("rejected_nonfinite", "non-finite orbit state")
         if self._accept(3, msg):
             self._pair(self.sync_orbit, 1, msg, self.publish_orbit)
 
     def on_sun(self, msg: Vector3Stamped):
+        """sim/sun (full environment): rejects and counts a non-finite or zero Sun position; else stamp-gated and paired with truth and orbit."""
         u = msg.vector
-        if not c.finite(u.x, u.y, u.z) or u.x == u.y == u.z == 0.0:
+        if not finite(u.x, u.y, u.z) or u.x == u.y == u.z == 0.0:
             return self.diag.count("rejected_nonfinite", "non-finite or zero Sun position")
         if self._accept(4, msg):
             self._pair(self.sync_orbit, 2, msg, self.publish_orbit)
 
     def _accept(self, slot, msg) -> bool:
-        bad = self.gate.check(slot, c.stamp_to_ns(msg.header.stamp))
+        bad = self.gate.check(slot, stamp_to_ns(msg.header.stamp))
         if bad:
             self.diag.count(*bad)
         return not bad
 
     @staticmethod
     def _pair(sync, slot, msg, then):
-        pair = sync.add(slot, c.stamp_to_ns(msg.header.stamp), msg)
+        pair = sync.add(slot, stamp_to_ns(msg.header.stamp), msg)
         if pair:
             then(*pair)
 
@@ -198,7 +228,7 @@ class AttitudeSensors(c.ManagedNode):
         w_out = wm[0]
         if self.faults:
             b0, w0 = b, w_out
-            b, w_out, self.fault_state = fl.measure(self.faults, c.stamp_to_ns(stamp) * 1e-9, su.ts, b, w_out,
+            b, w_out, self.fault_state = fl.measure(self.faults, stamp_to_ns(stamp) * 1e-9, su.ts, b, w_out,
                                                     self.fault_state)
             if b is None or np.any(b != b0) or np.any(w_out != w0):
                 self.diag.count("faulted_samples")
@@ -245,7 +275,8 @@ class AttitudeSensors(c.ManagedNode):
 
 
 def main(args=None):
-    return c.run(AttitudeSensors, args)
+    """Entry point of the attitude_sensors node (console script): run(AttitudeSensors)'s exit status."""
+    return run(AttitudeSensors, args)
 
 
 if __name__ == "__main__":

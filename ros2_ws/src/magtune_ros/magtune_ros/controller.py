@@ -1,15 +1,15 @@
 """Magnetorquer controller node, managed (lifecycle), digital sample-and-hold; law by flight mode.
 
     POINTING, ACQUISITION: m = sat( S(b)^T K x / |b|^2 ), x = [dq; dw]  (paper eq. 17,
-                           magtune_core.design.law.ProjectionController)
-    DETUMBLE:              saturated B-dot (magtune_core.design.bdot.BdotController, gain rule of
+                           magtune_core.onboard.law.ProjectionController)
+    DETUMBLE:              saturated B-dot (magtune_core.onboard.bdot.BdotController, gain rule of
                            Avanzini & Giulietti 2012 unless bdot_gain is set)
     SAFE:                  m = 0
 With a duty cycle (``torquer_off_time``, TORQUER_FIELDS) the torquers drive the law's dipole / f,
-f the on fraction, saturated per axis (``duty_compensation``; design.torquers.Torquers.drive).
+f the on fraction, saturated per axis (``duty_compensation``; onboard.torquers.Torquers.drive).
 The mode is parameter ``initial_mode`` (default POINTING: the paper's run) until the mode
 manager publishes one on ``mode`` (magtune_interfaces/Mode); a change applies from the next
-sample. Lifecycle (magtune_ros.common.ManagedNode): configure loads and validates every
+sample. Lifecycle (magtune_ros.lifecycle.ManagedNode): configure loads and validates every
 parameter, activate creates the subscriptions and the command publisher.
 
 Parameters: the gains file ``config/gains/sigma_*.yaml`` (``gain``: 18 doubles, row-major 3x6 K;
@@ -46,15 +46,20 @@ from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import Imu, MagneticField
 
 from magtune_core.base.errors import ConfigError
-from magtune_core.design.bdot import BdotController, FieldDerivativeFilter, FilterState, bdot_gain, geomagnetic_inclination
+from magtune_core.base.topics import FRAME_BODY, TOPIC_ATTITUDE, TOPIC_DIPOLE, TOPIC_MAG, TOPIC_MODE
 from magtune_core.design.gains import Gains
-from magtune_core.design.law import ProjectionController, linear_state
-from magtune_core.design.modes import ACQUISITION, DETUMBLE, MODES, POINTING
-from magtune_core.design.node_params import BDOT_FIELDS, CONTROLLER_FIELDS, TORQUER_FIELDS
 from magtune_core.design.params import SpacecraftParams
-from magtune_core.design.torquers import Torquers
+from magtune_core.onboard.bdot import BdotController, FieldDerivativeFilter, FilterState, bdot_gain, geomagnetic_inclination
+from magtune_core.onboard.law import ProjectionController, linear_state
+from magtune_core.onboard.modes import ACQUISITION, DETUMBLE, MODES, POINTING
+from magtune_core.onboard.params import BDOT_FIELDS, CONTROLLER_FIELDS, TORQUER_FIELDS
+from magtune_core.onboard.torquers import Torquers
 
-from . import common as c
+from .inputs import PairSync, StampGate, finite, ns_to_stamp, sec_to_ns, stamp_to_ns
+from .lifecycle import ManagedNode
+from .main import run
+from .params import check_ts, declare_overrides, from_schema, param_error, parse_fields
+from .qos import LOCKSTEP_QOS, MODE_QOS
 
 #: Largest plausible magnetometer reading per axis [T]: the geomagnetic field is below 7e-5 T,
 #: the spacecraft schema bounds constant_field the same way; a larger (finite) value is rejected
@@ -62,7 +67,9 @@ from . import common as c
 MAX_FIELD = 1e-3
 
 
-class Controller(c.ManagedNode):
+class Controller(ManagedNode):
+    """The controller node, managed (lifecycle): sensors/magnetic_field + sensors/attitude (paired by stamp) and mode in,
+    controller/dipole_command out; configure loads the gains and builds the laws, activate creates the topics."""
     NODE_NAME = "controller"
 
     def __init__(self):
@@ -78,43 +85,44 @@ class Controller(c.ManagedNode):
         """Load and validate the gains, the node's options and the spacecraft file; build both laws."""
         # the gains-file schema (as `magtune analyze`), the node's options and the spacecraft file's:
         # each parameter declared from its schema and validated once
-        gains = c.from_schema(self, Gains)
+        gains = from_schema(self, Gains)
         K, self.sigma, self.ts = gains.K, gains.sigma, gains.ts
-        v = c.parse_fields(self, CONTROLLER_FIELDS)
-        b = c.parse_fields(self, BDOT_FIELDS)
-        tq = Torquers.from_values(c.parse_fields(self, TORQUER_FIELDS))
-        p = c.from_schema(self, SpacecraftParams)
-        c.declare_overrides(self)
+        v = parse_fields(self, CONTROLLER_FIELDS)
+        b = parse_fields(self, BDOT_FIELDS)
+        tq = Torquers.from_values(parse_fields(self, TORQUER_FIELDS))
+        p = from_schema(self, SpacecraftParams)
+        check_ts(self.ts, p)  # Nyquist of the nutation, also for a controller started alone
+        declare_overrides(self)
         try:
             tq.check(self.ts, "parameters")
         except ConfigError as exc:
-            raise c._param_error(exc) from None
+            raise param_error(exc) from None
         self.torquers, self.w0 = tq, p.orbit_rate
-        lim = tq.law_limit(v["dipole_limit"], self.ts)  # the duty cycle's compensation (design.torquers)
+        lim = tq.law_limit(v["dipole_limit"], self.ts)  # the duty cycle's compensation (onboard.torquers)
         self.law = ProjectionController(K, lim, v["min_field"])
         k = b["bdot_gain"] or bdot_gain(p.orbit_rate, geomagnetic_inclination(math.radians(p.inclination_deg)),
                                         p.inertia)
         self.bdot_law = BdotController(k, lim, min_field=v["min_field"])
         self.filter = FieldDerivativeFilter(self.ts, b["bdot_cutoff"])
         self.mode = v["initial_mode"]
-        self.ts_ns = c.sec_to_ns(self.ts)
+        self.ts_ns = sec_to_ns(self.ts)
         self.msg = Vector3Stamped()
-        self.msg.header.frame_id = c.FRAME_BODY
+        self.msg.header.frame_id = FRAME_BODY
         self.get_logger().info(f"K loaded (sigma={self.sigma:g}, ts={self.ts:g} s, |K|={np.linalg.norm(K):.4g}); "
                                f"B-dot k={k:.4g} N m s; mode {self.mode}")
 
     def activate(self):
         """Fresh input state, then the command publisher and the subscriptions (sensors, mode)."""
-        self.gate = c.StampGate(self, 2 * self.ts_ns)
-        self.sync = c.PairSync()
+        self.gate = StampGate(self, 2 * self.ts_ns)
+        self.sync = PairSync()
         self.fstate = FilterState()
         self.next_sample_ns = None
         self.last_input_ns = None
         self.m = np.zeros(3)
-        self.pub = self.data_publisher(Vector3Stamped, c.TOPIC_DIPOLE, c.LOCKSTEP_QOS)
-        self.data_subscription(Mode, c.TOPIC_MODE, self.on_mode, c.MODE_QOS)
-        self.data_subscription(MagneticField, c.TOPIC_MAG, self.on_mag, c.LOCKSTEP_QOS)
-        self.data_subscription(Imu, c.TOPIC_ATTITUDE, self.on_attitude, c.LOCKSTEP_QOS)
+        self.pub = self.data_publisher(Vector3Stamped, TOPIC_DIPOLE, LOCKSTEP_QOS)
+        self.data_subscription(Mode, TOPIC_MODE, self.on_mode, MODE_QOS)
+        self.data_subscription(MagneticField, TOPIC_MAG, self.on_mag, LOCKSTEP_QOS)
+        self.data_subscription(Imu, TOPIC_ATTITUDE, self.on_attitude, LOCKSTEP_QOS)
 
     # ---------------------------------------------------------------- inputs
     def on_mode(self, msg: Mode):
@@ -124,29 +132,31 @@ class Controller(c.ManagedNode):
         mode = MODES[msg.mode]
         if mode != self.mode:
             self.diag.count("mode_changes")
-            self.get_logger().info(f"mode {self.mode} -> {mode} (decided at t={c.stamp_to_ns(msg.header.stamp) * 1e-9:.1f}"
+            self.get_logger().info(f"mode {self.mode} -> {mode} (decided at t={stamp_to_ns(msg.header.stamp) * 1e-9:.1f}"
                                    f" s: {msg.reason})")
             self.mode = mode
         self.diag.extra["mode"] = mode
 
     def on_mag(self, msg: MagneticField):
+        """sensors/magnetic_field: rejects and counts a non-finite or implausible (> MAX_FIELD) field; else stamp-gated and paired."""
         b = msg.magnetic_field
-        if not c.finite(b.x, b.y, b.z):
+        if not finite(b.x, b.y, b.z):
             return self.diag.count("rejected_nonfinite", "non-finite magnetic field")
         if max(abs(b.x), abs(b.y), abs(b.z)) > MAX_FIELD:  # e.g. 1e308 T: finite, not physical
             return self.diag.count("rejected_implausible", f"|b| component above {MAX_FIELD:g} T")
         self._input(0, msg)
 
     def on_attitude(self, msg: Imu):
+        """sensors/attitude: rejects and counts a non-finite attitude/rate or a quaternion norm off 1 by > 1e-3; else stamp-gated and paired."""
         o, w = msg.orientation, msg.angular_velocity
-        if not c.finite(o.w, o.x, o.y, o.z, w.x, w.y, w.z):
+        if not finite(o.w, o.x, o.y, o.z, w.x, w.y, w.z):
             return self.diag.count("rejected_nonfinite", "non-finite attitude/rate")
         if abs(math.sqrt(o.w * o.w + o.x * o.x + o.y * o.y + o.z * o.z) - 1.0) > 1e-3:
             return self.diag.count("rejected_quaternion", "attitude quaternion norm differs from 1 by > 1e-3")
         self._input(1, msg)
 
     def _input(self, slot, msg):
-        ns = c.stamp_to_ns(msg.header.stamp)
+        ns = stamp_to_ns(msg.header.stamp)
         bad = self.gate.check(slot, ns)
         if bad:
             return self.diag.count(*bad)
@@ -155,6 +165,8 @@ class Controller(c.ManagedNode):
             self.command(ns, *pair)
 
     def command(self, ns, mag: MagneticField, att: Imu):
+        """A stamp-paired sample: recompute the dipole with the mode's law when a sample period ``ts`` is due (else hold it), then
+        publish it stamped ``ns``."""
         self.last_input_ns = ns
         if self.next_sample_ns is None or ns >= self.next_sample_ns:
             o, w, b = att.orientation, att.angular_velocity, mag.magnetic_field
@@ -182,13 +194,16 @@ class Controller(c.ManagedNode):
         self.publish(ns)
 
     def publish(self, ns):
+        """Publish the held dipole on controller/dipole_command stamped ``ns`` (counted: commands)."""
         msg = self.msg
-        msg.header.stamp = c.ns_to_stamp(ns)
+        msg.header.stamp = ns_to_stamp(ns)
         msg.vector.x, msg.vector.y, msg.vector.z = float(self.m[0]), float(self.m[1]), float(self.m[2])
         self.diag.count("commands")
         self.pub.publish(msg)
 
     def check_stale(self):
+        """Steady-time timer (10 Hz): while active, zero a nonzero held dipole and publish it when no valid input came for 2 ts of
+        sim time (stale_data)."""
         if self.last_input_ns is None or not np.any(self.m) or self.diag.extra.get("state") != "active":
             return
         now = self.get_clock().now().nanoseconds
@@ -200,7 +215,8 @@ class Controller(c.ManagedNode):
 
 
 def main(args=None):
-    return c.run(Controller, args)
+    """Entry point of the controller node (console script): run(Controller)'s exit status."""
+    return run(Controller, args)
 
 
 if __name__ == "__main__":

@@ -26,13 +26,15 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from magtune_core.bags.live import DEFAULT_PORT, LiveServer
 from magtune_core.base.topics import PROJECT_TOPICS
 
-from . import common as c
 from .bag_common import message_class
+from .main import run
+from .params import ParamError
 
 CLOCK = "/clock"
 
 
 def parse_args(argv):
+    """The node's options (--port, --host, --topics) from the arguments that are not ROS arguments."""
     p = argparse.ArgumentParser(prog="live_bridge", description=__doc__.split("\n\n")[0])
     p.add_argument("--port", type=int, default=DEFAULT_PORT, help="WebSocket port (0: any free port)")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (0.0.0.0: every interface)")
@@ -52,7 +54,7 @@ class LiveBridge(Node):
         try:
             self.server = LiveServer(args.port, args.host, name="magtune sil")
         except (OSError, RuntimeError) as exc:   # port in use, ...
-            raise c.ParamError("port", f"cannot start the WebSocket server on port {args.port}: {exc}") from None
+            raise ParamError("port", f"cannot start the WebSocket server on port {args.port}: {exc}") from None
         print(f"magtune-live ws://{args.host}:{self.server.port}", flush=True)
         specs = args.topics or [f"{n}:{t}" for n, (t, _) in PROJECT_TOPICS.items()]
         self.sim_ns = None  # no /clock yet
@@ -62,7 +64,7 @@ class LiveBridge(Node):
             if not typ and name in PROJECT_TOPICS:
                 typ = PROJECT_TOPICS[name][0]
             if not typ:
-                raise c.ParamError("topics", f"topic {name!r} needs a type (/name:pkg/msg/Type)")
+                raise ParamError("topics", f"topic {name!r} needs a type (/name:pkg/msg/Type)")
             durable = PROJECT_TOPICS.get(name, ("", "volatile"))[1] == "transient_local"
             qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL if durable else DurabilityPolicy.VOLATILE)
@@ -76,7 +78,7 @@ class LiveBridge(Node):
         return 0
 
     def finish(self) -> None:
-        """Close the WebSocket server (called by ``common.run`` at shutdown)."""
+        """Close the WebSocket server (called by ``main.run`` at shutdown)."""
         self.server.close()
 
     def _callback(self, name):
@@ -96,7 +98,8 @@ class LiveBridge(Node):
 
 
 def main(argv=None):
-    return c.run(LiveBridge, argv)
+    """Entry point of the live_bridge node (console script): run(LiveBridge)'s exit status."""
+    return run(LiveBridge, argv)
 
 
 if __name__ == "__main__":

@@ -7,14 +7,14 @@ configure leaves that node *unconfigured*: the manager prints ``mode_manager: <n
 (SIGINT/SIGTERM) it deactivates them in reverse order, then shuts them down (their processes end).
 The manager itself is a plain node: it manages, as Nav2's lifecycle_manager does.
 
-Mode logic (magtune_core.design.modes.ModeLogic, parameters MODE_FIELDS): stepped at each sensor
+Mode logic (magtune_core.onboard.modes.ModeLogic, parameters MODE_FIELDS): stepped at each sensor
 sample t_k (sensors/magnetic_field and sensors/attitude paired by stamp) with the measured
 quantities only: |w_gyro| (the gyro sample, which sensors/attitude carries as sensors/imu does),
-the filtered |db/dt| of sensors/magnetic_field (design.bdot.FieldDerivativeFilter, bdot_cutoff),
+the filtered |db/dt| of sensors/magnetic_field (onboard.bdot.FieldDerivativeFilter, bdot_cutoff),
 |b_k - b_(k-1)| of sensors/magnetic_field (a sample repeated for frozen_time: a frozen magnetometer
 -> SAFE) and the pointing error of the attitude estimate. The manager is outside the lockstep and
 shares the cores with it, so it takes the two streams serialized (raw) and reads the few fields it
-needs (common.raw_imu, common.raw_magnetic_field) instead of building the messages.
+needs (raw.raw_imu, raw.raw_magnetic_field) instead of building the messages.
 
 Time: the manager's sim time is the newest stamp of its samples (it keeps no /clock: use_sim_time
 is forced false); transitions, commanded modes and /diagnostics are stamped with it.
@@ -62,11 +62,17 @@ from rclpy.task import Future
 from sensor_msgs.msg import Imu, MagneticField
 
 from magtune_core.base.errors import ConfigError
-from magtune_core.design.bdot import FieldDerivativeFilter, FilterState
-from magtune_core.design.modes import MODES, SAFE, Measurements, ModeLogic, ModeParams, ModeState
-from magtune_core.design.node_params import BDOT_FIELDS, MANAGER_FIELDS, MODE_FIELDS
+from magtune_core.base.topics import SERVICE_SET_MODE, TOPIC_ATTITUDE, TOPIC_DIAGNOSTICS, TOPIC_MAG, TOPIC_MODE
+from magtune_core.onboard.bdot import FieldDerivativeFilter, FilterState
+from magtune_core.onboard.modes import MODES, SAFE, Measurements, ModeLogic, ModeParams, ModeState
+from magtune_core.onboard.params import BDOT_FIELDS, MANAGER_FIELDS, MODE_FIELDS
 
-from . import common as c
+from .diagnostics import Diagnostics
+from .inputs import PairSync, StampGate, finite, ns_to_stamp, sec_to_ns
+from .main import run
+from .params import declare_fields, declare_overrides, param_error, parse_fields
+from .qos import DIAG_QOS, LOCKSTEP_QOS, MODE_QOS
+from .raw import raw_imu, raw_magnetic_field
 
 #: The sensor streams of the mode logic, by slot.
 STREAMS = ("sensors/magnetic_field", "sensors/attitude")
@@ -81,6 +87,8 @@ class BringUpError(RuntimeError):
 
 
 class ModeManager(Node):
+    """The mode_manager node (plain, it manages): brings the flight nodes up via their lifecycle services, steps the mode logic on
+    sensors/magnetic_field + sensors/attitude, publishes mode, serves set_mode, watches the /diagnostics heartbeats."""
     NODE_NAME = "mode_manager"
     START_ERRORS = (BringUpError,)
 
@@ -88,18 +96,18 @@ class ModeManager(Node):
         # no /clock: the manager's sim time is its samples' stamps (one message and one timer less per step)
         super().__init__(self.NODE_NAME, parameter_overrides=[Parameter("use_sim_time", value=False)])
         self.done = Future()
-        v = c.parse_fields(self, MANAGER_FIELDS)
-        bd = c.parse_fields(self, BDOT_FIELDS)
+        v = parse_fields(self, MANAGER_FIELDS)
+        bd = parse_fields(self, BDOT_FIELDS)
         try:
-            self.logic = ModeLogic(ModeParams.from_mapping(c.declare_fields(self, MODE_FIELDS),
+            self.logic = ModeLogic(ModeParams.from_mapping(declare_fields(self, MODE_FIELDS),
                                                            f"node '{self.get_name()}'"))
         except ConfigError as exc:
-            raise c._param_error(exc) from None
-        c.declare_overrides(self)
-        self.ts_ns = c.sec_to_ns(v["ts"])
+            raise param_error(exc) from None
+        declare_overrides(self)
+        self.ts_ns = sec_to_ns(v["ts"])
         self.nodes = list(v["managed_nodes"])
         self.heartbeat_timeout, self.transition_timeout = v["heartbeat_timeout"], v["transition_timeout"]
-        self.stale_ns = c.sec_to_ns(v["stale_timeout"])
+        self.stale_ns = sec_to_ns(v["stale_timeout"])
         self.filter, self.fstate = FieldDerivativeFilter(v["ts"], bd["bdot_cutoff"]), FilterState()
         self.state = ModeState(v["initial_mode"], 0.0, "start")
         self.previous = self.state.mode
@@ -111,17 +119,17 @@ class ModeManager(Node):
         self.monitoring = False
         # stamps must increase; no age limit: a manager behind the world (it is outside the lockstep)
         # still steps the logic on every sample, in stamp order, so its decisions do not depend on its lag
-        self.gate = c.StampGate(self, None, n=2)
-        self.diag = c.Diagnostics(self, ["samples", "transitions", "requests", "rejected_nonfinite",
+        self.gate = StampGate(self, None, n=2)
+        self.diag = Diagnostics(self, ["samples", "transitions", "requests", "rejected_nonfinite",
                                          "rejected_malformed", "rejected_stamp", "stale", "heartbeat_lost"],
                                   now_ns=lambda: max(0, *self.gate.last_ns))
-        self.sync = c.PairSync(2)  # magnetometer, attitude (with the gyro) of t_k
+        self.sync = PairSync(2)  # magnetometer, attitude (with the gyro) of t_k
         self.lagging = None  # (slot, its last stamp, newest stamp, steady time) of a lag not yet confirmed
-        self.pub_mode = self.create_publisher(Mode, c.TOPIC_MODE, c.MODE_QOS)
-        self.create_subscription(DiagnosticArray, c.TOPIC_DIAGNOSTICS, self.on_diagnostics, c.DIAG_QOS)
-        self.create_subscription(MagneticField, c.TOPIC_MAG, self.on_mag, c.LOCKSTEP_QOS, raw=True)
-        self.create_subscription(Imu, c.TOPIC_ATTITUDE, self.on_attitude, c.LOCKSTEP_QOS, raw=True)
-        self.create_service(SetMode, c.SERVICE_SET_MODE, self.on_set_mode)
+        self.pub_mode = self.create_publisher(Mode, TOPIC_MODE, MODE_QOS)
+        self.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS, self.on_diagnostics, DIAG_QOS)
+        self.create_subscription(MagneticField, TOPIC_MAG, self.on_mag, LOCKSTEP_QOS, raw=True)
+        self.create_subscription(Imu, TOPIC_ATTITUDE, self.on_attitude, LOCKSTEP_QOS, raw=True)
+        self.create_service(SetMode, SERVICE_SET_MODE, self.on_set_mode)
         self.change = {n: self.create_client(ChangeState, f"{n}/change_state") for n in self.nodes}
         self.get_state = {n: self.create_client(GetState, f"{n}/get_state") for n in self.nodes}
         self.create_timer(0.25, self.check_heartbeats, clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -129,7 +137,7 @@ class ModeManager(Node):
 
     # ---------------------------------------------------------------- lifecycle of the managed nodes
     def spin(self, executor, stop) -> int:
-        """Bring the nodes up, run until stopped, bring them down in reverse (c.run calls this)."""
+        """Bring the nodes up, run until stopped, bring them down in reverse (run calls this)."""
         self.bring_up(executor, stop)
         while rclpy.ok() and not stop.is_set() and not self.done.done():
             executor.spin_until_future_complete(self.done, timeout_sec=0.1)
@@ -256,18 +264,20 @@ class ModeManager(Node):
 
     # ---------------------------------------------------------------- mode logic
     def on_mag(self, data: bytes):
-        f = c.raw_magnetic_field(data)
+        """sensors/magnetic_field (raw): rejects and counts a malformed or non-finite sample; else stamp-gated and paired with the attitude."""
+        f = raw_magnetic_field(data)
         if f is None:
             return self.diag.count("rejected_malformed", "malformed sensors/magnetic_field message")
-        if not c.finite(*f[1]):
+        if not finite(*f[1]):
             return self.diag.count("rejected_nonfinite", "non-finite sensor sample")
         self._input(0, f[0], f[1])
 
     def on_attitude(self, data: bytes):
-        f = c.raw_imu(data)
+        """sensors/attitude (raw): rejects and counts a malformed or non-finite attitude/gyro sample; else stamp-gated and paired."""
+        f = raw_imu(data)
         if f is None:
             return self.diag.count("rejected_malformed", "malformed sensors/attitude message")
-        if not (c.finite(*f[1]) and c.finite(*f[2])):
+        if not (finite(*f[1]) and finite(*f[2])):
             return self.diag.count("rejected_nonfinite", "non-finite sensor sample")
         self._input(1, f[0], f[1:])
 
@@ -295,12 +305,14 @@ class ModeManager(Node):
         self.step(m, ns * 1e-9)
 
     def step(self, m: Measurements, t: float):
+        """One step of the mode logic at sim time ``t`` (``stale`` forced while a heartbeat is lost, so SAFE holds); applies the result."""
         if self.lost:  # a silent node: SAFE holds (the logic's only health input is ``stale``)
             m = Measurements(m.rate, m.bdot, m.pointing_error, stale=True, field_step=m.field_step)
         state, tr = self.logic.step(self.state, m, t)
         self.apply(state, tr)
 
     def apply(self, state: ModeState, tr):
+        """Adopt the logic's new state; on a transition: count it, log it and publish the mode."""
         self.state = state
         if tr is not None:
             self.previous = tr.source
@@ -309,13 +321,15 @@ class ModeManager(Node):
             self.publish_mode()
 
     def publish_mode(self):
+        """Publish the mode, the previous one and the reason on mode (MODE_QOS: transient-local), stamped with the mode's ``since``."""
         st = self.state
         msg = Mode(mode=MODES.index(st.mode), label=st.mode, previous=MODES.index(self.previous), reason=st.reason)
-        msg.header.stamp = c.ns_to_stamp(max(0, c.sec_to_ns(st.since)))
+        msg.header.stamp = ns_to_stamp(max(0, sec_to_ns(st.since)))
         self.diag.extra["mode"] = st.mode
         self.pub_mode.publish(msg)
 
     def on_set_mode(self, req: SetMode.Request, res: SetMode.Response):
+        """set_mode service: the commanded mode goes through the logic (reason recorded); an unknown id fails; answers the mode in force."""
         self.diag.count("requests")
         if req.mode >= len(MODES):
             res.success, res.message = False, f"unknown mode id {req.mode} (expected 0..{len(MODES) - 1}: " \
@@ -332,13 +346,14 @@ class ModeManager(Node):
         return max(0, *self.gate.last_ns) * 1e-9
 
     def finish(self):
-        """At shutdown (``common.run``): the last diagnostics (as ``common.ManagedNode.finish``)."""
+        """At shutdown (``main.run``): the last diagnostics (as ``lifecycle.ManagedNode.finish``)."""
         if self.context.ok():
             self.diag.publish()
 
 
 def main(args=None):
-    return c.run(ModeManager, args)
+    """Entry point of the mode_manager node (console script): run(ModeManager)'s exit status."""
+    return run(ModeManager, args)
 
 
 if __name__ == "__main__":

@@ -51,13 +51,14 @@ from rosbag2_interfaces import srv as bag_srv
 from magtune_core import bags as baglib
 from magtune_core.bags.playback import DEFAULT_WAIT_SUBSCRIBERS, SERVICES, ReplayOptions, validate
 
-from . import common as c
 from .bag_common import message_class, offer_from_recorded
+from .main import run
 
 CLOCK = "/clock"
 
 
 def parse_args(argv):
+    """The command line (bag, rate, window, topics, ...) without the ROS arguments; Player.parse_options validates it against the bag."""
     p = argparse.ArgumentParser(prog="player", description=__doc__.split("\n\n")[0])
     p.add_argument("bag", help="bag directory (or .mcap file)")
     p.add_argument("--rate", type=float, default=1.0, help="speed factor > 0; 0 = as fast as acked")
@@ -83,6 +84,7 @@ def parse_args(argv):
 
 
 def options_of(args) -> ReplayOptions:
+    """The ReplayOptions of the parsed command line: what magtune_core.bags.playback.validate checks."""
     return ReplayOptions(rate=args.rate, topics=args.topics, exclude=args.exclude, start=args.start,
                          playback_duration=args.playback_duration, playback_until=args.playback_until,
                          loop=args.loop, no_clock=args.no_clock, start_paused=args.start_paused,
@@ -102,6 +104,7 @@ class PlayState:
         self.version = 0          # bumped on every change: the play loop re-anchors its timing
 
     def change(self, **kw):
+        """Set attributes under the lock, bump ``version`` and wake the play loop (which re-anchors its timing)."""
         with self.cond:
             for k, v in kw.items():
                 setattr(self, k, v)
@@ -211,6 +214,7 @@ class Player(Node):
 
     # ---------------------------------------------------------------- playing
     def wait_subscribers(self, timeout: float) -> bool:
+        """Wait up to ``timeout`` wall s until every topic has a subscriber; True if all do, False on timeout or stop."""
         end = time.monotonic() + timeout
         while time.monotonic() < end and not self.stop.is_set():
             if all(p.get_subscription_count() > 0 for p in self.pubs.values()):
@@ -219,6 +223,7 @@ class Player(Node):
         return False
 
     def publish_clock(self, t_ns: int):
+        """Publish /clock at log time ``t_ns`` (and stream it to Foxglove): nodes with use_sim_time follow the recording."""
         m = self._clock_msg
         m.clock.sec, m.clock.nanosec = divmod(int(t_ns), 1_000_000_000)
         self.clock_pub.publish(m)
@@ -267,12 +272,13 @@ class Player(Node):
         print(json.dumps(out), flush=True)
 
     def finish(self) -> None:
-        """Close the Foxglove server, if any (called by ``common.run`` at shutdown)."""
+        """Close the Foxglove server, if any (called by ``main.run`` at shutdown)."""
         if self.live is not None:
             self.live.close()
             self.live = None
 
     def wait_acked(self, timeout_s: float = 10.0):
+        """Wait (up to ``timeout_s`` per publisher) until every subscriber acknowledged what was published: nothing lost on exit."""
         for p in self.pubs.values():
             if p.get_subscription_count() > 0:
                 p.wait_for_all_acked(Duration(seconds=timeout_s))
@@ -363,6 +369,7 @@ class Player(Node):
     _last_progress = 0.0
 
     def progress(self, final: bool = False):
+        """The progress line on stderr, if shown: at most every 0.2 s, or now with a newline when ``final``."""
         if not self.show_progress:
             return
         now = time.monotonic()
@@ -380,7 +387,8 @@ class Player(Node):
 
 
 def main(argv=None):
-    return c.run(Player, argv)
+    """Entry point of the player node (console script): run(Player)'s exit status."""
+    return run(Player, argv)
 
 
 def _spin(executor, stop: threading.Event):

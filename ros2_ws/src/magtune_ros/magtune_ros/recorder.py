@@ -68,13 +68,15 @@ from magtune_core.bags.writer import BagWriter
 from magtune_core.base.errors import ConfigError
 from magtune_core.base.topics import project_topic
 
-from . import common as c
 from .bag_common import HIDDEN_TOPICS, adapt_request, message_class, qos_profile_dict
+from .main import run
+from .params import ParamError, declare_fields
 
 CLOCK = "/clock"
 
 
 def parse_args(argv):
+    """The command line without the ROS arguments; an option left out is None, so the ROS parameter of that name applies."""
     p = argparse.ArgumentParser(prog="recorder", description=__doc__.split("\n\n")[0])
     p.add_argument("-o", "--output", "--path", dest="output", default=None,
                    help="bag directory to create (bags/NAME)")
@@ -107,12 +109,12 @@ def parse_args(argv):
 def resolve_options(node: Node, args) -> argparse.Namespace:
     """Command-line options, else ROS parameters (:data:`RECORDER_FIELDS`), else defaults;
     validated once (:func:`magtune_core.bags.record_options.recording_options`)."""
-    values = c.declare_fields(node, RECORDER_FIELDS)
+    values = declare_fields(node, RECORDER_FIELDS)
     values.update({("path" if k == "output" else k): v for k, v in vars(args).items() if v is not None})
     try:
         v = recording_options(values, f"node '{node.get_name()}'")
     except ConfigError as exc:
-        raise c.ParamError(exc.field or "?", exc.expected) from None
+        raise ParamError(exc.field or "?", exc.expected) from None
     v["output"] = v.pop("path")
     return argparse.Namespace(**v)
 
@@ -131,6 +133,7 @@ class SimClockMap:
         self.source: "SimClockMap | None" = None   # same table keyed by source timestamps
 
     def add(self, wall_ns: int, sim_ns: int) -> None:
+        """Store a /clock sample: its receive wall time (clamped so the table stays sorted) and its sim time."""
         if self.walls and wall_ns < self.walls[-1]:
             wall_ns = self.walls[-1]          # keep the table sorted (equal stamps are fine)
         self.walls.append(wall_ns)
@@ -138,9 +141,11 @@ class SimClockMap:
 
     @property
     def last_wall(self) -> int:
+        """Receive wall time of the newest /clock sample (-1 before any): the writer's readiness test."""
         return self.walls[-1] if self.walls else -1
 
     def sim_at(self, wall_ns: int) -> int:
+        """Sim time of the last /clock received at or before ``wall_ns`` (earlier: the earliest sim time known)."""
         i = bisect.bisect_right(self.walls, wall_ns) - 1
         # received before the first /clock: the earliest sim time known (the run's start; 0 or the
         # scenario epoch), not 0, which would put an epoch-stamped bag's start in 1970
@@ -189,6 +194,8 @@ class BagWriterThread(threading.Thread):
                 or (bool(cm.walls) and time.time_ns() - wall_ns > self.hold_ns))
 
     def run(self):
+        """Thread body: write the queued registrations and messages (once their sim time is final), flush every ``flush_period``,
+        until halted and drained; an exception is kept in ``error``."""
         last_flush = time.monotonic()
         dirty = False
         q, w, cm = self.queue, self.writer, self.clock_map
@@ -420,7 +427,8 @@ class Recorder(Node):
 
 
 def main(argv=None):
-    return c.run(Recorder, argv)
+    """Entry point of the recorder node (console script): run(Recorder)'s exit status."""
+    return run(Recorder, argv)
 
 
 if __name__ == "__main__":

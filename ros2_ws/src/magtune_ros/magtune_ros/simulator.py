@@ -26,7 +26,7 @@ Publishes (all stamped with simulated time t_k = k * ts):
                                geocentric Sun position [m] (the environment's, env.sun)
   sim/torquer_field            sensor_msgs/MagneticField (only with a nonzero ``torquer_coupling``): the
                                torquers' field at the magnetometer at t_k [T], body axes, from the dipole
-                               applied over the last period (design.torquers.Torquers.field)
+                               applied over the last period (onboard.torquers.Torquers.field)
   sim/magnetic_torque          geometry_msgs/WrenchStamped  m x b at t_k [N m], body axes
   sim/disturbance_torque       geometry_msgs/WrenchStamped  gravity gradient + residual dipole (+ drag, SRP) at t_k
   /diagnostics                 diagnostic_msgs/DiagnosticArray (steps, missed_steps, rejected, ...)
@@ -73,17 +73,38 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from magtune_core.base.errors import ConfigError
 from magtune_core.base.rotations import cross, matrix_to_quat
+from magtune_core.base.topics import (
+    FRAME_BODY,
+    FRAME_ECI,
+    FRAME_ORBITAL,
+    TOPIC_DIPOLE,
+    TOPIC_DIST_TORQUE,
+    TOPIC_INERTIAL_RATE,
+    TOPIC_MAG_TORQUE,
+    TOPIC_MARKERS,
+    TOPIC_ORBIT,
+    TOPIC_TF,
+    TOPIC_TORQUER_FIELD,
+    TOPIC_TRUE_FIELD,
+    TOPIC_TRUE_SUN,
+    TOPIC_TRUTH,
+)
 from magtune_core.design import faults as fl
 from magtune_core.design.fitfield import field_for_spacecraft
-from magtune_core.design.law import linear_state, saturate
-from magtune_core.design.node_params import FAULTS, SIMULATOR_FIELDS, TORQUER_FIELDS, check_simulator
+from magtune_core.design.node_params import FAULTS, SIMULATOR_FIELDS, check_simulator
 from magtune_core.design.params import SpacecraftParams
-from magtune_core.design.torquers import Torquers
+from magtune_core.onboard.law import linear_state, saturate
+from magtune_core.onboard.params import TORQUER_FIELDS
+from magtune_core.onboard.torquers import Torquers
 from magtune_core.sim.fullenv import FullEnvironmentOptions, make_dynamics
 from magtune_core.sim.simulate import DIVERGED_EXIT, SimResult, divergence, initial_state
 from magtune_core.sim.substeps import Substeps
 
-from . import common as c
+from .diagnostics import Diagnostics
+from .inputs import finite, ns_to_stamp, sec_to_ns, stamp_to_ns
+from .main import run
+from .params import ParamError, check, check_ts, from_schema, param_error, parse_fields
+from .qos import CLOCK_QOS, LOCKSTEP_QOS
 
 #: Arrow lengths of sim/markers: field 0.05 m per uT (|b| 20-50 uT -> 1-2.5 m), dipole 0.2 m per A m^2
 MARKER_FIELD_SCALE = 0.05e6
@@ -102,6 +123,8 @@ def load_plugin(spec: str):
 
 
 class Simulator(Node):
+    """The simulator node (plain, the time source): integrates the dynamics, publishes /clock and the sim/* truth, takes
+    controller/dipole_command (lockstep by default); writes ``results_path`` and ends when the run is done."""
     NODE_NAME = "simulator"
 
     def __init__(self):
@@ -114,9 +137,10 @@ class Simulator(Node):
     def load_parameters(self) -> dict:
         """The spacecraft file's schema and SIMULATOR_FIELDS, declared from the schemas and
         validated once; the orbit period is the one given (``magtune sil`` derives it)."""
-        self.p = c.from_schema(self, SpacecraftParams)
-        v = c.parse_fields(self, SIMULATOR_FIELDS)
-        c.check(check_simulator, v, self)
+        self.p = from_schema(self, SpacecraftParams)
+        v = parse_fields(self, SIMULATOR_FIELDS)
+        check(check_simulator, v, self)
+        check_ts(v["ts"], self.p)
         self.ts, self.substeps, self.m_max = v["ts"], v["substeps"], v["dipole_limit"]
         self.lockstep, self.timeout, self.startup_timeout = v["lockstep"], v["lockstep_timeout"], v["startup_timeout"]
         self.rtf, self.results_path, self.pub_torques = v["real_time_factor"], v["results_path"], v["publish_torques"]
@@ -125,15 +149,15 @@ class Simulator(Node):
         self.environment = v["environment"]
         self.n = v["steps"] if v["steps"] > 0 else int(round(v["orbits"] * self.p.orbit_period / self.ts))
         try:
-            self.faults = fl.from_list(c.parse_fields(self, (FAULTS,))["faults"], "faults")
+            self.faults = fl.from_list(parse_fields(self, (FAULTS,))["faults"], "faults")
         except ConfigError as exc:
-            raise c._param_error(exc) from None
+            raise param_error(exc) from None
         self.fault_state, self.kill_t = fl.FaultState(), fl.kill_time(self.faults)
-        self.torquers = Torquers.from_values(c.parse_fields(self, TORQUER_FIELDS))
+        self.torquers = Torquers.from_values(parse_fields(self, TORQUER_FIELDS))
         try:
             self.torquers.check(self.ts, "parameters")
         except ConfigError as exc:
-            raise c._param_error(exc) from None
+            raise param_error(exc) from None
         # the sub-steps re-chosen every step from the rate, the duty cycle's switch-off on the grid
         self.rule = Substeps.ladder(self.ts, self.substeps, max(self.substeps, v["max_substeps"]), self.torquers)
         self.substeps, self.weights = self.rule.most, self.rule.weights(self.torquers)
@@ -151,12 +175,12 @@ class Simulator(Node):
             try:
                 dist.append(load_plugin(spec)(p))
             except Exception as exc:  # noqa: BLE001 - any failure is a parameter error
-                raise c.ParamError("disturbance_plugins", f"cannot load {spec!r}: {exc}") from None
+                raise ParamError("disturbance_plugins", f"cannot load {spec!r}: {exc}") from None
         self.dyn = make_dynamics(self.environment, p, ts=self.ts, substeps=self.substeps,
                                  residual_dipole=v["residual_dipole"], field=field, disturbances=dist, options=opts)
         self.y = initial_state(p, v["initial_rate_error"], v["initial_quaternion"])
         self.k = 0
-        self.t_ns = [self.time_origin_ns + c.sec_to_ns(k * self.ts) for k in range(self.n + 1)]
+        self.t_ns = [self.time_origin_ns + sec_to_ns(k * self.ts) for k in range(self.n + 1)]
         self.m_cmd = np.zeros(3)
         self.m_last = np.zeros(3)  # the dipole applied over the last step: its field at the magnetometer
         self.last_cmd_ns = -1
@@ -178,46 +202,46 @@ class Simulator(Node):
             try:
                 return load_plugin(field_plugin)(self.p)
             except Exception as exc:  # noqa: BLE001 - any failure is a parameter error
-                raise c.ParamError("field_plugin", f"cannot load {field_plugin!r}: {exc}") from None
+                raise ParamError("field_plugin", f"cannot load {field_plugin!r}: {exc}") from None
         if field_file:
             try:
                 return field_for_spacecraft(field_file, self.p)
             except ConfigError as exc:
-                raise c.ParamError("field_file", str(exc)) from None
+                raise ParamError("field_file", str(exc)) from None
         return None
 
     def make_interfaces(self) -> None:
         """Diagnostics, publishers, the command subscription, preallocated messages and the timer."""
-        self.diag = c.Diagnostics(self, ["steps", "missed_steps", "rejected_commands", "late_commands",
+        self.diag = Diagnostics(self, ["steps", "missed_steps", "rejected_commands", "late_commands",
                                          "saturated_commands"])
-        self.pub_clock = self.create_publisher(ClockMsg, "/clock", c.CLOCK_QOS)
-        self.pub_truth = self.create_publisher(Odometry, c.TOPIC_TRUTH, c.LOCKSTEP_QOS)
-        self.pub_rate = self.create_publisher(Vector3Stamped, c.TOPIC_INERTIAL_RATE, c.LOCKSTEP_QOS)
-        self.pub_field = self.create_publisher(MagneticField, c.TOPIC_TRUE_FIELD, c.LOCKSTEP_QOS)
-        self.pub_tmag = self.create_publisher(WrenchStamped, c.TOPIC_MAG_TORQUE, c.LOCKSTEP_QOS)
+        self.pub_clock = self.create_publisher(ClockMsg, "/clock", CLOCK_QOS)
+        self.pub_truth = self.create_publisher(Odometry, TOPIC_TRUTH, LOCKSTEP_QOS)
+        self.pub_rate = self.create_publisher(Vector3Stamped, TOPIC_INERTIAL_RATE, LOCKSTEP_QOS)
+        self.pub_field = self.create_publisher(MagneticField, TOPIC_TRUE_FIELD, LOCKSTEP_QOS)
+        self.pub_tmag = self.create_publisher(WrenchStamped, TOPIC_MAG_TORQUE, LOCKSTEP_QOS)
         full = self.environment == "full"  # orbit and Sun exist only there (the paper's model has neither)
-        self.pub_orbit = self.create_publisher(Odometry, c.TOPIC_ORBIT, c.LOCKSTEP_QOS) if full else None
-        self.pub_sun = self.create_publisher(Vector3Stamped, c.TOPIC_TRUE_SUN, c.LOCKSTEP_QOS) if full else None
-        self.pub_tdist = self.create_publisher(WrenchStamped, c.TOPIC_DIST_TORQUE, c.LOCKSTEP_QOS)
-        self.pub_tqf = (self.create_publisher(MagneticField, c.TOPIC_TORQUER_FIELD, c.LOCKSTEP_QOS)
+        self.pub_orbit = self.create_publisher(Odometry, TOPIC_ORBIT, LOCKSTEP_QOS) if full else None
+        self.pub_sun = self.create_publisher(Vector3Stamped, TOPIC_TRUE_SUN, LOCKSTEP_QOS) if full else None
+        self.pub_tdist = self.create_publisher(WrenchStamped, TOPIC_DIST_TORQUE, LOCKSTEP_QOS)
+        self.pub_tqf = (self.create_publisher(MagneticField, TOPIC_TORQUER_FIELD, LOCKSTEP_QOS)
                         if self.torquers.coupled else None)
-        self.sub_cmd = self.create_subscription(Vector3Stamped, c.TOPIC_DIPOLE, self.on_command, c.LOCKSTEP_QOS)
-        self.pub_tf = self.create_publisher(TFMessage, c.TOPIC_TF, c.LOCKSTEP_QOS) if self.pub_tf_on else None
-        self.pub_markers = (self.create_publisher(MarkerArray, c.TOPIC_MARKERS, c.LOCKSTEP_QOS)
+        self.sub_cmd = self.create_subscription(Vector3Stamped, TOPIC_DIPOLE, self.on_command, LOCKSTEP_QOS)
+        self.pub_tf = self.create_publisher(TFMessage, TOPIC_TF, LOCKSTEP_QOS) if self.pub_tf_on else None
+        self.pub_markers = (self.create_publisher(MarkerArray, TOPIC_MARKERS, LOCKSTEP_QOS)
                             if self.pub_markers_on else None)
         self.msg_tf = self._make_tf()
         self.msg_markers = self._make_markers()
         # preallocated messages (fields overwritten every step)
         self.msg_clock = ClockMsg()
         self.msg_truth = Odometry()
-        self.msg_truth.header.frame_id = c.FRAME_ORBITAL
-        self.msg_truth.child_frame_id = c.FRAME_BODY
+        self.msg_truth.header.frame_id = FRAME_ORBITAL
+        self.msg_truth.child_frame_id = FRAME_BODY
         self.msg_orbit, self.msg_sun = Odometry(), Vector3Stamped()
-        self.msg_orbit.header.frame_id = self.msg_orbit.child_frame_id = self.msg_sun.header.frame_id = c.FRAME_ECI
+        self.msg_orbit.header.frame_id = self.msg_orbit.child_frame_id = self.msg_sun.header.frame_id = FRAME_ECI
         self.msg_rate, self.msg_field, self.msg_tqf = Vector3Stamped(), MagneticField(), MagneticField()
         self.msg_tmag, self.msg_tdist = WrenchStamped(), WrenchStamped()
         for msg in (self.msg_rate, self.msg_field, self.msg_tqf, self.msg_tmag, self.msg_tdist):
-            msg.header.frame_id = c.FRAME_BODY
+            msg.header.frame_id = FRAME_BODY
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.wall0 = time.perf_counter()
         self.pace0 = self.wall0  # reference of the real-time-factor pacing (re-anchored after a stall)
@@ -231,12 +255,16 @@ class Simulator(Node):
 
     # ---------------------------------------------------------------- stepping
     def peers_ready(self) -> bool:
+        """True once the lockstep peers are matched (truth, rate and field have subscribers, the command a publisher) or
+        ``wait_for_peers`` is off."""
         return (not self.wait_peers) or (
             self.pub_truth.get_subscription_count() >= self.min_subs and self.pub_field.get_subscription_count() > 0
             and self.pub_rate.get_subscription_count() > 0
             and self.sub_cmd.get_publisher_count() > 0)
 
     def on_timer(self):
+        """Steady-time timer: starts the run once the peers are ready (exit 3 after startup_timeout); free-running, steps; in lockstep,
+        counts a missed step and advances on the held command when the command is late."""
         now = time.perf_counter()
         if self.finished:
             return
@@ -244,7 +272,7 @@ class Simulator(Node):
             if self.time_origin_ns:
                 # epoch-stamped run: hold every node's clock at the origin while waiting, so the first
                 # samples (stamped 2026-...) are not "in the future" of a clock still at 0
-                self.msg_clock.clock = c.ns_to_stamp(self.t_ns[0])
+                self.msg_clock.clock = ns_to_stamp(self.t_ns[0])
                 self.pub_clock.publish(self.msg_clock)
                 # start once the sensors and the controller take /clock and had 0.5 s to follow it
                 takers = {i.node_name for i in self.get_subscriptions_info_by_topic(self.pub_clock.topic_name)}
@@ -280,7 +308,7 @@ class Simulator(Node):
             self.get_logger().warning(f"fault sensors_killed at t={k * self.ts:.3f} s: step held 1 s for the runner")
             self.kill_t = None
             time.sleep(1.0)  # the runner polls this log every 0.05 s and kills attitude_sensors meanwhile
-        stamp = c.ns_to_stamp(self.t_ns[k])
+        stamp = ns_to_stamp(self.t_ns[k])
         b = self.dyn.body_field(k * self.ts, y[:4])
         self.Y[k], self.B[k] = y, b
         self.X[k] = linear_state(y[:4], y[4:], self.dyn.orbit_rate)
@@ -316,11 +344,13 @@ class Simulator(Node):
         self.pub_clock.publish(self.msg_clock)
 
     def on_command(self, msg: Vector3Stamped):
+        """controller/dipole_command: rejects and counts non-finite, out-of-order, future and (lockstep) late commands; saturates and
+        holds it; in lockstep, advances."""
         v = msg.vector
-        if not c.finite(v.x, v.y, v.z):
+        if not finite(v.x, v.y, v.z):
             self.diag.count("rejected_commands", "non-finite dipole command")
             return
-        ns = c.stamp_to_ns(msg.header.stamp)
+        ns = stamp_to_ns(msg.header.stamp)
         if not self.started or self.finished:
             return
         cur = self.t_ns[self.k]
@@ -392,11 +422,11 @@ class Simulator(Node):
     # ---------------------------------------------------------------- visualization
     def _make_tf(self) -> TFMessage:
         body = TransformStamped()
-        body.header.frame_id, body.child_frame_id = c.FRAME_ORBITAL, c.FRAME_BODY
+        body.header.frame_id, body.child_frame_id = FRAME_ORBITAL, FRAME_BODY
         tfs = [body]
         if self.environment == "full":
             orb = TransformStamped()
-            orb.header.frame_id, orb.child_frame_id = c.FRAME_ECI, c.FRAME_ORBITAL
+            orb.header.frame_id, orb.child_frame_id = FRAME_ECI, FRAME_ORBITAL
             tfs.append(orb)
         return TFMessage(transforms=tfs)
 
@@ -436,7 +466,7 @@ class Simulator(Node):
     def _make_markers(self) -> MarkerArray:
         def marker(mid, mtype, rgba, ns):
             mk = Marker()
-            mk.header.frame_id = c.FRAME_BODY
+            mk.header.frame_id = FRAME_BODY
             mk.ns, mk.id, mk.type, mk.action = ns, mid, mtype, Marker.ADD
             mk.pose.orientation.w = 1.0
             mk.color.r, mk.color.g, mk.color.b, mk.color.a = rgba
@@ -454,7 +484,7 @@ class Simulator(Node):
 
     def publish_markers(self, k, m):
         """Body box, true field b(t_k) and the dipole applied over [t_k, t_k+1], in body axes."""
-        stamp = c.ns_to_stamp(self.t_ns[k])
+        stamp = ns_to_stamp(self.t_ns[k])
         b = self.B[k]
         mk = self.msg_markers.markers
         for mark, vec, scale in ((mk[1], b, MARKER_FIELD_SCALE), (mk[2], m, MARKER_DIPOLE_SCALE)):
@@ -465,8 +495,9 @@ class Simulator(Node):
         self.pub_markers.publish(self.msg_markers)
 
     def publish_torques(self, k, m):
+        """Publish sim/magnetic_torque (m x b) and sim/disturbance_torque of step k, body axes (``publish_torques``)."""
         y, b = self.Y[k], self.B[k]
-        stamp = c.ns_to_stamp(self.t_ns[k])
+        stamp = ns_to_stamp(self.t_ns[k])
         tm = cross(m, b)
         td = self.dyn.disturbance_torque(k * self.ts, y[:4], y[4:], b)
         for msg, T, pub in ((self.msg_tmag, tm, self.pub_tmag), (self.msg_tdist, td, self.pub_tdist)):
@@ -476,6 +507,8 @@ class Simulator(Node):
 
     # ---------------------------------------------------------------- end of run
     def finish_run(self, code: int = 0):
+        """End the run (once): last diagnostics, wait for a recorder's acks, write ``results_path`` (status 0 only), log the summary and
+        complete ``done`` with ``code``."""
         if self.finished:
             return
         self.finished = True
@@ -503,11 +536,12 @@ class Simulator(Node):
         self.done.set_result(code)
 
     def finish(self):
-        """Called by common.run at shutdown (e.g. Ctrl-C): nothing to flush unless finished."""
+        """Called by main.run at shutdown (e.g. Ctrl-C): nothing to flush unless finished."""
 
 
 def main(args=None):
-    return c.run(Simulator, args)
+    """Entry point of the simulator node (console script): run(Simulator)'s exit status."""
+    return run(Simulator, args)
 
 
 if __name__ == "__main__":

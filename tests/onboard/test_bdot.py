@@ -1,4 +1,4 @@
-"""B-dot detumbling law (magtune_core.design.bdot): the energy identity, the gain rule, the derivative
+"""B-dot detumbling law (magtune_core.onboard.bdot): the energy identity, the gain rule, the derivative
 filter against its analytic responses and an independent continuous-time simulation."""
 import math
 
@@ -7,8 +7,8 @@ import pytest
 from scipy import signal
 
 from magtune_core.base.rotations import rotation_matrix
-from magtune_core.design.bdot import BdotController, FieldDerivativeFilter, FilterState, bdot_gain, geomagnetic_inclination
 from magtune_core.design.params import SpacecraftParams
+from magtune_core.onboard.bdot import BdotController, FieldDerivativeFilter, FilterState, bdot_gain, geomagnetic_inclination
 from magtune_core.sim.dynamics import AttitudeDynamics
 
 B_INERTIAL = np.array([2e-5, -1e-5, 3e-5])  # a constant field [T]

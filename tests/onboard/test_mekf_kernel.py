@@ -1,5 +1,5 @@
-"""The compiled MEKF (design/mekf_kernel.py, what the batched simulation flies) equals the Python
-filter (design.estimator.MekfStream on design.mekf) on the same measurements, sample by sample."""
+"""The compiled MEKF (onboard/mekf_kernel.py, what the batched simulation flies) equals the Python
+filter (onboard.estimator.MekfStream on onboard.mekf) on the same measurements, sample by sample."""
 from __future__ import annotations
 
 import math
@@ -8,8 +8,6 @@ import numpy as np
 import pytest
 from kinematic import b_ref, wobble_rate  # tests/support
 
-from magtune_core.design import mekf_kernel as MK
-from magtune_core.design.estimator import MekfStream
 from magtune_core.design.sensors import (
     AUX_NORMALS,
     GYRO_U,
@@ -26,6 +24,8 @@ from magtune_core.design.sensors import (
     magnetometer,
     sun_sensor,
 )
+from magtune_core.onboard import mekf_kernel as MK
+from magtune_core.onboard.estimator import MekfStream
 from magtune_core.sim import estimation as E
 
 

@@ -7,9 +7,9 @@ import pytest
 from scipy.stats import chi2
 
 from magtune_core.base.rotations import quat_mul, rotation_matrix
-from magtune_core.design import mekf
-from magtune_core.design.attitude_fix import davenport, svd_fix, triad
 from magtune_core.design.sensors import Gyro, SunSensor, gyro, noisy_attitude, sun_sensor
+from magtune_core.onboard import mekf
+from magtune_core.onboard.attitude_fix import davenport, svd_fix, triad
 
 
 def _random_q(rng):

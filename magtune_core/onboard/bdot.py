@@ -1,7 +1,7 @@
 """B-dot rate damping (detumbling): m = -k d(b/|b|)/dt / |b| or m = -k_raw db/dt, saturated per axis.
 
 The law the controller node runs in DETUMBLE and the offline mode simulation calls
-(:mod:`magtune_core.sim.modes_loop`), like :mod:`magtune_core.design.law` holds the pointing law.
+(:mod:`magtune_core.sim.modes_loop`), like :mod:`magtune_core.onboard.law` holds the pointing law.
 Gain rule and normalized law: Avanzini & Giulietti, "Magnetic detumbling of a rigid spacecraft",
 J. Guidance, Control, and Dynamics 35(4), 2012 (doi 10.2514/1.53074):
 ``k = 2 W0 (1 + sin xi_m) J_min`` with W0 the orbit rate, xi_m the inclination of the orbit plane
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .law import saturate
-from .node_params import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD
+from .params import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD
 
 #: Inclination of the geomagnetic dipole axis to the Earth's rotation axis [rad] (IGRF-14 2025:
 #: dipole pole at 80.8 N): the orbit's inclination to the geomagnetic equator swings daily
@@ -75,7 +75,7 @@ class FieldDerivativeFilter:
     interval; the low-pass 1 / (tau s + 1) driven by a constant is solved exactly,
     ``y_k = a y_{k-1} + (1 - a) (b_k - b_{k-1}) / Ts``. So a field ramp is differentiated
     without bias, and the output is the continuous filter's output at the sample instants for
-    any piecewise-linear field (tests/design/test_bdot.py: the analytic step response).
+    any piecewise-linear field (tests/onboard/test_bdot.py: the analytic step response).
     """
 
     ts: float
@@ -107,7 +107,7 @@ class BdotController:
     ``gain`` k [N m s] for the normalized law (:func:`bdot_gain`), [A m^2 s / T] for the raw one;
     ``dipole_limit`` per axis [A m^2]; below ``min_field`` [T] the dipole is zero (b_hat undefined).
     Per-axis clipping keeps the sign of every component, so the torque still does negative work
-    on the body rate (the energy identity of tests/design/test_bdot.py holds saturated too).
+    on the body rate (the energy identity of tests/onboard/test_bdot.py holds saturated too).
     """
 
     gain: float

@@ -9,8 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .model import skew_field
-from .node_params import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD  # noqa: F401 (the law's defaults)
+from ..base.rotations import skew_field
+from .params import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD  # noqa: F401 (the law's defaults)
 
 
 def saturate(m, m_max) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""The magnetometer-bias states of the MEKF (design/mekf.py, states 7-9): the measurement Jacobian
+"""The magnetometer-bias states of the MEKF (onboard/mekf.py, states 7-9): the measurement Jacobian
 against finite differences, a zero prior giving the 6-state filter exactly, and over four orbits of
 a rotating field a 200 nT per-axis bias estimated to within its sigma with the NEES in its band
 (and far outside it without the bias states)."""
@@ -12,9 +12,9 @@ from kinematic import b_ref, wobble_rate  # tests/support
 from scipy.stats import binom
 
 from magtune_core.base.rotations import quat_mul, rotation_matrix
-from magtune_core.design import mekf
-from magtune_core.design.node_params import ESTIMATOR_FIELDS
 from magtune_core.design.sensors import Gyro, Magnetometer, SensorSuite, SunSensor
+from magtune_core.onboard import mekf
+from magtune_core.onboard.params import ESTIMATOR_FIELDS
 from magtune_core.sim import estimation as E
 from magtune_core.sim.batch import BatchEstimator
 

@@ -15,8 +15,8 @@ nothing here knows the truth.
   turned by ``init_angle``) then per sample: propagation with the previous gyro sample,
   magnetometer update, sun update when one is given, each gated (docs/estimation.md). With
   ``compiled=True`` (the node's) the propagation and the updates run the same equations compiled
-  (:mod:`magtune_core.design.mekf_kernel`, ~2 us a call against ~50-100 us of numpy on 3- and
-  6-vectors): equal to the Python filter within 1e-10 rad (tests/design/test_mekf_kernel.py).
+  (:mod:`magtune_core.onboard.mekf_kernel`, ~2 us a call against ~50-100 us of numpy on 3- and
+  6-vectors): equal to the Python filter within 1e-10 rad (tests/onboard/test_mekf_kernel.py).
 """
 from __future__ import annotations
 
@@ -32,18 +32,44 @@ from ..env.orbit import eci_to_orbital
 from ..env.sun import sun_position
 from .attitude_fix import davenport
 from .mekf import MAG_BIAS_STD, MekfParams, MekfState, initial_state, propagate, rotvec_quat, update
-from .sensors import Gyro, Magnetometer, PositionFix, SensorSuite, SunSensor
+from .params import TS_DEFAULT
 
 SECONDS_PER_DAY = 86400.0
 
 
-def default_suite(ts: float = 1.0) -> SensorSuite:
-    """The estimator's default sensors (docs/estimation.md#parameters): 100 nT magnetometer, MEMS
-    gyro sigma_v 1e-4 rad/s^0.5 (0.34 deg/h^0.5), sigma_u 1e-6 rad/s^1.5, bias (40, -60, 30) deg/h,
-    whole-sphere coarse sun sensors 0.5 deg per axis, 10 m / 0.01 m/s position fix."""
-    bias = tuple(np.deg2rad(np.array([40.0, -60.0, 30.0])) / 3600.0)
-    return SensorSuite(ts, Magnetometer(100e-9), Gyro(1e-4, 1e-6, bias), 0.0, SunSensor(math.radians(0.5)),
-                       PositionFix(10.0, 0.01))
+@dataclass(frozen=True)
+class FilterModel:
+    """The filter's model of its sensors: what the MEKF assumes, not the simulated sensors.
+
+    ``ts`` the sample period [s]; ``mag_var`` the magnetometer's variance per axis [T^2] (white noise
+    plus quantization); ``gyro_arw`` sigma_v [rad/s^0.5] and ``gyro_rrw`` sigma_u [rad/s^1.5] of the
+    Farrenkopf gyro (Crassidis & Junkins 2012, sec. 7.2.1); ``sun_noise_std`` the sun sensor's angle
+    error per axis [rad]. The node builds it from its parameters (:meth:`from_values`); an offline
+    run matched to its simulated sensors from their suite (:meth:`of_suite`).
+    """
+
+    ts: float = TS_DEFAULT
+    mag_var: float = (100e-9) ** 2
+    gyro_arw: float = 1e-4
+    gyro_rrw: float = 1e-6
+    sun_noise_std: float = math.radians(0.5)
+
+    @classmethod
+    def from_values(cls, v: dict) -> "FilterModel":
+        """From the parsed :data:`magtune_core.onboard.params.ESTIMATOR_FIELDS`."""
+        return cls(float(v["ts"]), float(v["mag_noise_std"]) ** 2, float(v["gyro_arw"]), float(v["gyro_rrw"]),
+                   float(v["sun_noise_std"]))
+
+    @classmethod
+    def of_suite(cls, suite) -> "FilterModel":
+        """The filter matched to a sensor suite (any object with ``ts``, ``magnetometer.covariance``,
+        ``gyro.arw``/``rrw`` and ``sun.noise_std``: :class:`magtune_core.design.sensors.SensorSuite`)."""
+        return cls(float(suite.ts), float(suite.magnetometer.covariance[0, 0]), float(suite.gyro.arw),
+                   float(suite.gyro.rrw), float(suite.sun.noise_std))
+
+    def gyro_white_std(self) -> float:
+        """Std [rad/s] of the white part of one gyro sample: sqrt(sigma_v^2/ts + sigma_u^2 ts/12)."""
+        return math.sqrt(self.gyro_arw**2 / self.ts + self.gyro_rrw**2 * self.ts / 12.0)
 
 
 def _rz(angle: float) -> np.ndarray:
@@ -125,23 +151,24 @@ class StepOutput:
 
 
 class MekfStream:
-    """The MEKF of :mod:`magtune_core.design.mekf` fed one sample at a time (see the module docstring).
+    """The MEKF of :mod:`magtune_core.onboard.mekf` fed one sample at a time (see the module docstring).
 
-    ``suite`` gives the filter's sensor model (magnetometer covariance, gyro sigma_v/sigma_u, sun
-    std); ``bias_std`` [rad/s] the gyro-bias prior; ``mag_bias_std`` [T] the magnetometer-bias prior
+    ``model`` is the filter's sensor model (:class:`FilterModel`; a simulated sensor suite is taken as
+    :meth:`FilterModel.of_suite`); ``bias_std`` [rad/s] the gyro-bias prior; ``mag_bias_std`` [T] the magnetometer-bias prior
     (9 states, always; 0: the bias block stays zero and the estimate is the 6-state filter's) and
     ``mag_bias_rw`` [T/s^0.5] its random walk; ``init_angle`` [rad] how far the reference field must
     turn before the magnetometer-only fix. The coarse fix weighs the magnetometer with
     sqrt(R_mag[0, 0] + mag_bias_std^2) (the bias prior taken as part of its error).
     """
 
-    def __init__(self, suite: SensorSuite, *, bias_std: float = 5e-4, gate_probability: float = 0.9999,
+    def __init__(self, model, *, bias_std: float = 5e-4, gate_probability: float = 0.9999,
                  init_angle: float = math.radians(10.0), mag_bias_std: float = MAG_BIAS_STD, mag_bias_rw: float = 0.0,
                  compiled: bool = False):
-        self.suite, self.ts = suite, suite.ts
-        self.params = MekfParams(suite.gyro.arw, suite.gyro.rrw, gate_probability, mag_rw=mag_bias_rw)
-        self.R_mag = suite.magnetometer.covariance
-        self.R_sun = suite.sun.noise_std**2 * np.eye(3)
+        model = model if isinstance(model, FilterModel) else FilterModel.of_suite(model)
+        self.model, self.ts = model, model.ts
+        self.params = MekfParams(model.gyro_arw, model.gyro_rrw, gate_probability, mag_rw=mag_bias_rw)
+        self.R_mag = model.mag_var * np.eye(3)
+        self.R_sun = model.sun_noise_std**2 * np.eye(3)
         self.gate_mag, self.gate_sun = self.params.gate(3), self.params.gate(2)
         self.sig_mag = math.sqrt(self.R_mag[0, 0]) if mag_bias_std == 0 else math.sqrt(self.R_mag[0, 0] + mag_bias_std**2)
         self.bias_std, self.init_angle, self.mag_bias_std = bias_std, init_angle, mag_bias_std
@@ -208,7 +235,7 @@ class MekfStream:
         if self.k == 0:
             if sun is not None:
                 q, P = davenport([mag, sun], [b_ref, s_ref], [self.sig_mag / np.linalg.norm(mag),
-                                                             self.suite.sun.noise_std])
+                                                             self.model.sun_noise_std])
                 return initial_state(q, P, self.bias_std, mag_bias_std=self.mag_bias_std)
             self._first = (mag, b_ref)
             return None
@@ -220,6 +247,6 @@ class MekfStream:
         T = self.k * self.ts
         b_old = rotation_matrix(self._carry).T @ mag0
         s_old = math.sqrt((self.sig_mag / np.linalg.norm(mag0)) ** 2 + (self.bias_std * T) ** 2
-                          + self.suite.gyro.arw**2 * T)
+                          + self.model.gyro_arw**2 * T)
         q, P = davenport([mag, b_old], [b_ref, b0_ref], [self.sig_mag / np.linalg.norm(mag), s_old])
         return initial_state(q, P, self.bias_std, mag_bias_std=self.mag_bias_std)

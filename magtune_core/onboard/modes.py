@@ -7,7 +7,7 @@ sequence tests it. Transitions use measured quantities only (gyro rate norm, fil
 the attitude estimate's pointing error, the sensors' staleness flag), never the truth; every
 guard holds for a persistence time before it fires, and each entry threshold lies beyond the
 matching exit threshold (hysteresis), as in flight mode managers (e.g. the C2A AOBC mode manager's
-transition conditions). Thresholds and timers: ``node_params.MODE_FIELDS`` (SI units).
+transition conditions). Thresholds and timers: ``params.MODE_FIELDS`` (SI units).
 
 A magnetometer that repeats its sample bit for bit (``Measurements.field_step == 0``) for
 ``frozen_time`` is frozen: SAFE, as a stale stream (a working magnetometer's noise, or the field's
@@ -22,7 +22,7 @@ from dataclasses import dataclass, fields, replace
 
 from ..base.errors import ConfigError
 from ..base.schema import parse
-from .node_params import MODE_FIELDS, check_modes
+from .params import MODE_FIELDS, check_modes
 
 DETUMBLE, ACQUISITION, POINTING, SAFE = "DETUMBLE", "ACQUISITION", "POINTING", "SAFE"
 #: Every mode, in the order a deployment flies them.

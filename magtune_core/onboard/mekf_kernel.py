@@ -1,5 +1,5 @@
-"""The MEKF of :mod:`magtune_core.design.mekf` and the sample logic of
-:class:`magtune_core.design.estimator.MekfStream` on floats, compiled (numba), for the batched simulation.
+"""The MEKF of :mod:`magtune_core.onboard.mekf` and the sample logic of
+:class:`magtune_core.onboard.estimator.MekfStream` on floats, compiled (numba), for the batched simulation.
 
 The batched closed loop (:func:`magtune_core.sim.batch_kernels.closed_loop`) is a numba kernel and
 cannot call the Python filter; this module is the same filter written on scalars and small arrays
@@ -7,14 +7,14 @@ cannot call the Python filter; this module is the same filter written on scalars
 (M&C eqs. 6.83-6.84) and exact Q with the same Taylor-series switch and the same 8-point
 Gauss-Legendre rule, the vector update with the same Joseph form, multiplicative reset and
 chi-square gate, the Davenport fix (M&C sec. 5.3.1, ``numpy.linalg.eigh`` as in
-:func:`magtune_core.design.attitude_fix.davenport`) and MekfStream's start (Davenport of magnetometer
+:func:`magtune_core.onboard.attitude_fix.davenport`) and MekfStream's start (Davenport of magnetometer
 and Sun at the first sample, else the magnetometer carried by the gyro once the reference field has
-turned by ``init_angle``). tests/design/test_mekf_kernel.py runs both on the same measurements: equal
+turned by ``init_angle``). tests/onboard/test_mekf_kernel.py runs both on the same measurements: equal
 to 1e-12 (attitude, rad) over a run with a start in sunlight and one in eclipse.
 
 State of one filter (:class:`KernelMekf` holds B of them): ``q`` (4,) body w.r.t. the reference frame,
 ``b`` (3,) gyro bias, ``mb`` (3,) magnetometer bias, ``P`` (9, 9) of [dtheta; db; dm] (the layout of
-:mod:`magtune_core.design.mekf`; :func:`propagate` and :func:`update` take a (6, 6) P as the filter
+:mod:`magtune_core.onboard.mekf`; :func:`propagate` and :func:`update` take a (6, 6) P as the filter
 without the magnetometer bias), plus the start's memory (first magnetometer sample, its reference, the
 carried quaternion).
 """
@@ -70,7 +70,7 @@ def _qmul(p0, p1, p2, p3, q0, q1, q2, q3):
 
 @njit(cache=True, inline="always")
 def _rotvec_quat(x, y, z):
-    """exp(phi/2) (:func:`magtune_core.design.mekf.rotvec_quat`)."""
+    """exp(phi/2) (:func:`magtune_core.onboard.mekf.rotvec_quat`)."""
     a = math.sqrt(x * x + y * y + z * z)
     s = 0.5 - a * a / 48.0 if a < 1e-6 else math.sin(a / 2) / a
     return math.cos(a / 2), s * x, s * y, s * z
@@ -118,7 +118,7 @@ def matrix_quat(R):
 
 @njit(cache=True, inline="always")
 def _coef(n, s, series):
-    """c1, c2, c3 of :func:`magtune_core.design.mekf._coefficients` at one s (``series``: the Taylor branch)."""
+    """c1, c2, c3 of :func:`magtune_core.onboard.mekf._coefficients` at one s (``series``: the Taylor branch)."""
     x2 = (n * s) ** 2
     if series:
         return (s * (1 - x2 / 6 + x2**2 / 120 - x2**3 / 5040), s**2 * (0.5 - x2 / 24 + x2**2 / 720 - x2**3 / 40320),
@@ -129,9 +129,9 @@ def _coef(n, s, series):
 
 @njit(cache=True)
 def propagate(q, b, P, wm, dt, sv2, su2, sm2, glx, glw):
-    """:func:`magtune_core.design.mekf.propagate` in place: q (x) exp((wm - b) dt/2), P = Phi P Phi^T + Q
-    (closed-form Phi and Q of :func:`~magtune_core.design.mekf.transition` and
-    :func:`~magtune_core.design.mekf.process_noise`; a (9, 9) P: Phi's and Q's magnetometer-bias block
+    """:func:`magtune_core.onboard.mekf.propagate` in place: q (x) exp((wm - b) dt/2), P = Phi P Phi^T + Q
+    (closed-form Phi and Q of :func:`~magtune_core.onboard.mekf.transition` and
+    :func:`~magtune_core.onboard.mekf.process_noise`; a (9, 9) P: Phi's and Q's magnetometer-bias block
     I and sm2 dt I)."""
     nx = P.shape[0]
     w0, w1, w2 = wm[0] - b[0], wm[1] - b[1], wm[2] - b[2]
@@ -182,7 +182,7 @@ def propagate(q, b, P, wm, dt, sv2, su2, sm2, glx, glw):
 
 @njit(cache=True)
 def update(q, b, m, P, bm, bref, R, gate, biased):
-    """:func:`magtune_core.design.mekf.update` in place (``m`` the magnetometer bias, read and reset when
+    """:func:`magtune_core.onboard.mekf.update` in place (``m`` the magnetometer bias, read and reset when
     ``biased`` and P is (9, 9): h = R(q)^T bref + m, H = [[a x], 0, I]); returns (nis, accepted)."""
     nx = P.shape[0]
     bias = biased and nx == 9
@@ -222,7 +222,7 @@ def update(q, b, m, P, bm, bref, R, gate, biased):
 
 @njit(cache=True)
 def davenport2(b1, r1, s1, b2, r2, s2):
-    """:func:`magtune_core.design.attitude_fix.davenport` of two pairs (q, P_fix (3, 3))."""
+    """:func:`magtune_core.onboard.attitude_fix.davenport` of two pairs (q, P_fix (3, 3))."""
     bu = np.empty((2, 3))
     ru = np.empty((2, 3))
     nb1, nb2 = math.sqrt(b1 @ b1), math.sqrt(b2 @ b2)
@@ -280,7 +280,7 @@ def _start(m, i, q, P):
 
 @njit(cache=True)
 def stream_step(m, i, mag, bref, sun_ok, sun, sref):
-    """One sample of filter ``i`` (:meth:`magtune_core.design.estimator.MekfStream.step`): the coarse fix
+    """One sample of filter ``i`` (:meth:`magtune_core.onboard.estimator.MekfStream.step`): the coarse fix
     or the propagation with ``m.w_prev[i]``, then the magnetometer update and, when ``sun_ok``, the
     sun's. Returns (nis_mag, nis_sun) (nan: none). The caller stores the gyro sample in ``m.w_prev[i]``
     afterwards."""
@@ -330,7 +330,7 @@ def kernel_state(B: int, ts: float, *, arw, rrw, mag_cov, sun_std, gate_probabil
     """B fresh filters (MekfStream's start state) with the filter's model: ``arw`` sigma_v, ``rrw`` sigma_u
     (scalars or (B,)), ``mag_cov`` (3, 3) or (B, 3, 3) [T^2], ``sun_std`` [rad] (scalar or (B,)), the
     magnetometer-bias prior ``mag_bias_std`` [T] (None: MekfStream's default) and random walk
-    ``mag_bias_rw`` [T/s^0.5]; the chi-square gates of :class:`magtune_core.design.mekf.MekfParams`.
+    ``mag_bias_rw`` [T/s^0.5]; the chi-square gates of :class:`magtune_core.onboard.mekf.MekfParams`.
     ``on`` False: a placeholder the kernel does not read."""
     from .mekf import MAG_BIAS_STD, MekfParams
 

@@ -3,7 +3,7 @@
 Convention of the project (:mod:`magtune_core.base.rotations`): q is the attitude of the body
 w.r.t. the reference frame, scalar first, ``r = R(q) b`` for a body vector b and its reference
 vector r. The error of a fix is the small rotation dtheta in body axes with
-q_true = q_fix (x) exp(dtheta/2) (the MEKF's error state, :mod:`magtune_core.design.mekf`);
+q_true = q_fix (x) exp(dtheta/2) (the MEKF's error state, :mod:`magtune_core.onboard.mekf`);
 both covariances below are of dtheta [rad^2]. Measurement model: each body unit vector is the
 true one rotated by a small random angle of std sigma_i per axis across it (Shuster's QUEST
 measurement model, Markley & Crassidis 2014, Fundamentals of Spacecraft Attitude Determination

@@ -24,7 +24,7 @@ from scipy.stats import chi2
 
 from ..base.rotations import quat_mul, rotation_matrix
 
-#: Default magnetometer-bias prior std per axis [T] (node_params ESTIMATOR_FIELDS initial_mag_bias_std,
+#: Default magnetometer-bias prior std per axis [T] (params ESTIMATOR_FIELDS initial_mag_bias_std,
 #: MekfStream, the batch's estimator): above the campaigns' 200 nT per-axis bias draw (docs/estimation.md).
 MAG_BIAS_STD = 3e-7
 
@@ -235,7 +235,7 @@ def update(state: MekfState, b_meas, b_ref, R, gate: float = math.inf, biased: b
 
 def initial_state(q_fix, P_fix, bias_std: float, bias=(0.0, 0.0, 0.0), mag_bias_std: float | None = None
                   ) -> MekfState:
-    """Start from a coarse fix (:mod:`magtune_core.design.attitude_fix`): q and its attitude
+    """Start from a coarse fix (:mod:`magtune_core.onboard.attitude_fix`): q and its attitude
     covariance, the bias prior ``bias`` with std ``bias_std`` [rad/s] per axis, uncorrelated;
     ``mag_bias_std`` [T]: the 9-state filter with the magnetometer-bias prior 0 of that std per axis
     (0: the bias block stays zero, the 6-state results), None: the 6-state filter."""

@@ -1,4 +1,4 @@
-"""The torquers' model (magtune_core.design.torquers): the coupling matrix against the dipole's
+"""The torquers' model (magtune_core.onboard.torquers): the coupling matrix against the dipole's
 potential, the duty cycle's sub-step grid and weights against an exactly switched reference
 integration, the compensation's mean dipole, the field a sample sees."""
 import math
@@ -9,9 +9,9 @@ from scipy.integrate import solve_ivp
 
 from magtune_core.base.errors import ConfigError
 from magtune_core.design.gains import load_gains
-from magtune_core.design.law import ProjectionController, linear_state
 from magtune_core.design.params import load_spacecraft
-from magtune_core.design.torquers import MU0_4PI, Torquers, dipole_coupling
+from magtune_core.onboard.law import ProjectionController, linear_state
+from magtune_core.onboard.torquers import MU0_4PI, Torquers, dipole_coupling
 from magtune_core.sim.dynamics import AttitudeDynamics
 from magtune_core.sim.simulate import DW0, initial_state, simulate
 

@@ -49,7 +49,7 @@ class Torquers:
 
     @classmethod
     def from_values(cls, v: dict) -> "Torquers":
-        """From the parsed :data:`magtune_core.design.node_params.TORQUER_FIELDS` values."""
+        """From the parsed :data:`magtune_core.onboard.params.TORQUER_FIELDS` values."""
         return cls(tuple(float(x) for x in np.asarray(v["torquer_coupling"], dtype=float).ravel()),
                    float(v["torquer_off_time"]), float(v["torquer_decay_time"]), bool(v["duty_compensation"]))
 
@@ -94,7 +94,7 @@ class Torquers:
         A sub-step straddling the switch could only carry the mean dipole, and with a pitch wheel's
         momentum the torque's timing inside the step matters: 2 sub-steps at Ts = 1 s with a 0.2 s off
         time put the attitude 2e-5 off an exact switch within 600 s, 60 % of the duty cycle's own
-        effect; on the grid it is 3e-10 (tests/design/test_torquers.py).
+        effect; on the grid it is 3e-10 (tests/onboard/test_torquers.py).
         """
         if self.off_time <= 0:
             return int(substeps)

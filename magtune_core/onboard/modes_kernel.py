@@ -1,14 +1,14 @@
 """The mode machine and the B-dot law on floats, compiled (numba), for the batched simulation.
 
 The batched closed loop (:func:`magtune_core.sim.batch_kernels.closed_loop`) is a numba kernel and
-cannot call the Python :class:`~magtune_core.design.modes.ModeLogic`; this module is the same machine
+cannot call the Python :class:`~magtune_core.onboard.modes.ModeLogic`; this module is the same machine
 written on scalars from the same parameters (:class:`KernelModeParams` is
-:class:`~magtune_core.design.modes.ModeParams` field for field, built by :func:`kernel_params`), guard
+:class:`~magtune_core.onboard.modes.ModeParams` field for field, built by :func:`kernel_params`), guard
 for guard in the same priority order, with the same persistence rule (a timer starts at the first
 instant its condition holds, restarts when it fails, fires when ``t - start >= persistence``; the new
 mode's timers start at the next call). :func:`bdot_dipole` is
-:meth:`~magtune_core.design.bdot.BdotController.dipole` and :func:`filter_step` the
-:class:`~magtune_core.design.bdot.FieldDerivativeFilter` recursion. tests/sim/test_batch_modes.py
+:meth:`~magtune_core.onboard.bdot.BdotController.dipole` and :func:`filter_step` the
+:class:`~magtune_core.onboard.bdot.FieldDerivativeFilter` recursion. tests/sim/test_batch_modes.py
 checks a batched deployment against :func:`magtune_core.sim.modes_loop.simulate_modes`: same
 transitions to the sample, same trajectory to 1e-9.
 """
@@ -23,7 +23,7 @@ from numba import njit
 
 from .modes import ACQUISITION, DETUMBLE, MODES, POINTING, SAFE, ModeParams
 
-#: Mode codes of the kernel: the index in :data:`~magtune_core.design.modes.MODES`.
+#: Mode codes of the kernel: the index in :data:`~magtune_core.onboard.modes.MODES`.
 MODE_CODE = {m: i for i, m in enumerate(MODES)}
 _DET, _ACQ, _PNT, _SAFE = (MODE_CODE[m] for m in (DETUMBLE, ACQUISITION, POINTING, SAFE))
 #: Guard slots of the pending timers (ModeLogic's guard names): stale, fresh, calm, tumbling, inside, outside, frozen.
@@ -32,7 +32,7 @@ _STALE, _FRESH, _CALM, _TUMBLING, _INSIDE, _OUTSIDE, _FROZEN = range(len(GUARDS)
 
 
 class KernelModeParams(NamedTuple):
-    """:class:`~magtune_core.design.modes.ModeParams` as a tuple numba can read (same names, SI units)."""
+    """:class:`~magtune_core.onboard.modes.ModeParams` as a tuple numba can read (same names, SI units)."""
 
     detumble_exit_rate: float
     detumble_exit_bdot: float

@@ -1,12 +1,12 @@
-"""The mode machine (magtune_core.design.modes) on scripted measurement sequences: persistence,
+"""The mode machine (magtune_core.onboard.modes) on scripted measurement sequences: persistence,
 hysteresis, SAFE on stale sensors and its recovery, the reasons, and the one schema's errors."""
 import math
 
 import pytest
 
 from magtune_core.base.errors import ConfigError
-from magtune_core.design.modes import ACQUISITION, DETUMBLE, POINTING, SAFE, Measurements, ModeLogic, ModeParams, ModeState
-from magtune_core.design.node_params import MODE_FIELDS
+from magtune_core.onboard.modes import ACQUISITION, DETUMBLE, POINTING, SAFE, Measurements, ModeLogic, ModeParams, ModeState
+from magtune_core.onboard.params import MODE_FIELDS
 
 P = ModeParams(detumble_exit_rate=4e-3, detumble_exit_time=100.0, detumble_entry_rate=8e-3, detumble_entry_time=20.0, acquisition_abort_rate=1.2e-2,
                handover_angle=0.1, handover_time=50.0, acquisition_entry_angle=0.3, acquisition_entry_time=30.0,

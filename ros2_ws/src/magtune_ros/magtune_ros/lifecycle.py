@@ -1,0 +1,132 @@
+"""ManagedNode: the base of the magtune flight nodes with a life (rclpy.lifecycle).
+
+It follows the ``ros2/demos`` ``lifecycle_py`` pattern (the transitions as ``on_*`` callbacks, each
+calling the base class) with one difference, on purpose: the data publishers and subscriptions are
+created in ``activate()`` and destroyed at deactivation instead of being lifecycle publishers made in
+``on_configure``. A lockstep peer (the simulator waits for its subscribers and the controller's
+command) must see the node only while it takes and sends data; an inactive lifecycle publisher
+would still match and its readers would wait for data that never comes.
+"""
+from __future__ import annotations
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.task import Future
+
+from magtune_core.base.errors import ConfigError
+from magtune_core.onboard.params import AUTOSTART
+
+from .diagnostics import Diagnostics
+from .params import ParamError, declare_field
+
+
+class ManagedNode(LifecycleNode):
+    """A magtune flight node with a life (``rclpy.lifecycle``): configure, activate, deactivate,
+    cleanup, shutdown, driven through ``~/change_state`` (lifecycle_msgs) by the mode manager.
+
+    Subclasses implement ``configure()`` (declare and validate the parameters, build the law:
+    ParamError/ConfigError -> the transition fails, the node stays *unconfigured*, the one-line
+    reason is logged, kept in ``config_error`` and published as an ERROR status on /diagnostics,
+    where the manager reads it), ``activate()`` (create the data subscriptions and publishers) and
+    ``deactivate()`` (destroy them). Data entities live only while *active* so a lockstep peer
+    (the simulator waits for its subscribers) sees the node only once it takes and sends data.
+    /diagnostics (the node's heartbeat, 1 Hz steady time, key ``state``) runs in every state.
+
+    With parameter ``autostart`` true (default: a node started alone, or ``magtune sil`` without
+    ``--modes``) :func:`run` configures and activates the node itself: a bad parameter prints the
+    one line and exits 2 as a plain node does.
+    """
+
+    def __init__(self, name: str, counters):
+        super().__init__(name)
+        self.done = Future()
+        self.config_error: str | None = None
+        self.autostart_on = declare_field(self, AUTOSTART)
+        self.diag = Diagnostics(self, counters)
+        self.diag.extra["state"] = "unconfigured"
+        self.diag.extra["namespace"] = self.get_namespace()  # /diagnostics is shared by every satellite
+        self._entities: list = []
+
+    # the transitions, as rclpy calls them; each calls the base class (lifecycle_py's pattern)
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """configure(): a bad parameter fails the transition (logged, on /diagnostics), the node stays unconfigured."""
+        try:
+            self.configure()
+        except (ParamError, ConfigError) as exc:
+            self.config_error = str(exc)
+            self.diag.status = (DiagnosticStatus.ERROR, f"configure failed: {exc}")
+            self.diag.publish()
+            if not self.autostart_on:  # alone, run() prints the one line
+                self.get_logger().error(f"configure failed: {exc}")
+            return TransitionCallbackReturn.FAILURE
+        self.config_error, self.diag.status = None, None
+        return self._entered("inactive", super().on_configure(state))
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """activate(): the data topics appear."""
+        self.activate()
+        return self._entered("active", super().on_activate(state))
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """The data topics disappear; parameters and laws stay."""
+        self._destroy_entities()
+        return self._entered("inactive", super().on_deactivate(state))
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Back to unconfigured: the next configure reads the parameters again."""
+        self._destroy_entities()
+        return self._entered("unconfigured", super().on_cleanup(state))
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Finalized: the process ends (status 0), as a lifecycle node's owner would end it."""
+        self._destroy_entities()
+        if not self.done.done():
+            self.done.set_result(0)
+        return self._entered("finalized", super().on_shutdown(state))
+
+    def _entered(self, label: str, base: TransitionCallbackReturn) -> TransitionCallbackReturn:
+        """The state label on /diagnostics once the base class accepted the transition."""
+        if base == TransitionCallbackReturn.SUCCESS:
+            self.diag.extra["state"] = label
+        return base
+
+    # entity bookkeeping of activate()
+    def data_publisher(self, *args):
+        """A publisher that exists while the node is active."""
+        pub = self.create_publisher(*args)
+        self._entities.append(pub)
+        return pub
+
+    def data_subscription(self, *args, **kw):
+        """A subscription that exists while the node is active (``raw=True``: the callback gets the bytes)."""
+        sub = self.create_subscription(*args, **kw)
+        self._entities.append(sub)
+        return sub
+
+    def _destroy_entities(self):
+        for e in self._entities:
+            (self.destroy_publisher if hasattr(e, "publish") else self.destroy_subscription)(e)
+        self._entities = []
+
+    def autostart(self) -> bool:
+        """With ``autostart``: configure then activate; False (reason in ``config_error``) if configure failed."""
+        if not self.autostart_on:
+            return True
+        if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+            return False
+        self.trigger_activate()
+        return True
+
+    # what subclasses fill in
+    def finish(self):
+        """At shutdown (``run``): the last diagnostics, so /diagnostics ends with the final counters."""
+        if self.context.ok():
+            self.diag.publish()
+
+    def configure(self):  # pragma: no cover - abstract
+        """Declare and validate the parameters and build the node's models (on_configure); ParamError/ConfigError fails the transition."""
+        raise NotImplementedError
+
+    def activate(self):  # pragma: no cover - abstract
+        """Create the data topics with data_publisher / data_subscription (on_activate); they are destroyed at deactivation."""
+        raise NotImplementedError
