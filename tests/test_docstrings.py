@@ -28,20 +28,20 @@ ROOT = Path(__file__).resolve().parents[1]
 #: Packages under magtune_core whose public API must carry docstrings.
 PACKAGES = ("ltp", "onboard", "design", "sim", "bags")
 #: Packages under magtune_core whose public functions must carry numpydoc sections (rule 3).
-NUMPYDOC_PACKAGES = ("ltp",)
+NUMPYDOC_PACKAGES = ("ltp", "onboard", "design")
 #: Longest function (def line to last line, docstring included) allowed outside numba.
 MAX_LINES = 80
 #: Most parameters of a function (``self``/``cls`` not counted) outside numba.
 MAX_PARAMS = 12
 #: Functions over MAX_LINES when it was lowered from 100 to 80 (issue 43): each leaves the list when split.
 KNOWN_LONG = {
-    "magtune_core/ros/scenario.py::build", "magtune_core/sim/batch.py::simulate_batch",
+    "magtune_core/sim/batch.py::simulate_batch",
     "magtune_core/ltp/hinf.py::hinfnorm", "magtune_core/cli/front.py::run_requirement_front",
     "magtune_core/sim/modes_loop.py::simulate_modes",
 }
 #: Functions over MAX_PARAMS when the rule came (issue 43): each leaves the list when its parameters are grouped.
 KNOWN_MANY_PARAMS = {
-    "magtune_core/ros/scenario.py::build", "magtune_core/sim/simulate.py::simulate",
+    "magtune_core/sim/simulate.py::simulate",
     "magtune_core/sim/modes_loop.py::simulate_modes", "magtune_core/design/pipeline.py::tune_gains",
     "magtune_core/studies/requirement_front.py::run_level_front", "magtune_core/sim/dynamics.py::_derivative",
     "magtune_core/design/pipeline.py::tune_robust_gains", "magtune_core/design/pipeline.py::_constrained_search",

@@ -7,7 +7,7 @@ from ..base import jsonout
 from ..design.faults import parse_spec
 from ..ros import sil
 from ..ros.process import DDS_INTERFACES
-from ..ros.scenario import SilScenario, load_scenario_file, normalize_namespace
+from ..ros.scenario import SilRequest, SilScenario, load_scenario_file, normalize_namespace
 from .common import CommandError, add_environment_arguments, environment_options, plain_summary
 
 
@@ -106,7 +106,7 @@ def run(args) -> int:
     faults = list(scen["faults"])
     faults += [parse_spec(f) for f in args.fault]
     # every input validated before anything starts (one line and exit 2 for a bad one)
-    scenario = SilScenario.build(sats, orbits=args.orbits, steps=args.steps, ts=args.ts, substeps=args.substeps,
+    scenario = SilScenario.build(sats, SilRequest(orbits=args.orbits, steps=args.steps, ts=args.ts, substeps=args.substeps,
                                  spacecraft=_spacecraft(args), real_time_factor=args.rtf, bag=args.bag,
                                  lockstep_timeout=args.lockstep_timeout,
                                  results=args.results, log_dir=args.log_dir, domain_id=args.domain_id,
@@ -118,7 +118,7 @@ def run(args) -> int:
                                  initial_mode=args.initial_mode,
                                  attitude=args.attitude, estimator_params=_assignments(args.estimator_param),
                                  faults=faults, torquers=scen["torquers"],
-                                 torquers_source=scen["torquers_source"])
+                                 torquers_source=scen["torquers_source"]))
     if not args.quiet:
         print("magtune sil: starting the nodes (discovery takes a few seconds)", file=sys.stderr, flush=True)
         if args.foxglove is not None:

@@ -102,7 +102,18 @@ class CmaSettings:
 
 
 def gain_scale(K0: np.ndarray) -> np.ndarray:
-    """Per-entry scale S of the search coordinates: max(|K0_ij|, 0.1 max_i |K0_ij|) (3, 6)."""
+    """Per-entry scale S of the search coordinates: max(|K0_ij|, 0.1 max_i |K0_ij|) (3, 6).
+
+    Parameters
+    ----------
+    K0 : ndarray (3, 6)
+        Gain the coordinates are centred on (any shape with 18 entries; reshaped to (3, 6)).
+
+    Returns
+    -------
+    ndarray (3, 6)
+        The scale S of K = K0 + S * x; zero entries (an all-zero K0) fall back to max(max |K0|, 1e-12).
+    """
     a = np.abs(np.asarray(K0, dtype=float).reshape(3, 6))
     col = a.max(axis=0, keepdims=True)
     S = np.maximum(a, 0.1 * col)
@@ -119,6 +130,17 @@ def feasible_scale(feasible, K0: np.ndarray, decades: tuple = (-4.0, 4.0), point
     along the segment LQ -> optimum up to the boundary; bench/README.md). Moves are on a
     geometric grid ``max |K0| x 10^decades`` (``points`` values); an entry that is feasible at every
     move gets the grid's end, one that fails at the first gets its first value.
+
+    Parameters
+    ----------
+    feasible : callable
+        Batched test ``feasible(Ks)``: Ks ndarray (n, 3, 6) -> array of bool (n,) (e.g. ``HinfObjective.feasible``).
+    K0 : ndarray (3, 6)
+        Start gain whose entries are moved one at a time.
+    decades : tuple of float
+        Decade exponents (low, high) of the move grid relative to max |K0|.
+    points : int
+        Number of moves on the geometric grid.
 
     Returns
     -------
@@ -146,6 +168,24 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
     generation, step, restart)`` is called after each generation and ``on_best(K, J)`` whenever
     the best gain improves (e.g. to checkpoint a long run).
 
+    Parameters
+    ----------
+    objective : HinfObjective or callable
+        Batched J: ``objective(Ks, guess=, spread=, rtol=)`` -> ndarray (n,), with ``evaluations`` (and optionally
+        ``steps``, ``feasible``, ``hold``).
+    K0 : ndarray (3, 6)
+        Start gain (e.g. the LQ gain); must stabilize the loop.
+    sigma : float
+        Disturbance-to-noise ratio of the objective, recorded in the result.
+    seed : int
+        Seed of ``numpy.random.default_rng`` (every random draw of the search).
+    settings : CmaSettings
+        Population, steps, stopping and certificate settings.
+    progress : callable or None
+        ``progress(evaluations, J_best, generation, step, restart)`` after each generation.
+    on_best : callable or None
+        ``on_best(K, J)`` whenever the best gain improves.
+
     Returns
     -------
     TuneResult
@@ -154,6 +194,11 @@ def tune_cma(objective, K0: np.ndarray, sigma: float, seed: int = 0, settings: C
         its relative step d), wall time, ``converged`` (the certified stop fired), ``method`` =
         "cma", ``evaluations``, ``tuned_steps`` and ``stop`` ("certified", "budget", "unresolved" or
         "interrupted": KeyboardInterrupt raised by ``progress`` ends the search with the best gain).
+
+    Raises
+    ------
+    ValueError
+        If K0 is not stabilizing (infinite J; raised by the search's set-up).
     """
     t0 = time.perf_counter()
     search = _Search(objective, K0, settings, np.random.default_rng(seed), progress, on_best)

@@ -91,7 +91,17 @@ class DipoleCase:
     orbits: float = 2.0
 
     def vectors(self):
-        """(nominal (9,), radius (9,), attitude-ball radius of dq): the kernel's inputs."""
+        """(nominal (9,), radius (9,), attitude-ball radius of dq): the kernel's inputs.
+
+        Returns
+        -------
+        nominal : ndarray (9,)
+            Nominal initial state and residual dipole: [0 (dq), rate_nominal [rad/s], residual_nominal [A m^2]].
+        radius : ndarray (9,)
+            Box half-widths of the same entries (0 for dq).
+        rq : float
+            Radius of the dq ball: sin(attitude_max_deg / 2).
+        """
         nominal = np.concatenate([np.zeros(3), self.rate_nominal, self.residual_nominal]).astype(float)
         radius = np.concatenate([np.zeros(3), self.rate_radius, self.residual_radius]).astype(float)
         return nominal, radius, math.sin(math.radians(self.attitude_max_deg) / 2.0)
@@ -99,6 +109,15 @@ class DipoleCase:
 
 def peak_dipole(loop: SampledLoop, Ks, case: DipoleCase = DipoleCase()) -> np.ndarray:
     """Worst-case peak commanded dipole per axis of the held loop ``loop`` over ``case``, per gain.
+
+    Parameters
+    ----------
+    loop : SampledLoop
+        Sample-and-hold loop of the design model (interval maps over one period).
+    Ks : array_like (n, 3, 6)
+        Gains (any shape with a multiple of 18 entries).
+    case : DipoleCase
+        Initial states, residual dipoles and horizon of the check.
 
     Returns
     -------

@@ -72,12 +72,29 @@ class Fault:
     value: float = math.nan
 
     def active(self, t: float) -> bool:
-        """True while the fault acts at sim time ``t`` [s]."""
+        """True while the fault acts at sim time ``t`` [s].
+
+        Parameters
+        ----------
+        t : float
+            Sim time [s].
+
+        Returns
+        -------
+        bool
+            True if onset <= t < onset + duration.
+        """
         return self.t <= t < self.t + self.duration
 
     @property
     def spec(self) -> str:
-        """The command-line spelling, exact (float repr): what the nodes are given and parse back."""
+        """The command-line spelling, exact (float repr): what the nodes are given and parse back.
+
+        Returns
+        -------
+        str
+            ``KIND@T[:DURATION][,axis=A][,value=V]`` (axis only for kinds that take one; value unless nan).
+        """
         out = f"{self.kind}@{self.t!r}" + (f":{self.duration!r}" if math.isfinite(self.duration) else "")
         if self.kind not in (MAG_STUCK, MAG_DROPOUT, SENSORS_KILLED):
             out += f",axis={AXES[self.axis]}"
@@ -86,7 +103,27 @@ class Fault:
 
 def from_mapping(m, where: str = "fault") -> Fault:
     """A fault from a mapping of :data:`FAULT_FIELDS` (unknown keys, bad values and combinations a kind does not
-    take: ConfigError naming the field and the fix)."""
+    take: ConfigError naming the field and the fix).
+
+    Parameters
+    ----------
+    m : dict
+        Fault fields: kind, t [s], and optionally duration [s], axis ("x", "y", "z"), value.
+    where : str
+        Context named in error messages (e.g. ``faults[2]``).
+
+    Returns
+    -------
+    Fault
+        The validated fault; duration inf when not given, value the kind's default (or nan if it takes none).
+
+    Raises
+    ------
+    ConfigError
+        If ``m`` is not a dict, a field is unknown, missing or invalid, mag_dropout has no duration,
+        mag_spike/sensors_killed have one, an axis is given to a whole-sensor kind, or a value is zero,
+        beyond the kind's limit or given to a kind that takes none.
+    """
     if not isinstance(m, dict):
         raise ConfigError(where, None, f"expected a mapping with kind and t (e.g. {{kind: mag_dropout, t: 100, "
                                        f"duration: 30}}), got {m!r}")
@@ -116,7 +153,26 @@ def from_mapping(m, where: str = "fault") -> Fault:
 
 def parse_spec(text: str, where: str | None = None) -> Fault:
     """``KIND@T[:DURATION][,axis=A][,value=V]`` (e.g. ``mag_dropout@3000:30``, ``gyro_bias@100,axis=z,value=0.02``)
-    -> :class:`Fault` through :data:`FAULT_FIELDS`; ConfigError naming the field otherwise."""
+    -> :class:`Fault` through :data:`FAULT_FIELDS`; ConfigError naming the field otherwise.
+
+    Parameters
+    ----------
+    text : str
+        Fault spec as given on the command line.
+    where : str or None
+        Context named in error messages; None: ``--fault <text>``.
+
+    Returns
+    -------
+    Fault
+        The validated fault (:func:`from_mapping`).
+
+    Raises
+    ------
+    ConfigError
+        If the spec lacks ``KIND@T``, an item after a comma is not ``name=value``, a name is given twice,
+        a number does not parse, or :func:`from_mapping` rejects the fields.
+    """
     where = where or f"--fault {text}"
     head, *params = str(text).strip().split(",")
     kind, at, when = head.partition("@")
@@ -146,7 +202,25 @@ def _number(text: str, name: str, where: str) -> float:
 
 
 def from_list(items, where: str = "faults") -> tuple[Fault, ...]:
-    """A scenario file's ``faults:`` list (mappings) or spec strings, each validated; ``where[i]`` names the entry."""
+    """A scenario file's ``faults:`` list (mappings) or spec strings, each validated; ``where[i]`` names the entry.
+
+    Parameters
+    ----------
+    items : list or tuple or None
+        Entries, each a :class:`Fault`, a spec string or a mapping; None for no faults.
+    where : str
+        Context named in error messages.
+
+    Returns
+    -------
+    tuple of Fault
+        The faults in order (empty for None).
+
+    Raises
+    ------
+    ConfigError
+        If ``items`` is not a list or tuple (a single string or mapping included), or an entry is invalid.
+    """
     if items is None:
         return ()
     if isinstance(items, (str, dict)) or not isinstance(items, (list, tuple)):
@@ -156,7 +230,18 @@ def from_list(items, where: str = "faults") -> tuple[Fault, ...]:
 
 
 def kill_time(faults) -> float | None:
-    """Sim time [s] of the first ``sensors_killed`` fault, or None."""
+    """Sim time [s] of the first ``sensors_killed`` fault, or None.
+
+    Parameters
+    ----------
+    faults : iterable of Fault
+        Injected faults.
+
+    Returns
+    -------
+    float or None
+        Earliest onset [s] of a ``sensors_killed`` fault; None if there is none.
+    """
     ts = [f.t for f in faults if f.kind == SENSORS_KILLED]
     return min(ts) if ts else None
 
@@ -175,6 +260,21 @@ def measure(faults, t: float, ts: float, b, w, state: FaultState = FaultState())
 
     Order: biases and a spike add to the sample, a stuck magnetometer then repeats its last output, a dropout
     suppresses it. A spike acts on the one sample in [t0, t0 + ts).
+
+    Parameters
+    ----------
+    faults : iterable of Fault
+        Injected faults (any kinds; only the sensor kinds act here).
+    t : float
+        Sample time [s].
+    ts : float
+        Sample period [s] (the window of a spike).
+    b : array_like (3,)
+        Measured field [T], body axes.
+    w : array_like (3,)
+        Measured rate [rad/s], body axes.
+    state : FaultState
+        Last field put out and last dipole applied.
 
     Returns
     -------
@@ -208,6 +308,17 @@ def measure(faults, t: float, ts: float, b, w, state: FaultState = FaultState())
 
 def actuate(faults, t: float, m, state: FaultState = FaultState()):
     """The torquer faults active at step ``t`` [s] on the dipole ``m`` [A m^2] the torquers are commanded.
+
+    Parameters
+    ----------
+    faults : iterable of Fault
+        Injected faults (any kinds; only the torquer kinds act here).
+    t : float
+        Step time [s].
+    m : array_like (3,)
+        Commanded dipole [A m^2], body axes.
+    state : FaultState
+        Last field put out and last dipole applied.
 
     Returns
     -------

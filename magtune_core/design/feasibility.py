@@ -22,6 +22,13 @@ def violation(screen, Ks) -> np.ndarray:
     log max_multiplier, plus log(peak / budget) above 0 of the dipole; 0 exactly when feasible
     (up to the strict inequalities, which ``screen`` itself decides).
 
+    Parameters
+    ----------
+    screen : FlightScreen
+        Held loops, hold margin, multiplier bound, dipole loops, case and budget of one model.
+    Ks : array_like (n, 3, 6)
+        Gains (any shape with a multiple of 18 entries).
+
     Returns
     -------
     ndarray (n,)
@@ -47,6 +54,23 @@ def restore(screens, K0, seed: int = 0, max_evals: int = 2000, popsize: int = 12
     :func:`violation` in coordinates K = K0 + S x (S: :func:`.cmaes.gain_scale` of K0), from x = 0;
     given up when the best violation has not fallen by 1 % in ``stall`` generations (an
     infeasible requirement set is then named by the caller without a long search).
+
+    Parameters
+    ----------
+    screens : sequence of FlightScreen
+        One screen per model; a gain must pass all.
+    K0 : array_like (3, 6)
+        Start gain (centre of the coordinates).
+    seed : int
+        Seed of the cma package (``seed + 1``).
+    max_evals : int
+        Budget of gain evaluations.
+    popsize : int
+        CMA-ES population size.
+    sigma0 : float
+        Initial step in units of the per-entry scale S.
+    stall : int
+        Generations without a 1 % fall of the best violation that end the search.
 
     Returns
     -------

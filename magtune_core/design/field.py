@@ -56,12 +56,24 @@ class FourierField:
 
     @property
     def period(self) -> float:
-        """Period 2 pi / omega [s] of the field (the orbit period)."""
+        """Period 2 pi / omega [s] of the field (the orbit period).
+
+        Returns
+        -------
+        float
+            2 pi / omega [s].
+        """
         return 2.0 * np.pi / self.omega
 
     @property
     def is_constant(self) -> bool:
-        """True when every harmonic is zero (a constant field in orbital axes)."""
+        """True when every harmonic is zero (a constant field in orbital axes).
+
+        Returns
+        -------
+        bool
+            True if all ``cos`` and ``sin`` coefficients are zero.
+        """
         return not (np.any(self.cos) or np.any(self.sin))
 
     def __call__(self, t) -> np.ndarray:
@@ -73,7 +85,27 @@ class FourierField:
 
 
 def paper_field(omega: float, reading: str = "eq26", constant=None) -> FourierField:
-    """The named design-model field: 'eq26' (SPEC reading), 'eq26_literal', or 'constant'."""
+    """The named design-model field: 'eq26' (SPEC reading), 'eq26_literal', or 'constant'.
+
+    Parameters
+    ----------
+    omega : float
+        Orbital rate W0 [rad/s] of the Fourier series.
+    reading : str
+        Field model name, one of :data:`FIELD_MODELS`.
+    constant : array_like (3,) or None
+        Field [T] in orbital axes; used (and required) only for ``reading = "constant"``.
+
+    Returns
+    -------
+    FourierField
+        The paper's eq. (26) field (either reading) or the constant field, named after ``reading``.
+
+    Raises
+    ------
+    ValueError
+        If ``reading`` is "constant" and ``constant`` is None, or ``reading`` is not in :data:`FIELD_MODELS`.
+    """
     if reading == "eq26":
         return FourierField(omega, name="eq26", **EQ26)
     if reading == "eq26_literal":

@@ -61,11 +61,23 @@ class FitReport:
 
     @property
     def rms_total(self) -> float:
-        """RMS of the fit residual over the three axes [T]."""
+        """RMS of the fit residual over the three axes [T].
+
+        Returns
+        -------
+        float
+            sqrt(sum of the per-axis residual RMS squared) [T].
+        """
         return float(np.sqrt(np.sum(self.rms**2)))
 
     def markdown(self) -> str:
-        """The fit report as a markdown table (per-axis IGRF RMS, residual RMS and maximum, uT)."""
+        """The fit report as a markdown table (per-axis IGRF RMS, residual RMS and maximum, uT).
+
+        Returns
+        -------
+        str
+            Header, separator and one row per axis X, Y, Z, values in uT.
+        """
         ax = "XYZ"
         rows = ["| axis | IGRF RMS [uT] | fit residual RMS [uT] | max residual [uT] |", "|---|---|---|---|"]
         for i in range(3):
@@ -74,7 +86,28 @@ class FitReport:
 
 
 def sample_igrf_along_orbit(orbit_cfg: OrbitConfig, days: float = 3.0, step: float = 20.0, degree: int = 10):
-    """(t [s], u [rad], b_orbital [T] (N, 3)) of IGRF along the propagated orbit."""
+    """(t [s], u [rad], b_orbital [T] (N, 3)) of IGRF along the propagated orbit.
+
+    Parameters
+    ----------
+    orbit_cfg : OrbitConfig
+        Orbit (and epoch) to propagate with J2.
+    days : float
+        Length of the sampled arc [days].
+    step : float
+        Sample spacing [s].
+    degree : int
+        IGRF truncation degree.
+
+    Returns
+    -------
+    t : ndarray (N,)
+        Sample times [s] from the epoch.
+    u : ndarray (N,)
+        Argument of latitude [rad] at each sample.
+    b_orb : ndarray (N, 3)
+        IGRF field [T] in orbital axes.
+    """
     t = np.arange(0.0, days * 86400.0 + 0.5 * step, step)
     orbit = Orbit(orbit_cfg, duration=float(t[-1]) + step)
     r, v = orbit.state(t)
@@ -85,7 +118,26 @@ def sample_igrf_along_orbit(orbit_cfg: OrbitConfig, days: float = 3.0, step: flo
 
 
 def fit_fourier(u, b, harmonics: int):
-    """Least-squares (mean (3,), cos (H, 3), sin (H, 3), residual (N, 3)) of b(u)."""
+    """Least-squares (mean (3,), cos (H, 3), sin (H, 3), residual (N, 3)) of b(u).
+
+    Parameters
+    ----------
+    u : array_like (N,)
+        Argument of latitude [rad] of each sample.
+    b : ndarray (N, 3)
+        Field samples [T].
+    harmonics : int
+        Number H of harmonics of u fitted.
+
+    Returns
+    -------
+    mean : ndarray (3,)
+        Constant term [T].
+    cos, sin : ndarray (H, 3)
+        Coefficients [T] of cos(k u) and sin(k u), row k-1 for harmonic k.
+    residual : ndarray (N, 3)
+        b minus the fit [T].
+    """
     u = np.asarray(u, dtype=float)
     k = np.arange(1, harmonics + 1)
     A = np.hstack([np.ones((u.size, 1)), np.cos(np.outer(u, k)), np.sin(np.outer(u, k))])
@@ -95,7 +147,39 @@ def fit_fourier(u, b, harmonics: int):
 
 def fit_field(altitude: float = 450e3, inclination_deg: float = 87.0, harmonics: int = 2, days: float = 3.0,
               step: float = 20.0, degree: int = 10, epoch=DEFAULT_EPOCH, raan_deg: float = 0.0):
-    """Fit IGRF along the orbit; returns (FourierField with omega = mean nodal rate, FitReport)."""
+    """Fit IGRF along the orbit; returns (FourierField with omega = mean nodal rate, FitReport).
+
+    Parameters
+    ----------
+    altitude : float
+        Circular-orbit altitude [m].
+    inclination_deg : float
+        Inclination [deg].
+    harmonics : int
+        Number of harmonics fitted (>= 1).
+    days : float
+        Length of the sampled arc [days].
+    step : float
+        Sample spacing [s].
+    degree : int
+        IGRF truncation degree.
+    epoch : datetime
+        UTC epoch of the orbit and of IGRF.
+    raan_deg : float
+        Right ascension of the ascending node [deg].
+
+    Returns
+    -------
+    field : FourierField
+        The fitted field, omega the mean nodal rate [rad/s], named after altitude, inclination and H.
+    report : FitReport
+        Residual and field RMS per axis, residual maximum, samples, days, omega, harmonics.
+
+    Raises
+    ------
+    ValueError
+        If ``harmonics`` < 1.
+    """
     if harmonics < 1:
         raise ValueError("harmonics must be >= 1")
     cfg = OrbitConfig(altitude=altitude, inclination_deg=inclination_deg, raan_deg=raan_deg, epoch=epoch,
@@ -115,7 +199,19 @@ def _fmt(values) -> str:
 
 
 def write_field_model(path, field: FourierField, report: FitReport, meta: dict) -> None:
-    """Write the fitted field as a ROS 2 parameter file (layout in the module docstring)."""
+    """Write the fitted field as a ROS 2 parameter file (layout in the module docstring).
+
+    Parameters
+    ----------
+    path : str or Path
+        Output file (parent directories are created; written atomically).
+    field : FourierField
+        Fitted field.
+    report : FitReport
+        Fit quality (its residual RMS is written).
+    meta : dict
+        Provenance written as ``field_fit_<key>`` parameters.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     lines = [
@@ -152,6 +248,23 @@ def load_field_model(path, with_meta: bool = False):
     (zero mean and zero amplitude: a fit that failed or a hand-edited file) and |b(t)| must stay
     > 1 nT over the period (the projection law divides by |b|^2). ConfigError otherwise, naming
     the field. ``with_meta``: also return the ``field_fit_*`` provenance as a dict (keys without prefix).
+
+    Parameters
+    ----------
+    path : str or Path
+        Field-model file.
+    with_meta : bool
+        Also return the provenance.
+
+    Returns
+    -------
+    FourierField or (FourierField, dict)
+        The field (named ``file:<name>``), and with ``with_meta`` the provenance dict.
+
+    Raises
+    ------
+    ConfigError
+        If a field is missing or invalid, or :func:`check_field` rejects the field.
     """
     p = read_ros_params(path)
     v = parse(p, FIELD_MODEL_FIELDS, path)
@@ -168,7 +281,20 @@ def load_field_model(path, with_meta: bool = False):
 
 
 def check_field(field: FourierField, where) -> None:
-    """ConfigError if an axis of ``field`` is identically zero or |b(t)| gets below 1 nT (see load_field_model)."""
+    """ConfigError if an axis of ``field`` is identically zero or |b(t)| gets below 1 nT (see load_field_model).
+
+    Parameters
+    ----------
+    field : FourierField
+        Field to check (|b| on 4096 points of a period).
+    where : str or Path
+        File or context named in the error message.
+
+    Raises
+    ------
+    ConfigError
+        If an axis has zero mean and zero harmonics, or min |b(t)| is not above 1e-9 T.
+    """
     for i, axis in enumerate("xyz"):
         if field.mean[i] == 0.0 and not np.any(field.cos[:, i]) and not np.any(field.sin[:, i]):
             raise ConfigError(where, "field_fourier_mean", f"the {axis} component is identically zero (zero mean and "
@@ -186,6 +312,26 @@ def field_for_spacecraft(path, params, where=None) -> FourierField:
     The fit must be for this orbit: fundamental rate within ``PERIOD_TOLERANCE`` (0.5 %) of
     2 pi / orbit_period, and, when the file records them, altitude within 1 km and inclination
     within 0.5 deg of the spacecraft's. ConfigError naming the field otherwise.
+
+    Parameters
+    ----------
+    path : str or Path
+        Field-model file (``magtune fit-field`` output).
+    params : SpacecraftParams
+        Spacecraft whose orbit the fit must match.
+    where : str or None
+        Context named in error messages; None: ``path``.
+
+    Returns
+    -------
+    FourierField
+        The file's field.
+
+    Raises
+    ------
+    ConfigError
+        If the file is invalid, its rate is more than 0.5 % off 2 pi / orbit_period, or its recorded altitude
+        (inclination) differs by more than 1 km (0.5 deg).
     """
     field, meta = load_field_model(path, with_meta=True)
     where = where or path

@@ -66,6 +66,23 @@ class Gains:
         ``use_sim_time`` are checked and allowed; any other key is rejected ("did you mean").
 
         Raises ConfigError naming ``where``, the field and what was expected.
+
+        Parameters
+        ----------
+        params : dict
+            Parameter name -> value (a gains file's or the controller node's parameters).
+        where : str or Path
+            File or context named in error messages.
+
+        Returns
+        -------
+        Gains
+            K (3, 6), sigma, ts [s] and the provenance keys found.
+
+        Raises
+        ------
+        ConfigError
+            If a field is missing or invalid, or a key is not allowed.
         """
         allowed = cls.PROVENANCE + tuple(f.name for f in CONTROLLER_FIELDS) + NODE_COMMON
         v = parse(params, cls.FIELDS, where, allowed=allowed + _spacecraft_names())
@@ -83,12 +100,38 @@ def _spacecraft_names() -> tuple:
 
 def load_gains(path) -> Gains:
     """Read a gains parameter file (the sections that apply to node ``/controller``: ``/**``,
-    ``/**/controller``, ``controller``), validated by the schema."""
+    ``/**/controller``, ``controller``), validated by the schema.
+
+    Parameters
+    ----------
+    path : str or Path
+        Gains parameter file.
+
+    Returns
+    -------
+    Gains
+        The validated gains and provenance.
+    """
     return Gains.from_mapping(read_ros_params(path, CONTROLLER_NODE), path)
 
 
 def save_gains(path, gains: Gains, header: str = "") -> None:
-    """Write a gains parameter file in the controller node's ROS 2 layout."""
+    """Write a gains parameter file in the controller node's ROS 2 layout.
+
+    Parameters
+    ----------
+    path : str or Path
+        Output file (parent directories are created; written atomically).
+    gains : Gains
+        Gain, sigma, ts and provenance; ``written`` (UTC now) is added unless present.
+    header : str
+        Extra comment lines put after the standard header.
+
+    Raises
+    ------
+    ValueError
+        If a provenance key is not in :attr:`Gains.PROVENANCE`.
+    """
     params = {
         "gain": [float(v) for v in np.asarray(gains.K).ravel()],
         "sigma": float(gains.sigma),

@@ -15,6 +15,13 @@ from .model import Z_ATT, AttitudeLTP
 def lq_gain(model: AttitudeLTP, sigma: float) -> np.ndarray:
     """K = -R^-1 Bbar^T P, LQ on the averaged model, Q = Z^T Z, R = sigma^2 I (weights of z).
 
+    Parameters
+    ----------
+    model : AttitudeLTP
+        LTP attitude model; its time-averaged input matrix is used.
+    sigma : float
+        Weight of the torque in z (paper eq. 20): R = sigma^2 I.
+
     Returns
     -------
     ndarray (3, 6)
@@ -28,5 +35,20 @@ def lq_gain(model: AttitudeLTP, sigma: float) -> np.ndarray:
 
 
 def lq_gains(model: AttitudeLTP, sigma: float, ts: float = TS_DEFAULT) -> Gains:
-    """:func:`lq_gain` wrapped as :class:`~magtune_core.design.gains.Gains` with its provenance."""
+    """:func:`lq_gain` wrapped as :class:`~magtune_core.design.gains.Gains` with its provenance.
+
+    Parameters
+    ----------
+    model : AttitudeLTP
+        LTP attitude model.
+    sigma : float
+        Weight of the torque in z (paper eq. 20).
+    ts : float
+        Sample period [s] stored with the gains.
+
+    Returns
+    -------
+    Gains
+        The LQ gain, sigma, ts and provenance {"design": "lq_averaged", "design_field": field name}.
+    """
     return Gains(lq_gain(model, sigma), sigma, ts, {"design": "lq_averaged", "design_field": model.field.name})

@@ -123,7 +123,21 @@ NODE_PARAMETERS = tuple(sorted({f.name for fields in SIL_NODE_FIELDS.values() fo
 
 
 def check_simulator(v: dict, where: str) -> None:
-    """The simulator's rules across fields (``v``: its parsed values); ConfigError naming the field."""
+    """The simulator's rules across fields (``v``: its parsed values); ConfigError naming the field.
+
+    Parameters
+    ----------
+    v : dict
+        Parsed simulator parameters.
+    where : str
+        Context named in error messages.
+
+    Raises
+    ------
+    ConfigError
+        If the initial quaternion is zero, real_time_factor <= 0 without lockstep, field_plugin is used with
+        environment "full", or field_file is combined with field_plugin or environment "full".
+    """
     if sum(x * x for x in v["initial_quaternion"]) < 1e-18:
         raise ConfigError(where, "initial_quaternion", "expected a nonzero quaternion")
     if not v["lockstep"] and v["real_time_factor"] <= 0:
@@ -135,6 +149,19 @@ def check_simulator(v: dict, where: str) -> None:
 
 
 def check_sensors(v: dict, where: str) -> None:
-    """The sensors' rules across elements (``v``: parsed SENSOR_FIELDS); ConfigError naming the field."""
+    """The sensors' rules across elements (``v``: parsed SENSOR_FIELDS); ConfigError naming the field.
+
+    Parameters
+    ----------
+    v : dict
+        Parsed sensor parameters.
+    where : str
+        Context named in error messages.
+
+    Raises
+    ------
+    ConfigError
+        If the sun sensor boresight is a zero vector.
+    """
     if sum(x * x for x in v["sun_boresight"]) < 1e-18:
         raise ConfigError(where, "sun_boresight", "expected a nonzero vector")

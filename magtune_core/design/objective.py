@@ -56,6 +56,17 @@ def model_feasible(model: AttitudeLTP, Ks: np.ndarray, steps: int, hold=None) ->
     model: ``HoldConstraint.screen`` or ``Requirements.screen``), meets the hold and dipole
     requirements. The screen of :func:`model_norms`.
 
+    Parameters
+    ----------
+    model : AttitudeLTP
+        Design model.
+    Ks : ndarray (n, 3, 6)
+        Gains (any shape with a multiple of 18 entries).
+    steps : int
+        Magnus intervals per period of the monodromy.
+    hold : callable or None
+        Screen of this model: Ks (m, 3, 6) -> ndarray of bool (m,); None: stability only.
+
     Returns
     -------
     ndarray of bool (n,)
@@ -78,6 +89,25 @@ def model_norms(model: AttitudeLTP, sigma: float, Ks: np.ndarray, steps: int, rt
 
     ``hold`` (a screen of this model, :func:`model_feasible`): gains that fail it are
     infeasible too (inf), screened after the continuous-time test and before any bisection.
+
+    Parameters
+    ----------
+    model : AttitudeLTP
+        Design model.
+    sigma : float
+        Weight of the torque in z (paper eq. 20).
+    Ks : ndarray (n, 3, 6)
+        Gains (any shape with a multiple of 18 entries).
+    steps : int
+        Magnus intervals per period.
+    rtol : float
+        Relative accuracy of each norm.
+    guess : float or array_like (n,) or None
+        Starting level of the bisection per gain; non-finite or non-positive entries take the largest usable one.
+    spread : float or None
+        Expected ratio of the norms to ``guess`` (used only with a guess).
+    hold : callable or None
+        Screen of this model (see :func:`model_feasible`).
 
     Returns
     -------
@@ -208,6 +238,17 @@ class HinfObjective:
         both only affect speed. ``rtol`` overrides the objective's accuracy for this call (an
         optimizer that only ranks a widely spread population asks for less).
 
+        Parameters
+        ----------
+        Ks : array_like (n, 3, 6)
+            Gains (any shape with a multiple of 18 entries); counted in ``evaluations``.
+        guess : float or array_like (n,) or (n, n_models) or None
+            Starting level of the bisection.
+        spread : float or None
+            Expected ratio of the norms to ``guess``.
+        rtol : float or None
+            Relative accuracy for this call; None: the objective's ``rtol``.
+
         Returns
         -------
         ndarray (n, n_models)
@@ -226,6 +267,17 @@ class HinfObjective:
     def __call__(self, Ks, guess=None, spread: float | None = None, rtol: float | None = None) -> np.ndarray:
         """J per gain: the max over models of the norm (n,); inf where any closed loop is unstable.
 
+        Parameters
+        ----------
+        Ks : array_like (n, 3, 6)
+            Gains.
+        guess : float or array_like or None
+            Starting level of the bisection (see :meth:`per_model`).
+        spread : float or None
+            Expected ratio of the norms to ``guess``.
+        rtol : float or None
+            Relative accuracy for this call; None: the objective's ``rtol``.
+
         Returns
         -------
         ndarray (n,)
@@ -237,6 +289,11 @@ class HinfObjective:
         """Whether J(K) is finite, without computing it (stability and hold constraint on every model;
         ~1 ms per gain, no bisection): what the tuner's feasible-range coordinates are measured with
         (``cmaes.feasible_scale``, ~2,000 gains), split over the ``workers`` like :meth:`per_model`.
+
+        Parameters
+        ----------
+        Ks : array_like (n, 3, 6)
+            Gains (any shape with a multiple of 18 entries); not counted in ``evaluations``.
 
         Returns
         -------
@@ -259,6 +316,11 @@ class HinfObjective:
 
     def worst(self, Ks) -> np.ndarray:
         """Index (into ``models``) of the model with the largest norm, per gain (n,).
+
+        Parameters
+        ----------
+        Ks : array_like (n, 3, 6)
+            Gains; their norms are computed (and counted) by :meth:`per_model`.
 
         Returns
         -------

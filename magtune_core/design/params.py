@@ -48,7 +48,27 @@ PERIOD_TOLERANCE = 5e-3
 
 
 def parse_epoch(text: str, where="spacecraft parameters", name="epoch") -> datetime:
-    """ISO 8601 UTC date/time -> naive datetime (UTC); ConfigError naming ``name`` otherwise."""
+    """ISO 8601 UTC date/time -> naive datetime (UTC); ConfigError naming ``name`` otherwise.
+
+    Parameters
+    ----------
+    text : str
+        ISO 8601 date/time; a trailing "Z" or an offset is converted to UTC.
+    where : str
+        File or context named in the error message.
+    name : str
+        Field name named in the error message.
+
+    Returns
+    -------
+    datetime
+        The instant as a naive datetime in UTC.
+
+    Raises
+    ------
+    ConfigError
+        If ``text`` is not an ISO 8601 date/time.
+    """
     try:
         d = datetime.fromisoformat(str(text).replace("Z", "+00:00"))
     except ValueError:
@@ -62,7 +82,22 @@ def parse_epoch(text: str, where="spacecraft parameters", name="epoch") -> datet
 def check_orbit(altitude: float, inclination_deg: float, where="command line") -> None:
     """ConfigError unless altitude [m] and inclination [deg] are within the bounds of the schema
     (:attr:`SpacecraftParams.FIELDS`: 150 km .. 2000 km, 0 .. 180 deg), for an orbit given as
-    command-line options (``magtune fit-field``, in km: the message says km)."""
+    command-line options (``magtune fit-field``, in km: the message says km).
+
+    Parameters
+    ----------
+    altitude : float
+        Circular-orbit altitude [m].
+    inclination_deg : float
+        Orbit inclination [deg].
+    where : str
+        Context named in the error message.
+
+    Raises
+    ------
+    ConfigError
+        If the altitude is not finite or outside 150 .. 2000 km, or the inclination is outside 0 .. 180 deg.
+    """
     fields = {f.name: f for f in SpacecraftParams.FIELDS}
     lo, hi = fields["altitude"].bounds
     if not (math.isfinite(altitude) and lo <= altitude <= hi):
@@ -74,7 +109,20 @@ def check_orbit(altitude: float, inclination_deg: float, where="command line") -
 def check_inertia(inertia, where) -> None:
     """ConfigError unless the principal moments are those of a rigid body: each at most the sum
     of the other two (the triangle inequality; equality is a flat plate). A body with
-    Ixx > Iyy + Izz does not exist, and its dynamics would be meaningless."""
+    Ixx > Iyy + Izz does not exist, and its dynamics would be meaningless.
+
+    Parameters
+    ----------
+    inertia : array_like (3,)
+        Principal moments Ixx, Iyy, Izz [kg m^2].
+    where : str
+        File or context named in the error message.
+
+    Raises
+    ------
+    ConfigError
+        If a moment exceeds the sum of the other two (relative tolerance 1e-12).
+    """
     m = [float(x) for x in inertia]
     for i, axis in enumerate("xyz"):
         others = m[(i + 1) % 3] + m[(i + 2) % 3]
@@ -145,6 +193,26 @@ class SpacecraftParams:
         (:data:`magtune_core.design.node_params.NODE_PARAMETERS`, derived from the nodes' schemas)
         is an error with a "did you mean" (the CLI reading ``config/spacecraft.yaml``).
         Raises ConfigError naming ``where``, the field and what was expected.
+
+        Parameters
+        ----------
+        params : dict
+            Parameter name -> value (the ROS 2 ``ros__parameters`` mapping).
+        where : str
+            File or context named in error messages.
+        strict : bool
+            Reject keys that are neither fields nor node parameters.
+
+        Returns
+        -------
+        SpacecraftParams
+            The validated parameters, ``orbit_period`` derived by ``period_model`` (or the checked explicit value).
+
+        Raises
+        ------
+        ConfigError
+            If a field is missing, malformed or out of bounds (also unknown keys when ``strict``), the
+            inertia is not a rigid body's, or an explicit ``orbit_period`` is more than 0.5 % off the Keplerian period.
         """
         from .node_params import NODE_PARAMETERS  # below law/model, which import this module
 
@@ -167,7 +235,18 @@ class SpacecraftParams:
         return replace(p, orbit_period=float(T))
 
     def orbit_config(self, **overrides) -> OrbitConfig:
-        """The circular orbit as :class:`magtune_core.env.orbit.OrbitConfig` (``overrides``: its fields)."""
+        """The circular orbit as :class:`magtune_core.env.orbit.OrbitConfig` (``overrides``: its fields).
+
+        Parameters
+        ----------
+        **overrides : dict
+            OrbitConfig fields replacing this orbit's values (None values are ignored).
+
+        Returns
+        -------
+        OrbitConfig
+            Altitude, inclination, RAAN, argument of latitude and epoch of this orbit, with the overrides.
+        """
         kw = dict(altitude=float(self.altitude), inclination_deg=float(self.inclination_deg),
                   raan_deg=float(self.raan_deg), arg_lat_deg=float(self.arg_lat_deg), epoch=self.epoch)
         kw.update({k: v for k, v in overrides.items() if v is not None})
@@ -175,31 +254,76 @@ class SpacecraftParams:
 
     @property
     def orbit_rate(self) -> float:
-        """W0 = 2 pi / T [rad/s]."""
+        """W0 = 2 pi / T [rad/s].
+
+        Returns
+        -------
+        float
+            Orbital rate [rad/s] of the nominal period ``orbit_period``.
+        """
         return 2.0 * np.pi / self.orbit_period
 
     @property
     def wheel_momentum(self) -> np.ndarray:
-        """Wheel angular momentum in body axes, h = [0, 0, -J Wwheel] (SPEC.md sign check)."""
+        """Wheel angular momentum in body axes, h = [0, 0, -J Wwheel] (SPEC.md sign check).
+
+        Returns
+        -------
+        ndarray (3,)
+            h [N m s] in body axes.
+        """
         return np.array([0.0, 0.0, -self.wheel_inertia * self.wheel_speed])
 
     @property
     def nutation_period(self) -> float:
         """Nutation period 2 pi sqrt(Ixx Iyy) / h [s] of the momentum-biased body (wheel momentum
         h = J |Wwheel| along the pitch axis, transverse axes x, y); inf without wheel momentum.
-        The fastest natural motion of the attitude: a sample period must resolve it."""
+        The fastest natural motion of the attitude: a sample period must resolve it.
+
+        Returns
+        -------
+        float
+            Nutation period [s]; inf when the wheel momentum is zero.
+        """
         h = abs(self.wheel_inertia * self.wheel_speed)
         return float(2.0 * np.pi * np.sqrt(self.inertia[0] * self.inertia[1]) / h) if h > 0 else float("inf")
 
     def field(self, model: str | None = None) -> FourierField:
-        """The orbital-axes field model b_orb(t) (paper eq. 26 by default; ``model`` overrides ``field_model``)."""
+        """The orbital-axes field model b_orb(t) (paper eq. 26 by default; ``model`` overrides ``field_model``).
+
+        Parameters
+        ----------
+        model : str or None
+            Field model name (:data:`~magtune_core.design.field.FIELD_MODELS`); None: ``field_model``.
+
+        Returns
+        -------
+        FourierField
+            The field at this orbit's rate (``constant_field`` for the constant model).
+        """
         return paper_field(self.orbit_rate, model or self.field_model, self.constant_field)
 
 
 def check_sample_period(ts: float, p: SpacecraftParams, where="ts") -> None:
     """ConfigError unless ``0 < ts < nutation period / 2`` (Nyquist: the sampled controller must
     resolve the nutation; beyond it the loop cannot damp it and RK4 at 2 sub-steps goes unstable,
-    e.g. ts = 100 s for the paper's spacecraft, whose nutation period is 76.6 s)."""
+    e.g. ts = 100 s for the paper's spacecraft, whose nutation period is 76.6 s).
+
+    Parameters
+    ----------
+    ts : float
+        Sample period [s] of the controller.
+    p : SpacecraftParams
+        Spacecraft whose nutation period bounds ``ts``.
+    where : str
+        Context named in the error message.
+
+    Raises
+    ------
+    ConfigError
+        If ``ts`` is not a positive finite number, is outside the bounds of the onboard ``SAMPLE_PERIOD``
+        parameter, or is at least half the nutation period.
+    """
     if not (isinstance(ts, (int, float)) and np.isfinite(ts) and ts > 0):
         raise ConfigError(where, None, f"expected a positive finite sample period in s, got {ts!r}")
     lo, hi = SAMPLE_PERIOD.bounds
@@ -212,5 +336,16 @@ def check_sample_period(ts: float, p: SpacecraftParams, where="ts") -> None:
 
 
 def load_spacecraft(path) -> SpacecraftParams:
-    """Read ``config/spacecraft.yaml`` (every node section merged) into SpacecraftParams."""
+    """Read ``config/spacecraft.yaml`` (every node section merged) into SpacecraftParams.
+
+    Parameters
+    ----------
+    path : str or Path
+        ROS 2 parameter file.
+
+    Returns
+    -------
+    SpacecraftParams
+        The validated parameters (strict: unknown keys are errors).
+    """
     return SpacecraftParams.from_mapping(read_ros_params(path), path, strict=True)

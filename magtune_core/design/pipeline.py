@@ -10,6 +10,16 @@ carries. ``tune_robust_gains`` does the same for the worst J over a model set
 (``save_gains``). ``analyze_gains`` recomputes a gain's figures, its sample-and-hold margin and,
 if asked, the exact gradient of J (what ``magtune analyze`` prints).
 
+``tune_gains``: ``method`` "cma" (CMA-ES to a certified optimum under hard requirements) or
+"paper" (the randomized algorithm of paper 4.2, no constraint). The hard requirements are
+``requirements`` (a design spec, :mod:`.requirements`: hold margin over a sample-period range,
+dipole budget; the gains' Ts is its ts_min) or, without one, the hold constraint of ``ts`` /
+``gain_margin`` (``gain_margin`` 0: none, the paper's unconstrained problem). ``start_K``: start
+from this gain instead of the LQ gain of the averaged model; ``progress``: the optimizer's
+callback (raise KeyboardInterrupt in it to stop with the best gain so far). ``executor``: where
+the CMA-ES candidates are evaluated instead of ``workers`` local processes (e.g. a Dask
+cluster's, :class:`.objective.HinfObjective`); the same gain as ``workers`` = its number of parts.
+
 Example (the paper's satellite at sigma = 60, a short paper-method run)::
 
     from magtune_core.design.model import AttitudeLTP
@@ -62,7 +72,13 @@ class TuneOutcome:
 
     @property
     def state(self) -> str:
-        """How the search ended, in words (certified, interrupted, budget, unresolved)."""
+        """How the search ended, in words (certified, interrupted, budget, unresolved).
+
+        Returns
+        -------
+        str
+            "converged" for a certified stop, else "NOT certified (...)" with the reason.
+        """
         return {"certified": "converged", "interrupted": "NOT certified (interrupted: the best gain so far)",
                 "unresolved": "NOT certified (no improvement found, but max_steps Magnus steps do not resolve J to "
                               "the certificate's tolerance)"}.get(
@@ -70,7 +86,13 @@ class TuneOutcome:
 
     @property
     def interrupted(self) -> bool:
-        """True when a stop request ended the search early (the best gain so far)."""
+        """True when a stop request ended the search early (the best gain so far).
+
+        Returns
+        -------
+        bool
+            True if the optimizer's ``stop`` is "interrupted".
+        """
         return getattr(self.result, "stop", None) == "interrupted"
 
 
@@ -113,23 +135,52 @@ def tune_gains(model, sigma: float, *, method: str = "cma", seed: int = 0, start
                executor=None) -> TuneOutcome:
     """H-infinity tuning of K for one sigma on ``model`` (an ``AttitudeLTP``).
 
-    ``method`` "cma" (CMA-ES to a certified optimum under hard requirements) or "paper" (the
-    randomized algorithm of paper 4.2, no constraint). The hard requirements are ``requirements``
-    (a design spec, :mod:`.requirements`: hold margin over a sample-period range, dipole budget;
-    the gains' Ts is its ts_min) or, without one, the hold constraint of ``ts`` / ``gain_margin``
-    (``gain_margin`` 0: none, the paper's unconstrained problem). ``start_K``: start from this
-    gain instead of the LQ gain of the averaged model; ``progress``: the optimizer's callback
-    (raise KeyboardInterrupt in it to stop with the best gain so far). ``executor``: where the
-    CMA-ES candidates are evaluated instead of ``workers`` local processes (e.g. a Dask cluster's,
-    :class:`.objective.HinfObjective`); the same gain as ``workers`` = its number of parts.
+    The hard requirements are ``requirements`` or, without one, the hold constraint of ``ts`` /
+    ``gain_margin`` (module docstring).
+
+    Parameters
+    ----------
+    model : AttitudeLTP
+        Design model.
+    sigma : float
+        Weight of the torque in z (paper eq. 20).
+    method : str
+        "cma" (CMA-ES to a certified optimum under hard requirements) or "paper" (paper 4.2, no constraint).
+    seed : int
+        Seed of the optimizer.
+    start_K : array_like (3, 6) or None
+        Start gain instead of the LQ gain of the averaged model.
+    start_name : str or None
+        Name of ``start_K`` in the start's label ("start <name>").
+    workers : int
+        Local processes evaluating the candidates.
+    ts : float
+        Gains' sample period [s] and Ts of the hold constraint (without ``requirements``).
+    gain_margin : float
+        Hold gain margin without ``requirements`` (0: none, the paper's unconstrained problem).
+    cma : CmaSettings or None
+        CMA-ES settings (method "cma"); None: defaults.
+    paper : TunerSettings or None
+        Settings of the paper's tuner (method "paper"); None: defaults.
+    progress : callable or None
+        Optimizer callback; raise KeyboardInterrupt in it to stop with the best gain so far.
+    requirements : Requirements or None
+        Design spec (hold margin over a Ts range, dipole budget); its ts_min is the gains' Ts.
+    executor : object or None
+        Where the CMA-ES candidates are evaluated instead of ``workers`` (:class:`.objective.HinfObjective`).
 
     Returns
     -------
     TuneOutcome
         ``gains`` (K, sigma, Ts, provenance: J, c1, c2, rho of eqs. 20-22 at ``analysis_steps``
         Magnus steps, the optimizer's record, the start, the requirements and their values).
-        Raises ValueError when no start gain stabilizes the model, :class:`InfeasibleStart`
-        (naming the binding requirement) when the start cannot meet the requirements.
+
+    Raises
+    ------
+    ValueError
+        If ``method`` is unknown, an executor is given with method "paper", or no start gain stabilizes the model.
+    InfeasibleStart
+        If the start cannot meet the requirements (the message names the binding requirement).
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
@@ -209,7 +260,24 @@ def _restored_start(model, K0, hold, seed: int, reason: str):
 def binding_message(model, K0, req, reason: str) -> str:
     """Which hard requirement keeps the start gain's scalings infeasible, and by how much: the best
     value each requirement reaches over the scalings 10^(0..-2) of ``K0`` (a Requirements; other
-    constraints: ``reason`` as is)."""
+    constraints: ``reason`` as is).
+
+    Parameters
+    ----------
+    model : AttitudeLTP
+        Design model.
+    K0 : array_like (3, 6)
+        Start gain.
+    req : Requirements or HoldConstraint
+        The hard requirements the start failed.
+    reason : str
+        Why no scaling was feasible (the message of :func:`.sampled.feasible_start`).
+
+    Returns
+    -------
+    str
+        ``reason``, followed for a Requirements by the (at most two) most violated requirements at their best scaling.
+    """
     if not isinstance(req, Requirements):
         return reason
     screen = req.screen(model)
@@ -237,13 +305,24 @@ def requirement_provenance(model, K, req: Requirements, cache: dict | None = Non
     margin of the dense scan and its period (where ``verify`` also flies), the peak-dipole proxy.
     ``cache``: the scan's loops already built (:meth:`.sampled.SampledLoop.at`).
 
+    Parameters
+    ----------
+    model : AttitudeLTP
+        Design model.
+    K : array_like (3, 6)
+        Gain.
+    req : Requirements
+        The design spec.
+    cache : dict or None
+        {ts: SampledLoop} of this model, read and filled.
+
     Returns
     -------
     dict
         ``requirements`` (one line), ``requirements_met`` (bool), ``hold_margin_min`` and
         ``hold_tightest_ts`` [s] (dense scan), ``hold_multiplier_max`` and its ``hold_multiplier_ts``
         [s] (the held loop's slowest decay over the scan), ``dipole_peak_proxy`` [A m^2] and
-        ``dipole_budget``.
+        ``dipole_budget``; also ``requirements_source`` and ``hold_ts_range`` [s].
     """
     loops = SampledLoop.at(model, req.periods(req.sampling["scan_periods"]), cache)
     margins = np.array([hold_gain_margin(loop, K) for loop in loops])
@@ -273,11 +352,45 @@ def tune_robust_gains(model, models, sigma: float, *, seed: int = 0, start_K=Non
     robust spec; ``model``: the nominal one) with the CMA-ES tuner (:func:`magtune_core.design.robust.tune_robust`);
     ``executor`` as in :func:`tune_gains`.
 
+    Parameters
+    ----------
+    model : AttitudeLTP
+        Nominal design model (design field, hold margin and requirement provenance).
+    models : sequence of NamedModel
+        The model set.
+    sigma : float
+        Weight of the torque in z (paper eq. 20).
+    seed : int
+        Seed of the tuner.
+    start_K : array_like (3, 6) or None
+        Start gain; None: the LQ start resolved on the set.
+    start_name : str or None
+        Label of ``start_K`` in the provenance.
+    workers : int
+        Local processes evaluating the candidates.
+    ts : float
+        Gains' sample period [s] and Ts of the hold constraint (without ``requirements``).
+    gain_margin : float
+        Hold gain margin without ``requirements`` (0: none).
+    cma : CmaSettings or None
+        CMA-ES settings; None: defaults.
+    spec_name : str
+        Name of the robust spec recorded in the provenance.
+    requirements : Requirements or None
+        Design spec every model must meet.
+    executor : object or None
+        Where the candidates are evaluated instead of ``workers``.
+
     Returns
     -------
     TuneOutcome
         ``gains`` with the nominal figures, the worst model's (``worst_*``) and the spec's name
         in the provenance; ``result.J0`` is the start's worst J.
+
+    Raises
+    ------
+    ValueError
+        From :func:`~magtune_core.design.robust.tune_robust` when no start stabilizes every model or meets the hold.
     """
     from .robust import robust_figures, tune_robust
 
@@ -322,6 +435,17 @@ def analyze_gains(model, gains: Gains, *, steps: int | None = None, sensitivity:
     doubled until J is resolved, :func:`.resolution.resolved_steps`), the hold gain margin at the
     gains' Ts (:func:`.sampled.hold_gain_margin`, paper section 5) and optionally the gradient.
 
+    Parameters
+    ----------
+    model : AttitudeLTP
+        Design model.
+    gains : Gains
+        K, sigma and Ts to analyze.
+    steps : int or None
+        Magnus intervals per period; None: resolved from ANALYSIS_STEPS.
+    sensitivity : bool
+        Also compute :func:`gain_sensitivity` (when the loop is stable).
+
     Returns
     -------
     Analysis
@@ -337,12 +461,25 @@ def analyze_gains(model, gains: Gains, *, steps: int | None = None, sensitivity:
 def gain_sensitivity(model, gains: Gains, steps: int) -> dict:
     """Exact dJ/dK (:func:`.problem.cost_gradient`) and the worst-case disturbance frequency.
 
+    Parameters
+    ----------
+    model : AttitudeLTP
+        Design model.
+    gains : Gains
+        K and sigma.
+    steps : int
+        Magnus intervals per period.
+
     Returns
     -------
     dict
         ``dJ_dK`` (3 x 6), ``elasticity`` K_ij dJ/dK_ij / J, ``worst_multiplier_angle`` [rad],
-        ``worst_frequency_mod_orbit`` [rad/s] and ``orbit_rate`` [rad/s]. Raises ArithmeticError,
-        ValueError or LinAlgError when the gradient cannot be computed (e.g. a flow not finite at the norm).
+        ``worst_frequency_mod_orbit`` [rad/s] and ``orbit_rate`` [rad/s].
+
+    Raises
+    ------
+    ArithmeticError, ValueError or LinAlgError
+        When the gradient cannot be computed (e.g. a flow not finite at the norm).
     """
     J, dK, grad = cost_gradient(model, gains.K, gains.sigma, steps=steps)
     angle = float(abs(np.angle(grad.multipliers).mean()))

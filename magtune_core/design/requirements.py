@@ -87,12 +87,24 @@ class Check:
 
     @property
     def ok(self) -> bool:
-        """Whether the requirement holds."""
+        """Whether the requirement holds.
+
+        Returns
+        -------
+        bool
+            value >= limit for kind ">=", value <= limit otherwise.
+        """
         return bool(self.value >= self.limit) if self.kind == ">=" else bool(self.value <= self.limit)
 
     @property
     def slack(self) -> float:
-        """Relative distance to the limit: > 0 met, < 0 violated (-0.1: 10 % short)."""
+        """Relative distance to the limit: > 0 met, < 0 violated (-0.1: 10 % short).
+
+        Returns
+        -------
+        float
+            value / limit - 1 (">=") or 1 - value / limit ("<="); +-inf for a non-finite value.
+        """
         if not np.isfinite(self.value):
             return np.inf if (self.kind == ">=") == (self.value > 0) else -np.inf
         return (self.value / self.limit - 1.0) if self.kind == ">=" else (1.0 - self.value / self.limit)
@@ -114,7 +126,28 @@ class Requirements:
 
     @classmethod
     def from_mapping(cls, raw: dict | None, spacecraft_limit: float, where="design spec") -> "Requirements":
-        """Validate a design spec mapping (sections ``sampling``, ``dipole``, ``pointing``); ConfigError if bad."""
+        """Validate a design spec mapping (sections ``sampling``, ``dipole``, ``pointing``); ConfigError if bad.
+
+        Parameters
+        ----------
+        raw : dict or None
+            Section name -> mapping of fields; None or empty: every default.
+        spacecraft_limit : float
+            Per-axis dipole limit [A m^2] used when the ``dipole`` section gives no ``limit``.
+        where : str
+            File or context named in error messages (and stored as ``source``).
+
+        Returns
+        -------
+        Requirements
+            The validated sections and the resolved dipole limit.
+
+        Raises
+        ------
+        ConfigError
+            If ``raw`` is not a mapping, a section is unknown or not a mapping, a field is invalid,
+            ts_max < ts_min, or 0 < gain_margin < 1.
+        """
         raw = raw or {}
         if not isinstance(raw, dict):
             raise ConfigError(where, None, f"expected a mapping with sections {', '.join(SECTIONS)}")
@@ -137,54 +170,129 @@ class Requirements:
 
     @property
     def ts(self) -> float:
-        """The gains' sample period: the shortest of the range."""
+        """The gains' sample period: the shortest of the range.
+
+        Returns
+        -------
+        float
+            ts_min [s].
+        """
         return float(self.sampling["ts_min"])
 
     @property
     def gain_margin(self) -> float:
-        """Required hold gain margin (0: none)."""
+        """Required hold gain margin (0: none).
+
+        Returns
+        -------
+        float
+            The margin factor of the ``sampling`` section.
+        """
         return float(self.sampling["gain_margin"])
 
     @property
     def max_multiplier(self) -> float:
         """Largest |characteristic multiplier| of the held loop with K (1: stability only); part of the
-        hold requirement, so inactive when ``gain_margin`` is 0."""
+        hold requirement, so inactive when ``gain_margin`` is 0.
+
+        Returns
+        -------
+        float
+            max_multiplier of the ``sampling`` section, in (0, 1].
+        """
         return float(self.sampling["max_multiplier"])
 
     @property
     def dipole_budget(self) -> float:
-        """Per-axis dipole the linear loop may command [A m^2] (0: no dipole requirement)."""
+        """Per-axis dipole the linear loop may command [A m^2] (0: no dipole requirement).
+
+        Returns
+        -------
+        float
+            budget_fraction x dipole_limit [A m^2].
+        """
         return float(self.dipole["budget_fraction"]) * self.dipole_limit
 
     @property
     def constrained(self) -> bool:
-        """False for the paper's unconstrained problem (no hold, no dipole requirement)."""
+        """False for the paper's unconstrained problem (no hold, no dipole requirement).
+
+        Returns
+        -------
+        bool
+            True if a hold gain margin or a dipole budget is required.
+        """
         return self.gain_margin > 0 or self.dipole_budget > 0
 
     def periods(self, points: int | None = None) -> np.ndarray:
         """The checked sample periods: geometric in [ts_min, ts_max] (``points``, default check_periods),
-        plus the periods the dense scan added, ascending."""
+        plus the periods the dense scan added, ascending.
+
+        Parameters
+        ----------
+        points : int or None
+            Number of geometric periods; None: ``check_periods``.
+
+        Returns
+        -------
+        ndarray (m,)
+            Unique sample periods [s], ascending.
+        """
         lo, hi = self.sampling["ts_min"], self.sampling["ts_max"]
         n = int(points or self.sampling["check_periods"])
         base = np.array([lo]) if hi == lo or n == 1 else np.geomspace(lo, hi, max(n, 2))
         return np.unique(np.concatenate([base, np.asarray(self.extra_periods, dtype=float)]))
 
     def with_periods(self, extra) -> "Requirements":
-        """The same requirements with more checked periods (the dense scan's cutting planes)."""
+        """The same requirements with more checked periods (the dense scan's cutting planes).
+
+        Parameters
+        ----------
+        extra : iterable of float
+            Sample periods [s] to add.
+
+        Returns
+        -------
+        Requirements
+            A copy whose ``extra_periods`` are the sorted union of the old and the new.
+        """
         return replace(self, extra_periods=tuple(sorted(set(self.extra_periods) | {float(t) for t in extra})))
 
     def dipole_case(self) -> DipoleCase:
-        """The initial states and residual dipoles of the budget (:class:`.dipole.DipoleCase`)."""
+        """The initial states and residual dipoles of the budget (:class:`.dipole.DipoleCase`).
+
+        Returns
+        -------
+        DipoleCase
+            Rates, attitude ball, residual dipoles and horizon of the ``dipole`` section.
+        """
         d = self.dipole
         return DipoleCase(tuple(d["rate_nominal"]), tuple(d["rate_radius"]), float(d["attitude_max_deg"]),
                           tuple(d["residual_nominal"]), tuple(d["residual_radius"]), float(d["horizon_orbits"]))
 
     def screen(self, model: AttitudeLTP) -> "FlightScreen":
-        """The compiled checks of these requirements on one model (:class:`FlightScreen`)."""
+        """The compiled checks of these requirements on one model (:class:`FlightScreen`).
+
+        Parameters
+        ----------
+        model : AttitudeLTP
+            Design model.
+
+        Returns
+        -------
+        FlightScreen
+            :meth:`FlightScreen.build` of ``model`` and these requirements.
+        """
         return FlightScreen.build(model, self)
 
     def describe(self) -> str:
-        """One line: what the tuner is asked (what a gains file's provenance records)."""
+        """One line: what the tuner is asked (what a gains file's provenance records).
+
+        Returns
+        -------
+        str
+            The hold requirement (or "no hold requirement") and the dipole budget (or "no dipole budget").
+        """
         s = self.sampling
         rho = f", |multiplier| <= {self.max_multiplier:g}" if self.max_multiplier < 1 else ""
         parts = [f"hold gain margin {s['gain_margin']:g}{rho} at Ts {s['ts_min']:g}-{s['ts_max']:g} s"
@@ -195,7 +303,18 @@ class Requirements:
 
 def spacecraft_dipole_limit(spacecraft_path) -> float:
     """The torquers' per-axis limit of a spacecraft file (its nodes' ``dipole_limit``, the weakest
-    axis; the controller's default when the file gives none) [A m^2]."""
+    axis; the controller's default when the file gives none) [A m^2].
+
+    Parameters
+    ----------
+    spacecraft_path : str or Path
+        Spacecraft parameter file.
+
+    Returns
+    -------
+    float
+        Smallest per-axis ``dipole_limit`` [A m^2] (or the onboard default).
+    """
     from ..base.paramfile import read_ros_params
     from ..onboard.params import DEFAULT_DIPOLE_LIMIT
 
@@ -206,10 +325,22 @@ def spacecraft_dipole_limit(spacecraft_path) -> float:
 def load_requirements(path, spacecraft_limit: float) -> Requirements:
     """Read and validate a design spec file (ConfigError naming the file and field).
 
+    Parameters
+    ----------
+    path : str or Path
+        Design spec file (YAML).
+    spacecraft_limit : float
+        Per-axis dipole limit [A m^2] used when the spec gives none.
+
     Returns
     -------
     Requirements
         The spec, its dipole limit resolved against ``spacecraft_limit``.
+
+    Raises
+    ------
+    ConfigError
+        If the file does not exist, is not valid YAML, or :meth:`Requirements.from_mapping` rejects it.
     """
     path = Path(path)
     if not path.is_file():
@@ -236,7 +367,20 @@ class FlightScreen:
 
     @classmethod
     def build(cls, model: AttitudeLTP, req: Requirements) -> "FlightScreen":
-        """Interval maps of every checked period (:meth:`.sampled.SampledLoop.build`)."""
+        """Interval maps of every checked period (:meth:`.sampled.SampledLoop.build`).
+
+        Parameters
+        ----------
+        model : AttitudeLTP
+            Design model.
+        req : Requirements
+            Requirements to compile.
+
+        Returns
+        -------
+        FlightScreen
+            Held loops at the checked periods (none without a gain margin) and at ts_min/ts_max (none without a budget).
+        """
         loops = tuple(SampledLoop.build(model, t) for t in req.periods()[::-1]) if req.gain_margin else ()
         lo, hi = req.sampling["ts_min"], req.sampling["ts_max"]
         dl = tuple(SampledLoop.build(model, t) for t in sorted({lo, hi})) if req.dipole_budget else ()
@@ -263,6 +407,11 @@ class FlightScreen:
     def checks(self, K) -> list:
         """Every hard requirement of one gain, with its value (what binds and by how much).
 
+        Parameters
+        ----------
+        K : array_like (3, 6)
+            Gain.
+
         Returns
         -------
         list of Check
@@ -287,6 +436,19 @@ def scan_hold(model: AttitudeLTP, K, req: Requirements, points: int | None = Non
     the gain times ``gain_margin`` stable at ``points`` periods (default scan_periods) of [ts_min,
     ts_max]? ``cache``: the loops already built for this model (:meth:`.sampled.SampledLoop.at`).
 
+    Parameters
+    ----------
+    model : AttitudeLTP
+        Design model.
+    K : array_like (3, 6)
+        Gain.
+    req : Requirements
+        Sampling requirements (range, margin, multiplier bound).
+    points : int or None
+        Number of scanned periods; None: ``scan_periods``.
+    cache : dict or None
+        {ts: SampledLoop} of this model, read and filled.
+
     Returns
     -------
     (ndarray, ndarray of bool)
@@ -302,12 +464,34 @@ def scan_hold(model: AttitudeLTP, K, req: Requirements, points: int | None = Non
 def hold_ends(gain_margin: float, max_multiplier: float = 1.0) -> tuple:
     """The hold requirement at one period as (scale, bound) pairs, rho(scale x K) < bound for each:
     the held loop stable with K x ``gain_margin`` and decaying by ``max_multiplier`` per orbit with K
-    (both ends of the margin: near the nutation limit stability is not monotone in the gain's scale)."""
+    (both ends of the margin: near the nutation limit stability is not monotone in the gain's scale).
+
+    Parameters
+    ----------
+    gain_margin : float
+        Required gain margin (factor).
+    max_multiplier : float
+        Bound on rho(K) (1: stability only).
+
+    Returns
+    -------
+    tuple of (float, float)
+        ((gain_margin, 1.0), (1.0, max_multiplier)).
+    """
     return ((float(gain_margin), 1.0), (1.0, float(max_multiplier)))
 
 
 def held_radii(loop, K, gain_margin: float) -> np.ndarray:
     """The held loop's largest |multiplier| at the scales of :func:`hold_ends`, of one gain.
+
+    Parameters
+    ----------
+    loop : SampledLoop
+        Held loop of one model at one period.
+    K : array_like (3, 6)
+        Gain.
+    gain_margin : float
+        Required gain margin (factor).
 
     Returns
     -------
@@ -319,6 +503,23 @@ def held_radii(loop, K, gain_margin: float) -> np.ndarray:
 
 
 def held_margin_ok(loop, K, gain_margin: float, max_multiplier: float = 1.0) -> bool:
-    """The hold requirement at one period (:func:`hold_ends`) for one gain."""
+    """The hold requirement at one period (:func:`hold_ends`) for one gain.
+
+    Parameters
+    ----------
+    loop : SampledLoop
+        Held loop of one model at one period.
+    K : array_like (3, 6)
+        Gain.
+    gain_margin : float
+        Required gain margin (factor).
+    max_multiplier : float
+        Bound on rho(K).
+
+    Returns
+    -------
+    bool
+        True if rho(gain_margin K) < 1 and rho(K) < max_multiplier.
+    """
     bounds = [b for _, b in hold_ends(gain_margin, max_multiplier)]
     return bool(np.all(held_radii(loop, K, gain_margin) < bounds))

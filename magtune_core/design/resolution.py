@@ -52,6 +52,21 @@ def resolved_steps(models, K, sigma: float, steps: int = DEFAULT_STEPS, rtol: fl
     ``(steps, J)`` with J at the returned steps; at ``max_steps`` without agreement returns
     ``(max_steps, J)``.
 
+    Parameters
+    ----------
+    models : AttitudeLTP or list or tuple of AttitudeLTP
+        Design model(s); J and stability are the worst over them.
+    K : array_like (3, 6)
+        Gain (any shape with 18 entries).
+    sigma : float
+        Weight of the torque in z (paper eq. 20).
+    steps : int
+        First number of Magnus intervals per period tried.
+    rtol : float
+        Relative agreement of J at steps and 2 steps.
+    max_steps : int
+        Largest number of intervals returned.
+
     Returns
     -------
     (int, float)
@@ -72,11 +87,26 @@ def start_gain(models, sigma: float, steps: int = DEFAULT_STEPS, rtol: float = 1
     """The tuner's start: LQ at ``sigma`` if it stabilizes every model, else the best stabilizing LQ
     gain of sigma * 10^k, k = 1..4 (module docstring). Steps are resolved on the chosen gain.
 
+    Parameters
+    ----------
+    models : AttitudeLTP or list or tuple of AttitudeLTP
+        Design model(s); the LQ gains are designed on the first, checked on all.
+    sigma : float
+        Weight of the torque in z (paper eq. 20).
+    steps : int
+        First number of Magnus intervals per period tried (:func:`resolved_steps`).
+    rtol : float
+        Relative agreement of J that resolves the steps.
+
     Returns
     -------
     (ndarray (3, 6), float, int, float)
         K0, the LQ weight it was designed with, the resolved steps and J(K0) at ``sigma`` there.
-        Raises ValueError if no candidate stabilizes the model(s).
+
+    Raises
+    ------
+    ValueError
+        If no LQ gain of sigma .. sigma * 1e4 stabilizes the model(s).
     """
     models = (models,) if not isinstance(models, (list, tuple)) else tuple(models)
     nominal = models[0]

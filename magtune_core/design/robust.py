@@ -78,7 +78,25 @@ class RobustSpec:
 
     @classmethod
     def from_mapping(cls, params: dict, where="robust spec") -> "RobustSpec":
-        """Validate a robust spec mapping against ``ROBUST_FIELDS`` (ConfigError naming the field)."""
+        """Validate a robust spec mapping against ``ROBUST_FIELDS`` (ConfigError naming the field).
+
+        Parameters
+        ----------
+        params : dict
+            Parameter name -> value of the spec.
+        where : str or Path
+            File or context named in error messages.
+
+        Returns
+        -------
+        RobustSpec
+            The validated spec, list fields as tuples of float.
+
+        Raises
+        ------
+        ConfigError
+            If a field is invalid, or none of inertia_scale, wheel_speed_scale, field_raan, field_epoch_offsets is given.
+        """
         v = parse(params, ROBUST_FIELDS, where)
         spec = cls(**{k: (tuple(float(x) for x in val) if isinstance(val, np.ndarray) else val)
                       for k, val in v.items()})
@@ -89,7 +107,18 @@ class RobustSpec:
 
 
 def load_robust_spec(path) -> RobustSpec:
-    """Read and validate a robust spec file (ConfigError naming the file and field)."""
+    """Read and validate a robust spec file (ConfigError naming the file and field).
+
+    Parameters
+    ----------
+    path : str or Path
+        Robust spec file (ROS 2 parameter layout).
+
+    Returns
+    -------
+    RobustSpec
+        The validated spec.
+    """
     return RobustSpec.from_mapping(read_ros_params(path), path)
 
 
@@ -132,11 +161,27 @@ def model_set(nominal: AttitudeLTP, spec: RobustSpec, where="robust spec", skipp
 
     ``skipped``: if given, receives the names of the non-physical inertia corners left out.
 
+    Parameters
+    ----------
+    nominal : AttitudeLTP
+        Nominal design model (spacecraft parameters and field).
+    spec : RobustSpec
+        Variations and how they combine.
+    where : str
+        Context named in error messages.
+    skipped : list or None
+        Appended with a description of each inertia corner left out.
+
     Returns
     -------
     list of NamedModel
         Each variation of the spec applied to the nominal spacecraft parameters and field
         (``one_at_a_time`` or ``product`` combination). IGRF fits run here (~1 s each).
+
+    Raises
+    ------
+    ConfigError
+        If the spec yields no models, or a fitted field fails :func:`~.fitfield.check_field`.
     """
     p = nominal.params
     skipped = [] if skipped is None else skipped
@@ -186,27 +231,62 @@ class RobustFigures:
 
     @property
     def worst_index(self) -> int:
-        """The model with the largest J (an unstable one first: J = inf, then the largest rho)."""
+        """The model with the largest J (an unstable one first: J = inf, then the largest rho).
+
+        Returns
+        -------
+        int
+            Index into ``names`` / ``figures``.
+        """
         J = np.array([f.J for f in self.figures])
         rho = np.array([f.rho for f in self.figures])
         return int(np.argmax(rho)) if not np.all(np.isfinite(J)) else int(np.argmax(J))
 
     @property
     def worst_name(self) -> str:
-        """Name of the model with the largest J."""
+        """Name of the model with the largest J.
+
+        Returns
+        -------
+        str
+            ``names[worst_index]``.
+        """
         return self.names[self.worst_index]
 
     def worst(self) -> dict:
-        """Worst case of each figure over the set: max J, c1, c2, rho (each may come from a different model)."""
+        """Worst case of each figure over the set: max J, c1, c2, rho (each may come from a different model).
+
+        Returns
+        -------
+        dict
+            {"J", "c1", "c2", "rho": float}.
+        """
         return {k: float(max(getattr(f, k) for f in self.figures)) for k in ("J", "c1", "c2", "rho")}
 
     def nominal(self) -> Figures | None:
-        """Figures of the nominal model, None if the set has none."""
+        """Figures of the nominal model, None if the set has none.
+
+        Returns
+        -------
+        Figures or None
+            Figures of the model named "nominal".
+        """
         return self.figures[self.names.index("nominal")] if "nominal" in self.names else None
 
 
 def robust_figures(models, K, sigma: float, steps: int = DEFAULT_STEPS) -> RobustFigures:
     """J, c1, c2, rho (paper eqs. 21, 28-30) of gain K on every model of the set.
+
+    Parameters
+    ----------
+    models : sequence of NamedModel
+        The model set (:func:`model_set`).
+    K : array_like (3, 6)
+        Gain.
+    sigma : float
+        Weight of the torque in z (paper eq. 20).
+    steps : int
+        Magnus intervals per period.
 
     Returns
     -------
@@ -226,10 +306,35 @@ def tune_robust(models, sigma: float, seed: int = 0, settings=None, progress=Non
     the sample-and-hold gain margin a constraint on every model of the set. ``executor``: where the
     candidates are evaluated instead of ``settings.workers`` local processes (:class:`~.objective.HinfObjective`).
 
+    Parameters
+    ----------
+    models : sequence of NamedModel
+        The model set.
+    sigma : float
+        Weight of the torque in z (paper eq. 20).
+    seed : int
+        Seed of the tuner.
+    settings : CmaSettings or None
+        Tuner settings (``steps`` replaced by the resolved steps); None: defaults.
+    progress : callable or None
+        Progress callback of :func:`~.cmaes.tune_cma`.
+    K0 : array_like (3, 6) or None
+        Start gain; None: :func:`~.resolution.start_gain` on the set.
+    hold : HoldConstraint or Requirements or None
+        Hard requirement on every model; None: the paper's problem.
+    executor : object or None
+        Remote executor of the objective; None: local workers.
+
     Returns
     -------
     (TuneResult, float, int)
         The tuner's result (``K``, worst-case ``J``), the LQ weight of the start gain and the steps used.
+
+    Raises
+    ------
+    ValueError
+        If the given K0 (or every LQ start) does not stabilize every model, no scaling of the start meets
+        ``hold``, or the start is not stabilizing for the tuner.
     """
     from .cmaes import CmaSettings, tune_cma  # the converging tuner (imported here: optional until it lands)
     from .objective import HinfObjective

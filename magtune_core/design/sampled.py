@@ -105,7 +105,24 @@ class SampledLoop:
 
     @classmethod
     def build(cls, model: AttitudeLTP, ts: float, nodes: int = 4, panel: float = 2.5) -> "SampledLoop":
-        """Interval maps for sample period ``ts`` (see module docstring for the rule)."""
+        """Interval maps for sample period ``ts`` (see module docstring for the rule).
+
+        Parameters
+        ----------
+        model : AttitudeLTP
+            Design model.
+        ts : float
+            Requested sample period [s] (the interval used is T / round(T / ts)).
+        nodes : int
+            Gauss-Legendre nodes per panel.
+        panel : float
+            Longest quadrature panel [s].
+
+        Returns
+        -------
+        SampledLoop
+            ts = h, Ad, Gamma, G, C of the held loop over one period.
+        """
         T = model.period
         n = max(1, int(round(T / float(ts))))
         h = T / n
@@ -132,6 +149,15 @@ class SampledLoop:
         """The loops at ``periods`` [s], reusing and filling ``cache`` ({ts: SampledLoop} of this one
         model): the dense scans of a tuning (cutting planes, provenance) share their ~100 loops.
 
+        Parameters
+        ----------
+        model : AttitudeLTP
+            Design model.
+        periods : iterable of float
+            Sample periods [s].
+        cache : dict or None
+            {ts: SampledLoop} of this model, read and filled; None: a fresh one.
+
         Returns
         -------
         list of SampledLoop
@@ -148,11 +174,22 @@ class SampledLoop:
 
     @property
     def intervals(self) -> int:
-        """Number of hold intervals in one orbit period."""
+        """Number of hold intervals in one orbit period.
+
+        Returns
+        -------
+        int
+            N = len(Gamma).
+        """
         return len(self.Gamma)
 
     def spectral_radius(self, Ks) -> np.ndarray:
         """Max |characteristic multiplier| of the sampled loop over one period, per gain.
+
+        Parameters
+        ----------
+        Ks : array_like (n, 3, 6)
+            Gains (any shape with a multiple of 18 entries).
 
         Returns
         -------
@@ -173,6 +210,15 @@ class SampledLoop:
 
 def sampled_margin_ok(loop: SampledLoop, Ks, gain_margin: float) -> np.ndarray:
     """Whether the sampled loop stays stable with every gain scaled by ``gain_margin``, per gain.
+
+    Parameters
+    ----------
+    loop : SampledLoop
+        Held loop of one model at one sample period.
+    Ks : array_like (n, 3, 6)
+        Gains.
+    gain_margin : float
+        Factor the gains are multiplied by.
 
     Returns
     -------
@@ -202,7 +248,18 @@ class HoldConstraint:
             raise ValueError(f"hold constraint: gain_margin must be >= 1, got {self.gain_margin}")
 
     def screen(self, model: AttitudeLTP) -> "HoldScreen":
-        """The check of this constraint on one model (:class:`HoldScreen`)."""
+        """The check of this constraint on one model (:class:`HoldScreen`).
+
+        Parameters
+        ----------
+        model : AttitudeLTP
+            Design model.
+
+        Returns
+        -------
+        HoldScreen
+            The held loop of ``model`` at ``ts`` and the gain margin.
+        """
         return HoldScreen(SampledLoop.build(model, self.ts), self.gain_margin)
 
 
@@ -232,6 +289,19 @@ def hold_gain_margin(loop: SampledLoop, K, upper: float = 16.0, points: int = 48
     explicit monodromy is strongly non-normal (||M|| / rho ~ 1e4), so its largest eigenvalue
     carries a relative error of order one within ~2e-4 of the boundary (seen: 1.9993 vs 2.0002
     for the same gain with two summation orders). A gain tuned for margin 2 shows 2 +- 1e-3.
+
+    Parameters
+    ----------
+    loop : SampledLoop
+        Held loop of one model at one sample period.
+    K : array_like (3, 6)
+        Gain.
+    upper : float
+        Largest factor tested.
+    points : int
+        Factors of the first geometric grid.
+    rtol : float
+        Relative width to which the crossing is narrowed.
 
     Returns
     -------
@@ -270,10 +340,28 @@ def feasible_start(model, K0, hold, shrink: float = 0.95, tries: int = 90):
     every model's held loop meets the margin, checked together (feasibility need not be monotone
     in the scale, so scaling model by model in turn could undo an earlier model's check).
 
+    Parameters
+    ----------
+    model : AttitudeLTP or sequence of AttitudeLTP
+        Design model(s).
+    K0 : array_like (3, 6)
+        Start gain.
+    hold : HoldConstraint or Requirements
+        Constraint with a ``screen(model)`` method.
+    shrink : float
+        Ratio of the coarse scale factors.
+    tries : int
+        Number of coarse factors.
+
     Returns
     -------
     (ndarray (3, 6), str)
         The gain and a note ("" if K0 already meets the constraint).
+
+    Raises
+    ------
+    ValueError
+        If no factor down to the smallest meets the constraint on every model.
     """
     models = (model,) if isinstance(model, AttitudeLTP) else tuple(model)
     K0 = np.asarray(K0, dtype=float).reshape(3, 6)
@@ -296,7 +384,24 @@ def feasible_start(model, K0, hold, shrink: float = 0.95, tries: int = 90):
 
 def hold_provenance(model: AttitudeLTP, K, ts: float, gain_margin: float) -> dict:
     """What a gains file records about its digital implementation: the constraint it was tuned
-    under (0 = none) and the achieved sample-and-hold gain margin at ``ts``."""
+    under (0 = none) and the achieved sample-and-hold gain margin at ``ts``.
+
+    Parameters
+    ----------
+    model : AttitudeLTP
+        Design model.
+    K : array_like (3, 6)
+        Gain.
+    ts : float
+        Sample period [s].
+    gain_margin : float
+        Gain margin the gain was tuned under (0: none).
+
+    Returns
+    -------
+    dict
+        {"hold_gain_margin_required": float, "hold_gain_margin": achieved margin rounded to 3 decimals}.
+    """
     loop = SampledLoop.build(model, ts)
     return {"hold_gain_margin_required": float(gain_margin),
             "hold_gain_margin": round(hold_gain_margin(loop, K), 3)}

@@ -36,12 +36,37 @@ def draw(rng: np.random.Generator, n: int | None = None, width: int = NORMALS_PE
     """Standard normals of one sample (``n`` None: shape (width,)) or of ``n`` samples (n, width).
 
     ``rng.standard_normal((n, width))`` fills row by row, so a block equals ``n`` single draws.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The caller's seeded generator.
+    n : int or None
+        Number of samples; None: one sample without the leading axis.
+    width : int
+        Normals per sample (:data:`NORMALS_PER_STEP` or :data:`AUX_NORMALS`).
+
+    Returns
+    -------
+    ndarray (width,) or (n, width)
+        Standard normals.
     """
     return rng.standard_normal(width if n is None else (n, width))
 
 
 def aux_rng(seed) -> np.random.Generator:
-    """The auxiliary sensors' generator of ``seed``: independent of ``default_rng(seed)``."""
+    """The auxiliary sensors' generator of ``seed``: independent of ``default_rng(seed)``.
+
+    Parameters
+    ----------
+    seed : int or array_like of int or None
+        Entropy of the ``SeedSequence`` whose first spawned child seeds the generator.
+
+    Returns
+    -------
+    numpy.random.Generator
+        The auxiliary generator.
+    """
     return np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
 
 
@@ -61,12 +86,33 @@ class Magnetometer:
 
     @property
     def covariance(self) -> np.ndarray:
-        """Measurement covariance (3, 3) [T^2]: white noise plus uniform quantization error q^2/12."""
+        """Measurement covariance (3, 3) [T^2]: white noise plus uniform quantization error q^2/12.
+
+        Returns
+        -------
+        ndarray (3, 3)
+            (noise_std^2 + quantum^2 / 12) I [T^2].
+        """
         return np.eye(3) * (self.noise_std**2 + self.quantum**2 / 12.0)
 
 
 def magnetometer(model: Magnetometer, b, normals) -> np.ndarray:
-    """Measured field [T], shape of ``b`` (..., 3); ``normals`` (..., 3) standard normals."""
+    """Measured field [T], shape of ``b`` (..., 3); ``normals`` (..., 3) standard normals.
+
+    Parameters
+    ----------
+    model : Magnetometer
+        Noise, bias, scale/misalignment matrix and quantum.
+    b : array_like (..., 3)
+        True field [T], body axes.
+    normals : array_like (..., 3)
+        Standard normals of the white noise.
+
+    Returns
+    -------
+    ndarray (..., 3)
+        quantize(M b + bias + noise_std n) [T]; ``b`` itself (as float array) without errors.
+    """
     out = np.asarray(b, dtype=float)
     if model.matrix != _IDENTITY9:
         out = np.einsum("ij,...j->...i", np.reshape(model.matrix, (3, 3)), out)
@@ -92,11 +138,33 @@ class Gyro:
     bias: tuple = (0.0, 0.0, 0.0)
 
     def white_std(self, dt: float) -> float:
-        """Std [rad/s] of the white part of one sample: sqrt(sigma_v^2/dt + sigma_u^2 dt/12)."""
+        """Std [rad/s] of the white part of one sample: sqrt(sigma_v^2/dt + sigma_u^2 dt/12).
+
+        Parameters
+        ----------
+        dt : float
+            Sample period [s].
+
+        Returns
+        -------
+        float
+            Std per axis [rad/s].
+        """
         return math.sqrt(self.arw**2 / dt + self.rrw**2 * dt / 12.0)
 
     def covariance(self, dt: float) -> np.ndarray:
-        """Covariance (3, 3) [rad^2/s^2] of the white part of a sample (the bias is a state)."""
+        """Covariance (3, 3) [rad^2/s^2] of the white part of a sample (the bias is a state).
+
+        Parameters
+        ----------
+        dt : float
+            Sample period [s].
+
+        Returns
+        -------
+        ndarray (3, 3)
+            white_std(dt)^2 I [rad^2/s^2].
+        """
         return np.eye(3) * self.white_std(dt) ** 2
 
 
@@ -109,6 +177,21 @@ def gyro(model: Gyro, w, dt: float, beta0, n_v, n_u) -> tuple[np.ndarray, np.nda
     with which the integrated angle error has exactly the continuous model's variance
     sigma_v^2 t + sigma_u^2 t^3/3 (docs/sensors.md). ``w``, ``n_v``, ``n_u`` (..., N, 3):
     N samples; ``beta0`` (..., 3) the bias before sample 0.
+
+    Parameters
+    ----------
+    model : Gyro
+        ARW, RRW and initial bias parameters.
+    w : array_like (..., N, 3)
+        True rates [rad/s], body axes.
+    dt : float
+        Sample period [s].
+    beta0 : array_like (..., 3)
+        Bias before sample 0 [rad/s].
+    n_v : array_like (..., N, 3)
+        Standard normals of the white rate noise.
+    n_u : array_like (..., N, 3)
+        Standard normals of the bias walk.
 
     Returns
     -------
@@ -127,7 +210,24 @@ def gyro(model: Gyro, w, dt: float, beta0, n_v, n_u) -> tuple[np.ndarray, np.nda
 
 def gyro_bias_walk(model: Gyro, dt: float, beta0, n_u) -> np.ndarray:
     """beta_0 .. beta_N (..., N + 1, 3) [rad/s]: beta_{k+1} = beta_k + sigma_u sqrt(dt) N_u,k
-    (``n_u`` (..., N, 3)), summed in sequence so that N calls of one step give the same numbers."""
+    (``n_u`` (..., N, 3)), summed in sequence so that N calls of one step give the same numbers.
+
+    Parameters
+    ----------
+    model : Gyro
+        Its ``rrw`` sigma_u [rad/s^1.5] drives the walk.
+    dt : float
+        Sample period [s].
+    beta0 : array_like (..., 3)
+        Bias before sample 0 [rad/s].
+    n_u : array_like (..., N, 3)
+        Standard normals of the walk.
+
+    Returns
+    -------
+    ndarray (..., N + 1, 3)
+        beta_0 .. beta_N [rad/s] (beta0 repeated when rrw is 0).
+    """
     n_u = np.asarray(n_u, dtype=float)
     b0 = np.broadcast_to(np.asarray(beta0, dtype=float), n_u.shape[:-2] + (3,))
     if model.rrw > 0:
@@ -139,7 +239,26 @@ def gyro_bias_walk(model: Gyro, dt: float, beta0, n_u) -> np.ndarray:
 def gyro_from(noise_std: float, arw: float, rrw: float, bias, ts: float) -> Gyro:
     """The :class:`Gyro` of the node parameters: a white rate noise ``noise_std`` [rad/s] per
     sample of ``ts`` is the angle random walk sigma_v = noise_std sqrt(ts); it adds to ``arw``
-    in variance."""
+    in variance.
+
+    Parameters
+    ----------
+    noise_std : float
+        White rate noise per sample [rad/s].
+    arw : float
+        Angle random walk sigma_v [rad/s^0.5].
+    rrw : float
+        Rate random walk sigma_u [rad/s^1.5].
+    bias : array_like (3,)
+        Initial bias [rad/s].
+    ts : float
+        Sample period [s].
+
+    Returns
+    -------
+    Gyro
+        sigma_v = sqrt(arw^2 + noise_std^2 ts), sigma_u = rrw, bias.
+    """
     return Gyro(math.sqrt(float(arw) ** 2 + float(noise_std) ** 2 * float(ts)), float(rrw), _t(bias))
 
 
@@ -148,6 +267,20 @@ def noisy_attitude(q, std: float, normals) -> np.ndarray:
     """q (x) exp(dtheta/2), dtheta = std n [rad] in body axes: an attitude solution's error.
 
     ``q`` (..., 4) scalar first, ``normals`` (..., 3); std 0 returns ``q`` itself.
+
+    Parameters
+    ----------
+    q : array_like (..., 4)
+        True attitude quaternion, scalar first.
+    std : float
+        Angle error std per axis [rad].
+    normals : array_like (..., 3)
+        Standard normals of the error.
+
+    Returns
+    -------
+    ndarray (..., 4)
+        The perturbed quaternion, scalar first (``q`` as float array when std <= 0).
     """
     q = np.asarray(q, dtype=float)
     if std <= 0:
@@ -175,21 +308,62 @@ class SunSensor:
 
     def covariance(self, s) -> np.ndarray:
         """Covariance of the measured unit vector s, (..., 3, 3): sigma^2 (I - s s^T)
-        (Shuster's QUEST measurement model, Markley & Crassidis 2014, sec. 5.5.1)."""
+        (Shuster's QUEST measurement model, Markley & Crassidis 2014, sec. 5.5.1).
+
+        Parameters
+        ----------
+        s : array_like (..., 3)
+            Unit Sun vector(s), body axes.
+
+        Returns
+        -------
+        ndarray (..., 3, 3)
+            noise_std^2 (I - s s^T) [rad^2].
+        """
         s = np.asarray(s, dtype=float)
         return self.noise_std**2 * (np.eye(3) - s[..., :, None] * s[..., None, :])
 
 
 def sun_direction_body(q_body_orbital, r_eci, v_eci, sun_eci) -> np.ndarray:
     """Unit satellite-to-Sun vector (..., 3) in body axes from the attitude w.r.t. the orbital
-    frame of (r, v) and the geocentric Sun position ``sun_eci`` [m] (ECI)."""
+    frame of (r, v) and the geocentric Sun position ``sun_eci`` [m] (ECI).
+
+    Parameters
+    ----------
+    q_body_orbital : array_like (..., 4)
+        Attitude of the body w.r.t. the orbital frame (scalar first).
+    r_eci : array_like (..., 3)
+        Satellite position [m], ECI.
+    v_eci : array_like (..., 3)
+        Satellite velocity [m/s], ECI.
+    sun_eci : array_like (..., 3)
+        Geocentric Sun position [m], ECI.
+
+    Returns
+    -------
+    ndarray (..., 3)
+        Unit satellite-to-Sun vector in body axes.
+    """
     d = np.asarray(sun_eci, dtype=float) - np.asarray(r_eci, dtype=float)
     s = np.einsum("...ji,...j->...i", body_to_eci(q_body_orbital, r_eci, v_eci), d)
     return s / np.linalg.norm(s, axis=-1, keepdims=True)
 
 
 def illuminated(r_eci, sun_eci) -> np.ndarray:
-    """True where the satellite is lit: :func:`magtune_core.env.sun.shadow_cylindrical` == 1."""
+    """True where the satellite is lit: :func:`magtune_core.env.sun.shadow_cylindrical` == 1.
+
+    Parameters
+    ----------
+    r_eci : array_like (..., 3)
+        Satellite position [m], ECI.
+    sun_eci : array_like (..., 3)
+        Geocentric Sun position [m], ECI.
+
+    Returns
+    -------
+    ndarray of bool (...)
+        True where the shadow function is above 0.5 (lit).
+    """
     return shadow_cylindrical(r_eci, sun_eci) > 0.5
 
 
@@ -198,6 +372,17 @@ def sun_sensor(model: SunSensor, s_body, lit, normals) -> tuple[np.ndarray, np.n
 
     ``s_body`` (..., 3) true unit vector, ``lit`` (...) bool (:func:`illuminated`),
     ``normals`` (..., 3).
+
+    Parameters
+    ----------
+    model : SunSensor
+        Noise, field of view and boresight.
+    s_body : array_like (..., 3)
+        True unit Sun vector, body axes.
+    lit : array_like of bool (...)
+        Whether the satellite is lit.
+    normals : array_like (..., 3)
+        Standard normals of the rotation error.
 
     Returns
     -------
@@ -231,7 +416,26 @@ class PositionFix:
 
 
 def position_fix(model: PositionFix, r_eci, v_eci, normals) -> tuple[np.ndarray, np.ndarray]:
-    """Measured (r [m], v [m/s]), (..., 3) each; ``normals`` (..., 6): position then velocity."""
+    """Measured (r [m], v [m/s]), (..., 3) each; ``normals`` (..., 6): position then velocity.
+
+    Parameters
+    ----------
+    model : PositionFix
+        Position and velocity noise stds.
+    r_eci : array_like (..., 3)
+        True position [m], ECI.
+    v_eci : array_like (..., 3)
+        True velocity [m/s], ECI.
+    normals : array_like (..., 6)
+        Standard normals: position (first 3), velocity (last 3).
+
+    Returns
+    -------
+    r : ndarray (..., 3)
+        Measured position [m].
+    v : ndarray (..., 3)
+        Measured velocity [m/s].
+    """
     r, v, n = (np.asarray(a, dtype=float) for a in (r_eci, v_eci, normals))
     if model.noise_std > 0:
         r = r + model.noise_std * n[..., 0:3]
@@ -254,14 +458,31 @@ class SensorSuite:
 
     @property
     def noisy(self) -> bool:
-        """Any noise or bias on the controller path (else the truth is measured, no draw)."""
+        """Any noise or bias on the controller path (else the truth is measured, no draw).
+
+        Returns
+        -------
+        bool
+            True if the magnetometer, gyro or attitude solution has any noise, bias, matrix or quantum.
+        """
         m, g = self.magnetometer, self.gyro
         return bool(m.noise_std or any(m.bias) or m.matrix != _IDENTITY9 or m.quantum or g.arw or g.rrw
                     or any(g.bias) or self.attitude_std)
 
     @classmethod
     def from_values(cls, v: dict) -> "SensorSuite":
-        """From the parsed node parameters (the gyro: :func:`gyro_from`)."""
+        """From the parsed node parameters (the gyro: :func:`gyro_from`).
+
+        Parameters
+        ----------
+        v : dict
+            Parsed ``SENSOR_FIELDS`` values (ts, mag_*, gyro_*, attitude_noise_std, sun_*, position/velocity noise).
+
+        Returns
+        -------
+        SensorSuite
+            The sensors of the node.
+        """
         ts = float(v["ts"])
         return cls(ts, Magnetometer(float(v["mag_noise_std"]), _t(v["mag_bias"]), _t(v["mag_matrix"]),
                                     float(v["mag_quantum"])),
@@ -278,7 +499,18 @@ def _t(a) -> tuple:
 def default_suite(ts: float = TS_DEFAULT) -> SensorSuite:
     """The estimator runs' default sensors (docs/estimation.md#parameters): 100 nT magnetometer, MEMS
     gyro sigma_v 1e-4 rad/s^0.5 (0.34 deg/h^0.5), sigma_u 1e-6 rad/s^1.5, bias (40, -60, 30) deg/h,
-    whole-sphere coarse sun sensors 0.5 deg per axis, 10 m / 0.01 m/s position fix."""
+    whole-sphere coarse sun sensors 0.5 deg per axis, 10 m / 0.01 m/s position fix.
+
+    Parameters
+    ----------
+    ts : float
+        Sample period [s].
+
+    Returns
+    -------
+    SensorSuite
+        The default suite (attitude_std 0).
+    """
     bias = tuple(np.deg2rad(np.array([40.0, -60.0, 30.0])) / 3600.0)
     return SensorSuite(ts, Magnetometer(100e-9), Gyro(1e-4, 1e-6, bias), 0.0, SunSensor(math.radians(0.5)),
                        PositionFix(10.0, 0.01))

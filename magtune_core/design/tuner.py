@@ -71,7 +71,14 @@ class TuneResult:
     stop: str | None = None  # cma: why the search ended: "certified", "budget", "unresolved" or "interrupted"
 
     def provenance(self) -> dict:
-        """The run's record for a gains file: method, seed, iterations, settings, convergence, evaluations."""
+        """The run's record for a gains file: method, seed, iterations, settings, convergence, evaluations.
+
+        Returns
+        -------
+        dict
+            method, seed, iterations, evaluations, converged, J_initial, tuner (settings without workers),
+            and tuned_steps / stop when set.
+        """
         s = asdict(self.settings)
         s.pop("workers")
         out = {"method": self.method, "seed": int(self.seed), "iterations": int(self.iterations),
@@ -97,7 +104,20 @@ class CandidateEvaluator:
             self._pool.shutdown(cancel_futures=True)
 
     def passes(self, Ks: np.ndarray, gammas: np.ndarray) -> np.ndarray:
-        """||G_zTd(K_j)||_inf < gamma_g for candidates (n, 3, 6) and levels (n, g) -> bool (n, g)."""
+        """||G_zTd(K_j)||_inf < gamma_g for candidates (n, 3, 6) and levels (n, g) -> bool (n, g).
+
+        Parameters
+        ----------
+        Ks : ndarray (n, 3, 6)
+            Candidate gains.
+        gammas : ndarray (n, g)
+            Levels tested per candidate.
+
+        Returns
+        -------
+        ndarray of bool (n, g)
+            True where the candidate's norm is below the level (the gamma-test passes).
+        """
         if self._pool is None or len(Ks) < 2 * self.workers:
             return _passes(self.model, self.sigma, self.steps, Ks, gammas)
         parts = np.array_split(np.arange(len(Ks)), self.workers)
@@ -116,6 +136,17 @@ def tournament(ev: CandidateEvaluator, Ks: np.ndarray, upper: float, rtol: float
 
     Batched bisection on a shared level: each round tests a geometric grid of levels on the
     surviving candidates; those passing at the lowest level any of them passes survive.
+
+    Parameters
+    ----------
+    ev : CandidateEvaluator
+        Batched gamma-tests.
+    Ks : ndarray (n, 3, 6)
+        Candidates, each known to have J < ``upper``.
+    upper : float
+        Upper bound of their norms (the incumbent's J).
+    rtol : float
+        Relative width of the final bracket.
 
     Returns
     -------
@@ -151,12 +182,30 @@ def tune(model: AttitudeLTP, sigma: float, seed: int = 0, settings: TunerSetting
          K0=None, progress=None) -> TuneResult:
     """Run the randomized algorithm of paper section 4.2 from the LQ gain (or K0).
 
+    Parameters
+    ----------
+    model : AttitudeLTP
+        Design model.
+    sigma : float
+        Weight of the torque in z (paper eq. 20).
+    seed : int
+        Seed of ``numpy.random.default_rng`` (the candidate draws).
+    settings : TunerSettings
+        N, r_max, mu and stopping settings.
+    K0 : array_like (3, 6) or None
+        Start gain; None: :func:`~.lq.lq_gain`.
+    progress : callable or None
+        ``progress(iteration, J, r, mu, n_better)`` after each iteration.
+
     Returns
     -------
     TuneResult
-        The best gain K and its J, the start K0 and J0, iterations, history, wall time and whether
-        the stopping rule (r >= r_max for ``patience`` iterations) fired.
-    """
+        The best gain K and its J, the start K0 and J0, iterations, history, wall time, ``converged`` (r >= r_max ``patience`` times).
+
+    Raises
+    ------
+    ValueError
+        If the start gain is not stabilizing (infinite H-inf norm)."""
     t_start = time.perf_counter()
     s = settings
     rng = np.random.default_rng(seed)

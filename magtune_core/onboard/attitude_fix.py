@@ -38,6 +38,15 @@ def triad(b1, b2, r1, r2, sigma1: float, sigma2: float) -> tuple[np.ndarray, np.
     c = b1.b2, s = |b1 x b2|, J1 = t2 t2^T + t3 t3^T - (c/s) t1 t3^T, J2 = t1 ((c/s) t3 + t1)^T
     (docs/estimation.md), so P = sigma1^2 J1 J1^T + sigma2^2 J2 J2^T.
 
+    Parameters
+    ----------
+    b1, b2 : array_like (3,)
+        Body vectors, any length, not parallel (b1 the anchor).
+    r1, r2 : array_like (3,)
+        Their reference vectors, any length, not parallel.
+    sigma1, sigma2 : float
+        Per-axis angle error std of the body unit vectors b1, b2 [rad].
+
     Returns
     -------
     q : ndarray (4,)
@@ -63,6 +72,15 @@ def davenport(b, r, sigma) -> tuple[np.ndarray, np.ndarray]:
     (Shuster & Oh 1981). ``b, r`` (n, 3) body and reference vectors, n >= 2 not all parallel;
     ``sigma`` (n,) or scalar [rad]. Covariance: Shuster's QUEST covariance
     P = (sum_i sigma_i^-2 (I - b_i b_i^T))^-1 in body axes (M&C eq. 5.84 with A b for r).
+
+    Parameters
+    ----------
+    b : array_like (n, 3)
+        Body vectors, any length, n >= 2 not all parallel.
+    r : array_like (n, 3)
+        Their reference vectors, any length.
+    sigma : float or array_like (n,)
+        Per-axis angle error std of each body unit vector [rad].
 
     Returns
     -------
@@ -90,6 +108,15 @@ def davenport(b, r, sigma) -> tuple[np.ndarray, np.ndarray]:
 def svd_fix(b, r, sigma) -> np.ndarray:
     """Wahba's problem by Markley's SVD method (1988): R = U diag(1, 1, det U det V) V^T of
     sum a_i r_i b_i^T; a second, independent solution to check :func:`davenport` against.
+
+    Parameters
+    ----------
+    b : array_like (n, 3)
+        Body vectors, any length, n >= 2 not all parallel.
+    r : array_like (n, 3)
+        Their reference vectors, any length.
+    sigma : float or array_like (n,)
+        Per-axis angle error std of each body unit vector [rad] (weights a_i = sigma_i^-2).
 
     Returns
     -------

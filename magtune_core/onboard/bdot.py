@@ -34,6 +34,18 @@ def geomagnetic_inclination(inclination: float, tilt: float = DIPOLE_TILT) -> fl
     The dipole axis precesses about the spin axis daily, so the angle between the orbit normal and
     the dipole axis swings between |i - tilt| and i + tilt; folded into [0, pi/2] (an inclination
     and its supplement give the same sin). Largest sin xi_m = largest gain of the rule (the fast bound).
+
+    Parameters
+    ----------
+    inclination : float
+        Orbit inclination i to the Earth's equator [rad] (its absolute value is used).
+    tilt : float
+        Inclination of the geomagnetic dipole axis to the spin axis [rad] (default :data:`DIPOLE_TILT`).
+
+    Returns
+    -------
+    float
+        xi_m in [0, pi/2] [rad]: pi/2 when |i - tilt| <= pi/2 <= i + tilt.
     """
     i = abs(float(inclination))
     lo, hi = abs(i - tilt), i + tilt
@@ -46,6 +58,20 @@ def bdot_gain(orbit_rate: float, xi_m: float, inertia) -> float:
 
     ``orbit_rate`` W0 [rad/s], ``xi_m`` [rad] (:func:`geomagnetic_inclination`), ``inertia`` the
     principal moments (3,) or the matrix (3, 3) [kg m^2] (J_min its smallest eigenvalue).
+
+    Parameters
+    ----------
+    orbit_rate : float
+        Orbit rate W0 [rad/s].
+    xi_m : float
+        Inclination of the orbit plane to the geomagnetic equator [rad].
+    inertia : array_like (3,) or (3, 3)
+        Principal moments or the inertia matrix [kg m^2].
+
+    Returns
+    -------
+    float
+        The gain k [N m s].
     """
     I = np.asarray(inertia, dtype=float)
     jmin = float(np.min(np.linalg.eigvalsh(I) if I.ndim == 2 else I))
@@ -87,11 +113,32 @@ class FieldDerivativeFilter:
 
     @property
     def pole(self) -> float:
-        """a = exp(-cutoff Ts), the discrete pole."""
+        """a = exp(-cutoff Ts), the discrete pole.
+
+        Returns
+        -------
+        float
+            The pole a, in (0, 1).
+        """
         return math.exp(-self.cutoff * self.ts)
 
     def step(self, state: FilterState, b) -> tuple[FilterState, np.ndarray]:
-        """Feed one field sample ``b`` (3,) [T]; returns the new state and db/dt [T/s] (zero at the first sample)."""
+        """Feed one field sample ``b`` (3,) [T]; returns the new state and db/dt [T/s] (zero at the first sample).
+
+        Parameters
+        ----------
+        state : FilterState
+            The filter's memory after the previous sample (``FilterState()`` before the first).
+        b : array_like (3,)
+            Measured field sample [T], body axes.
+
+        Returns
+        -------
+        state : FilterState
+            The new memory: ``b`` and the new output.
+        bdot : ndarray (3,)
+            Filtered field derivative db/dt [T/s] (zeros at the first sample).
+        """
         b = np.array(b, dtype=float).reshape(3)
         if state.b_prev is None:
             return FilterState(b, np.zeros(3)), np.zeros(3)
@@ -116,7 +163,20 @@ class BdotController:
     min_field: float = DEFAULT_MIN_FIELD
 
     def dipole(self, b, bdot) -> np.ndarray:
-        """Saturated dipole [A m^2] from the measured field ``b`` [T] and its derivative ``bdot`` [T/s] (body axes)."""
+        """Saturated dipole [A m^2] from the measured field ``b`` [T] and its derivative ``bdot`` [T/s] (body axes).
+
+        Parameters
+        ----------
+        b : array_like (3,)
+            Measured field [T], body axes.
+        bdot : array_like (3,)
+            Its time derivative db/dt [T/s] (:class:`FieldDerivativeFilter`).
+
+        Returns
+        -------
+        ndarray (3,)
+            Dipole [A m^2] saturated per axis at ``dipole_limit``; zeros when |b| < ``min_field`` (or NaN).
+        """
         b = np.asarray(b, dtype=float)
         bdot = np.asarray(bdot, dtype=float)
         nb = float(np.sqrt(b @ b))

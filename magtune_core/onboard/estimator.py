@@ -56,19 +56,47 @@ class FilterModel:
 
     @classmethod
     def from_values(cls, v: dict) -> "FilterModel":
-        """From the parsed :data:`magtune_core.onboard.params.ESTIMATOR_FIELDS`."""
+        """From the parsed :data:`magtune_core.onboard.params.ESTIMATOR_FIELDS`.
+
+        Parameters
+        ----------
+        v : dict
+            Parsed values: ``ts``, ``mag_noise_std``, ``gyro_arw``, ``gyro_rrw``, ``sun_noise_std``.
+
+        Returns
+        -------
+        FilterModel
+            The model (``mag_var`` = mag_noise_std^2).
+        """
         return cls(float(v["ts"]), float(v["mag_noise_std"]) ** 2, float(v["gyro_arw"]), float(v["gyro_rrw"]),
                    float(v["sun_noise_std"]))
 
     @classmethod
     def of_suite(cls, suite) -> "FilterModel":
         """The filter matched to a sensor suite (any object with ``ts``, ``magnetometer.covariance``,
-        ``gyro.arw``/``rrw`` and ``sun.noise_std``: :class:`magtune_core.design.sensors.SensorSuite`)."""
+        ``gyro.arw``/``rrw`` and ``sun.noise_std``: :class:`magtune_core.design.sensors.SensorSuite`).
+
+        Parameters
+        ----------
+        suite : SensorSuite
+            The simulated sensors (``mag_var`` taken from ``magnetometer.covariance[0, 0]``).
+
+        Returns
+        -------
+        FilterModel
+            The filter's model of those sensors.
+        """
         return cls(float(suite.ts), float(suite.magnetometer.covariance[0, 0]), float(suite.gyro.arw),
                    float(suite.gyro.rrw), float(suite.sun.noise_std))
 
     def gyro_white_std(self) -> float:
-        """Std [rad/s] of the white part of one gyro sample: sqrt(sigma_v^2/ts + sigma_u^2 ts/12)."""
+        """Std [rad/s] of the white part of one gyro sample: sqrt(sigma_v^2/ts + sigma_u^2 ts/12).
+
+        Returns
+        -------
+        float
+            The std [rad/s].
+        """
         return math.sqrt(self.gyro_arw**2 / self.ts + self.gyro_rrw**2 * self.ts / 12.0)
 
 
@@ -97,18 +125,55 @@ class OnboardModels:
         self._sun_at = (math.nan, None)  # (t, Sun of date): one evaluation per sample
 
     def field(self, t: float, r_meas=None) -> np.ndarray:
-        """Reference field [T] in reference axes (IGRF at the measured ECI position r_meas [m], or eq. 26)."""
+        """Reference field [T] in reference axes (IGRF at the measured ECI position r_meas [m], or eq. 26).
+
+        Parameters
+        ----------
+        t : float
+            Sim time [s].
+        r_meas : array_like (3,), optional
+            Measured ECI position [m] (full environment; not read in the paper one).
+
+        Returns
+        -------
+        ndarray (3,)
+            The reference field [T]: ECI (full) or the orbital axes at t = 0 (paper).
+        """
         if self._igrf is not None:
             return np.asarray(self._igrf.eci(np.asarray(r_meas, dtype=float), self.jd0 + t / SECONDS_PER_DAY), dtype=float)
         return _rz(-self.orbit_rate * t) @ np.asarray(self.paper_field(t), dtype=float).reshape(3)
 
     def sun(self, t: float, r_meas) -> np.ndarray:
-        """Unit satellite-Sun vector in ECI from the Sun of date and the measured position [m]."""
+        """Unit satellite-Sun vector in ECI from the Sun of date and the measured position [m].
+
+        Parameters
+        ----------
+        t : float
+            Sim time [s].
+        r_meas : array_like (3,)
+            Measured ECI position [m].
+
+        Returns
+        -------
+        ndarray (3,)
+            Unit vector from the satellite to the Sun, ECI.
+        """
         d = self.sun_eci(t) - np.asarray(r_meas, dtype=float)
         return d / np.linalg.norm(d)
 
     def sun_eci(self, t: float) -> np.ndarray:
-        """Geocentric Sun position [m] of date (for the on-board eclipse prediction)."""
+        """Geocentric Sun position [m] of date (for the on-board eclipse prediction).
+
+        Parameters
+        ----------
+        t : float
+            Sim time [s] (the last one's position is cached).
+
+        Returns
+        -------
+        ndarray (3,)
+            Sun position [m], ECI.
+        """
         if self._sun_at[0] != t:
             self._sun_at = (t, sun_position(self.jd0 + t / SECONDS_PER_DAY))
         return self._sun_at[1]
@@ -116,7 +181,20 @@ class OnboardModels:
     def lit(self, t: float, r_meas) -> bool:
         """The on-board eclipse prediction at the measured position [m]: the cylindrical shadow of
         :func:`magtune_core.env.sun.shadow_cylindrical` (lit unless behind the Earth and within R_EARTH
-        of the Earth-Sun line), on scalars."""
+        of the Earth-Sun line), on scalars.
+
+        Parameters
+        ----------
+        t : float
+            Sim time [s].
+        r_meas : array_like (3,)
+            Measured ECI position [m].
+
+        Returns
+        -------
+        bool
+            True when the satellite is predicted in sunlight.
+        """
         sx, sy, sz = (float(x) for x in self.sun_eci(t))
         rx, ry, rz = (float(x) for x in r_meas)
         n = math.sqrt(sx * sx + sy * sy + sz * sz)
@@ -129,7 +207,24 @@ class OnboardModels:
         """Body w.r.t. the orbital axes from body w.r.t. the reference frame: R_bo = R_oi R_bi with
         the orbital axes of the position fix (full), or R_z(W0 t) R_bi (paper). The error angle is
         in body axes either way, so the attitude covariance carries over (the fix's error adds
-        |dr| / |r| ~ 1e-6 rad at 10 m, neglected)."""
+        |dr| / |r| ~ 1e-6 rad at 10 m, neglected).
+
+        Parameters
+        ----------
+        q_ref : array_like (4,)
+            Body w.r.t. the reference frame, scalar first.
+        t : float
+            Sim time [s] (paper environment).
+        r_meas : array_like (3,), optional
+            Measured ECI position [m] (full environment).
+        v_meas : array_like (3,), optional
+            Measured ECI velocity [m/s] (full environment).
+
+        Returns
+        -------
+        ndarray (4,)
+            Body w.r.t. the orbital axes, scalar first, q0 >= 0.
+        """
         R_bi = rotation_matrix(np.asarray(q_ref, dtype=float))
         R_oi = eci_to_orbital(np.asarray(r_meas, dtype=float), np.asarray(v_meas, dtype=float)) \
             if self.environment == "full" else _rz(self.orbit_rate * t)
@@ -197,7 +292,26 @@ class MekfStream:
     def step(self, w_prev, mag, b_ref, sun=None, s_ref=None) -> StepOutput:
         """Sample k: ``w_prev`` the gyro sample of k-1 [rad/s] (None at k = 0), ``mag`` [T] and its
         reference ``b_ref``, ``sun``/``s_ref`` the unit Sun vector and its reference (None: no
-        valid sun measurement)."""
+        valid sun measurement).
+
+        Parameters
+        ----------
+        w_prev : array_like (3,) or None
+            Gyro sample of sample k-1 [rad/s], body axes (None at k = 0).
+        mag : array_like (3,)
+            Magnetometer sample [T], body axes.
+        b_ref : array_like (3,)
+            Reference field [T], reference axes (:meth:`OnboardModels.field`).
+        sun : array_like (3,), optional
+            Unit Sun vector, body axes (None: no valid sun measurement).
+        s_ref : array_like (3,), optional
+            Its reference, unit, reference axes (:meth:`OnboardModels.sun`).
+
+        Returns
+        -------
+        StepOutput
+            The state (None before the coarse fix), NIS and gate decision of each update.
+        """
         self.k += 1
         mag, b_ref = np.asarray(mag, dtype=float), np.asarray(b_ref, dtype=float)
         started = False

@@ -14,7 +14,20 @@ from .params import DEFAULT_DIPOLE_LIMIT, DEFAULT_MIN_FIELD  # noqa: F401 (the l
 
 
 def saturate(m, m_max) -> np.ndarray:
-    """Per-axis dipole saturation |m_i| <= m_max_i [A m^2] (``m_max`` scalar or 3-vector; inf = none)."""
+    """Per-axis dipole saturation |m_i| <= m_max_i [A m^2] (``m_max`` scalar or 3-vector; inf = none).
+
+    Parameters
+    ----------
+    m : array_like (3,)
+        Dipole to saturate [A m^2].
+    m_max : float or array_like (3,)
+        Per-axis limit [A m^2] (inf: no limit on that axis).
+
+    Returns
+    -------
+    ndarray (3,)
+        ``m`` clipped per axis to [-m_max, m_max] [A m^2].
+    """
     return np.clip(np.asarray(m, dtype=float), -np.asarray(m_max, dtype=float), np.asarray(m_max, dtype=float))
 
 
@@ -23,6 +36,20 @@ def linear_state(q, w, orbit_rate: float) -> np.ndarray:
 
     ``q`` scalar-first attitude of the body w.r.t. orbital axes, ``w`` inertial body rate in body
     axes [rad/s]; see :mod:`magtune_core.sim.dynamics` for why dw is the inertial-rate deviation.
+
+    Parameters
+    ----------
+    q : array_like (4,)
+        Attitude of the body w.r.t. the orbital axes, scalar first.
+    w : array_like (3,)
+        Inertial body rate in body axes [rad/s].
+    orbit_rate : float
+        Orbit rate W0 [rad/s].
+
+    Returns
+    -------
+    ndarray (6,)
+        x = [dq; dw]: q's vector part (sign of q0 >= 0) and w + [0, 0, W0] [rad/s].
     """
     q = np.asarray(q, dtype=float)
     s = -1.0 if q[0] < 0.0 else 1.0

@@ -39,7 +39,18 @@ class MekfParams:
     mag_rw: float = 0.0  #: magnetometer-bias random walk sigma_m [T/s^0.5] (9-state filter; 0: constant bias)
 
     def gate(self, dof: int) -> float:
-        """Chi-square threshold of the NIS for ``dof`` degrees of freedom (inf: no gating)."""
+        """Chi-square threshold of the NIS for ``dof`` degrees of freedom (inf: no gating).
+
+        Parameters
+        ----------
+        dof : int
+            Degrees of freedom of the innovation.
+
+        Returns
+        -------
+        float
+            The ``gate_probability`` quantile of chi2(dof); inf when ``gate_probability`` >= 1.
+        """
         return math.inf if self.gate_probability >= 1.0 else float(chi2.ppf(self.gate_probability, dof))
 
 
@@ -56,18 +67,46 @@ class MekfState:
 
     @property
     def mag_bias(self) -> bool:
-        """The magnetometer bias is a state (P is 9 x 9)."""
+        """The magnetometer bias is a state (P is 9 x 9).
+
+        Returns
+        -------
+        bool
+            True for the 9-state filter.
+        """
         return self.P.shape[0] == 9
 
 
 def skew(v) -> np.ndarray:
-    """[v x], the cross-product matrix of a 3-vector."""
+    """[v x], the cross-product matrix of a 3-vector.
+
+    Parameters
+    ----------
+    v : array_like (3,)
+        The vector.
+
+    Returns
+    -------
+    ndarray (3, 3)
+        [v x], with [v x] u = v x u.
+    """
     x, y, z = np.asarray(v, dtype=float)
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 def rotvec_quat(phi) -> np.ndarray:
-    """exp(phi/2) = [cos(|phi|/2); sin(|phi|/2) phi/|phi|]: the rotation by the vector ``phi`` [rad]."""
+    """exp(phi/2) = [cos(|phi|/2); sin(|phi|/2) phi/|phi|]: the rotation by the vector ``phi`` [rad].
+
+    Parameters
+    ----------
+    phi : array_like (3,)
+        Rotation vector [rad].
+
+    Returns
+    -------
+    ndarray (4,)
+        Unit quaternion, scalar first.
+    """
     phi = np.asarray(phi, dtype=float)
     a = float(np.linalg.norm(phi))
     s = 0.5 - a * a / 48.0 if a < 1e-6 else math.sin(a / 2) / a  # sin(a/2)/a, series below 1e-6
@@ -75,7 +114,18 @@ def rotvec_quat(phi) -> np.ndarray:
 
 
 def quat_rotvec(q) -> np.ndarray:
-    """The rotation vector phi [rad] of unit q (inverse of :func:`rotvec_quat`, |phi| <= pi)."""
+    """The rotation vector phi [rad] of unit q (inverse of :func:`rotvec_quat`, |phi| <= pi).
+
+    Parameters
+    ----------
+    q : array_like (4,)
+        Unit quaternion, scalar first (either sign).
+
+    Returns
+    -------
+    ndarray (3,)
+        Rotation vector phi [rad], |phi| <= pi.
+    """
     q = np.asarray(q, dtype=float)
     q = -q if q[0] < 0 else q
     v = q[1:]
@@ -84,7 +134,20 @@ def quat_rotvec(q) -> np.ndarray:
 
 
 def attitude_error(q_true, q_est) -> np.ndarray:
-    """dtheta [rad] in body axes with q_true = q_est (x) exp(dtheta/2)."""
+    """dtheta [rad] in body axes with q_true = q_est (x) exp(dtheta/2).
+
+    Parameters
+    ----------
+    q_true : array_like (4,)
+        True attitude, scalar first.
+    q_est : array_like (4,)
+        Estimated attitude, scalar first.
+
+    Returns
+    -------
+    ndarray (3,)
+        The error angle dtheta [rad], body axes, |dtheta| <= pi.
+    """
     qe = np.asarray(q_est, dtype=float)
     return quat_rotvec(quat_mul(qe * np.array([1.0, -1.0, -1.0, -1.0]), q_true))
 
@@ -105,7 +168,20 @@ def _coefficients(n: float, s):
 def transition(omega, dt: float) -> np.ndarray:
     """Phi (6, 6) of the error dynamics for a constant rate ``omega`` over ``dt`` (closed form,
     MC eqs. 6.83-6.84; Crassidis & Junkins 2012 eq. 7.45):
-    d(dtheta)/dt = -[w x] dtheta - db - eta_v, d(db)/dt = eta_u."""
+    d(dtheta)/dt = -[w x] dtheta - db - eta_v, d(db)/dt = eta_u.
+
+    Parameters
+    ----------
+    omega : array_like (3,)
+        Estimated body rate w [rad/s], constant over the step.
+    dt : float
+        Step [s].
+
+    Returns
+    -------
+    ndarray (6, 6)
+        Phi of [dtheta; db].
+    """
     W = skew(omega)
     W2 = W @ W
     c1, c2, c3 = _coefficients(float(np.linalg.norm(omega)), dt)
@@ -126,7 +202,22 @@ def process_noise(omega, dt: float, params: MekfParams) -> np.ndarray:
     B(s) = -s I + c2(s) W - c3(s) W^2 (W = [w x]): Q11 = (sigma_v^2 dt + sigma_u^2 dt^3/3) I +
     sigma_u^2 f W^2, f = int_0^dt (2 s c3 - c2^2 - |w|^2 c3^2) ds (8-point Gauss-Legendre: the
     integrand is entire and |w| dt << 1), Q12 = sigma_u^2 int B, Q22 = sigma_u^2 dt I. At w = 0 these are
-    Farrenkopf's (Crassidis & Junkins 2012 eq. 7.46); :func:`process_noise_van_loan` checks them."""
+    Farrenkopf's (Crassidis & Junkins 2012 eq. 7.46); :func:`process_noise_van_loan` checks them.
+
+    Parameters
+    ----------
+    omega : array_like (3,)
+        Estimated body rate w [rad/s], constant over the step.
+    dt : float
+        Step [s].
+    params : MekfParams
+        The gyro noise (``arw`` sigma_v [rad/s^0.5], ``rrw`` sigma_u [rad/s^1.5]).
+
+    Returns
+    -------
+    ndarray (6, 6)
+        Q of [dtheta; db] [rad^2, rad^2/s, rad^2/s^2].
+    """
     W = skew(omega)
     W2 = W @ W
     n = float(np.linalg.norm(omega))
@@ -146,7 +237,22 @@ def process_noise(omega, dt: float, params: MekfParams) -> np.ndarray:
 
 def process_noise_van_loan(omega, dt: float, params: MekfParams) -> np.ndarray:
     """Q (6, 6) by van Loan's method (1978, IEEE TAC 23(3)): expm of [[-F, G Qc G^T], [0, F^T]] dt,
-    F = [[-[w x], -I], [0, 0]]; the independent reference for :func:`process_noise` (slower)."""
+    F = [[-[w x], -I], [0, 0]]; the independent reference for :func:`process_noise` (slower).
+
+    Parameters
+    ----------
+    omega : array_like (3,)
+        Estimated body rate w [rad/s], constant over the step.
+    dt : float
+        Step [s].
+    params : MekfParams
+        The gyro noise (``arw`` sigma_v [rad/s^0.5], ``rrw`` sigma_u [rad/s^1.5]).
+
+    Returns
+    -------
+    ndarray (6, 6)
+        Q of [dtheta; db], symmetrized.
+    """
     F = np.zeros((6, 6))
     F[:3, :3] = -skew(omega)
     F[:3, 3:] = -np.eye(3)
@@ -166,6 +272,22 @@ def propagate(state: MekfState, omega_meas, dt: float, params: MekfParams) -> Me
     the project's Hamilton convention), b+ = b, m+ = m, P+ = Phi P Phi^T + Q (:func:`transition`,
     :func:`process_noise`; with the magnetometer bias, Phi = blockdiag(Phi, I) and
     Q = blockdiag(Q, sigma_m^2 dt I)).
+
+    Parameters
+    ----------
+    state : MekfState
+        Estimate at the start of the step (6- or 9-state).
+    omega_meas : array_like (3,)
+        Gyro sample w_m [rad/s], body axes.
+    dt : float
+        Step [s].
+    params : MekfParams
+        Process noise (``arw``, ``rrw``, ``mag_rw``).
+
+    Returns
+    -------
+    MekfState
+        The propagated estimate (q normalized, P symmetrized).
     """
     w = np.asarray(omega_meas, dtype=float) - state.b
     q = quat_mul(state.q, rotvec_quat(w * dt))
@@ -184,7 +306,24 @@ def measurement(state: MekfState, b_ref, biased: bool = False) -> tuple[np.ndarr
 
     h = R(q)^T b_ref (+ m when ``biased``: the magnetometer, with the bias a state), H = [[a x], 0, I]
     with a = R(q)^T b_ref (MC eq. 6.41; the bias block I only for ``biased``, zeros for the sun
-    sensor; no bias block in a 6-state filter)."""
+    sensor; no bias block in a 6-state filter).
+
+    Parameters
+    ----------
+    state : MekfState
+        The estimate (n = 6 or 9 states).
+    b_ref : array_like (3,)
+        Reference vector, reference axes.
+    biased : bool
+        The magnetometer's measurement (bias m added when the state has it).
+
+    Returns
+    -------
+    h : ndarray (3,)
+        Predicted body vector.
+    H : ndarray (3, n)
+        Its Jacobian w.r.t. the error state.
+    """
     a = rotation_matrix(state.q).T @ np.asarray(b_ref, dtype=float)
     n = state.P.shape[0]
     H = np.zeros((3, n))
@@ -205,6 +344,21 @@ def update(state: MekfState, b_meas, b_ref, R, gate: float = math.inf, biased: b
     Joseph-form covariance (I - K H) P (I - K H)^T + K R K^T (Bucy & Joseph 1968) and the
     multiplicative reset q (x) [1; dtheta/2] normalized, b + db, m + dm (MC eqs. 6.27-6.28). The
     update is skipped (state returned unchanged, accepted False) when the NIS exceeds ``gate``.
+
+    Parameters
+    ----------
+    state : MekfState
+        The estimate before the update.
+    b_meas : array_like (3,)
+        Measured vector, body axes.
+    b_ref : array_like (3,)
+        Its reference vector, reference axes.
+    R : ndarray (3, 3)
+        Measurement covariance (units of b_meas squared).
+    gate : float
+        NIS threshold (inf: no gating; :meth:`MekfParams.gate`).
+    biased : bool
+        The magnetometer's measurement (its bias m in h and H).
 
     Returns
     -------
@@ -238,7 +392,26 @@ def initial_state(q_fix, P_fix, bias_std: float, bias=(0.0, 0.0, 0.0), mag_bias_
     """Start from a coarse fix (:mod:`magtune_core.onboard.attitude_fix`): q and its attitude
     covariance, the bias prior ``bias`` with std ``bias_std`` [rad/s] per axis, uncorrelated;
     ``mag_bias_std`` [T]: the 9-state filter with the magnetometer-bias prior 0 of that std per axis
-    (0: the bias block stays zero, the 6-state results), None: the 6-state filter."""
+    (0: the bias block stays zero, the 6-state results), None: the 6-state filter.
+
+    Parameters
+    ----------
+    q_fix : array_like (4,)
+        Coarse fix, body w.r.t. reference, scalar first.
+    P_fix : ndarray (3, 3)
+        Its attitude covariance [rad^2].
+    bias_std : float
+        Gyro-bias prior std per axis [rad/s].
+    bias : array_like (3,)
+        Gyro-bias prior mean [rad/s].
+    mag_bias_std : float or None
+        Magnetometer-bias prior std per axis [T] (None: the 6-state filter).
+
+    Returns
+    -------
+    MekfState
+        The initial estimate, P (6, 6) or (9, 9) block diagonal, m = 0.
+    """
     n = 6 if mag_bias_std is None else 9
     P = np.zeros((n, n))
     P[:3, :3] = P_fix

@@ -331,7 +331,40 @@ def kernel_state(B: int, ts: float, *, arw, rrw, mag_cov, sun_std, gate_probabil
     (scalars or (B,)), ``mag_cov`` (3, 3) or (B, 3, 3) [T^2], ``sun_std`` [rad] (scalar or (B,)), the
     magnetometer-bias prior ``mag_bias_std`` [T] (None: MekfStream's default) and random walk
     ``mag_bias_rw`` [T/s^0.5]; the chi-square gates of :class:`magtune_core.onboard.mekf.MekfParams`.
-    ``on`` False: a placeholder the kernel does not read."""
+    ``on`` False: a placeholder the kernel does not read.
+
+    Parameters
+    ----------
+    B : int
+        Number of filters.
+    ts : float
+        Sample period [s].
+    arw : float or array_like (B,)
+        Gyro angle random walk sigma_v [rad/s^0.5].
+    rrw : float or array_like (B,)
+        Gyro rate random walk sigma_u [rad/s^1.5].
+    mag_cov : array_like (3, 3) or (B, 3, 3)
+        Magnetometer measurement covariance [T^2].
+    sun_std : float or array_like (B,)
+        Sun sensor angle error std per axis [rad].
+    gate_probability : float
+        Chi-square gate quantile of the NIS (1: no gating).
+    bias_std : float
+        Gyro-bias prior std per axis [rad/s].
+    init_angle : float
+        Turn of the reference field before the magnetometer-only fix [rad].
+    mag_bias_std : float or None
+        Magnetometer-bias prior std per axis [T] (None: :data:`~magtune_core.onboard.mekf.MAG_BIAS_STD`).
+    mag_bias_rw : float
+        Magnetometer-bias random walk std [T/s^0.5].
+    on : bool
+        The estimator is in the loop (False: a placeholder).
+
+    Returns
+    -------
+    KernelMekf
+        The parameters and the start states of the B filters.
+    """
     from .mekf import MAG_BIAS_STD, MekfParams
 
     mb = MAG_BIAS_STD if mag_bias_std is None else float(mag_bias_std)

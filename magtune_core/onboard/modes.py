@@ -50,7 +50,25 @@ class ModeParams:
     @classmethod
     def from_mapping(cls, params: dict, where="mode parameters") -> "ModeParams":
         """Validate ``params`` against ``MODE_FIELDS`` (defaults filled in, other keys ignored) and the
-        hysteresis rules (``check_modes``); ConfigError naming the field otherwise."""
+        hysteresis rules (``check_modes``); ConfigError naming the field otherwise.
+
+        Parameters
+        ----------
+        params : dict
+            Parameter values by field name.
+        where : str
+            Where the values came from (file or node), named in errors.
+
+        Returns
+        -------
+        ModeParams
+            The validated parameters.
+
+        Raises
+        ------
+        ConfigError
+            From :func:`~magtune_core.base.schema.parse` or :func:`~magtune_core.onboard.params.check_modes`.
+        """
         v = parse(params, MODE_FIELDS, where)
         check_modes(v, where)
         return cls(**{f.name: v[f.name] for f in fields(cls)})
@@ -87,7 +105,18 @@ class ModeState:
     held: bool = False
 
     def held_since(self, guard: str):
-        """Start time of ``guard``'s condition, or None."""
+        """Start time of ``guard``'s condition, or None.
+
+        Parameters
+        ----------
+        guard : str
+            Guard name (e.g. "calm", "stale").
+
+        Returns
+        -------
+        float or None
+            Sim time [s] since which its condition has held, None if it does not hold.
+        """
         return dict(self.pending).get(guard)
 
 
@@ -109,7 +138,22 @@ class ModeLogic:
 
     def guards(self, mode: str, m: Measurements, held: bool = False):
         """(guard name, condition holds, persistence [s], target, reason) of ``mode``, in priority order
-        (``held``: a commanded SAFE, which has none)."""
+        (``held``: a commanded SAFE, which has none).
+
+        Parameters
+        ----------
+        mode : str
+            Current mode, one of :data:`MODES`.
+        m : Measurements
+            Measurements of this instant.
+        held : bool
+            The current mode is a commanded (sticky) SAFE.
+
+        Returns
+        -------
+        list of tuple (str, bool, float, str, str)
+            The guards of ``mode`` (empty for a held SAFE).
+        """
         p = self.params
         frozen = m.field_step == 0.0
         if mode == SAFE:
@@ -146,8 +190,23 @@ class ModeLogic:
         A guard's timer starts at the first instant its condition holds and resets when it fails
         (a nan measurement fails every comparison: no estimate, no hand-over); the first guard (in
         priority order) whose condition has held for its persistence time fires; the new mode's
-        guards start at the next call (one sample after the transition). Returns the new
-        state and the :class:`Transition` (None if the mode did not change).
+        guards start at the next call (one sample after the transition).
+
+        Parameters
+        ----------
+        state : ModeState
+            State after the previous call.
+        m : Measurements
+            Measurements at ``t``.
+        t : float
+            Sim time [s].
+
+        Returns
+        -------
+        state : ModeState
+            The new state (pending timers updated, or the new mode with none).
+        transition : Transition or None
+            The mode change, None if the mode did not change.
         """
         pending = dict(state.pending)
         new_pending = {}
@@ -167,6 +226,31 @@ class ModeLogic:
 
         A commanded SAFE is sticky (``hold``, the default): it stays until another mode is requested. The
         manager's own SAFE on a lost heartbeat passes ``hold=False`` (it recovers when the data are fresh).
+
+        Parameters
+        ----------
+        state : ModeState
+            Current state.
+        mode : str
+            Requested mode, one of :data:`MODES`.
+        t : float
+            Sim time of the request [s].
+        reason : str
+            Reason recorded in the state and the transition.
+        hold : bool
+            Make a requested SAFE sticky.
+
+        Returns
+        -------
+        state : ModeState
+            The new state, in ``mode`` with no pending guards.
+        transition : Transition
+            The commanded change (also when ``mode`` is the current mode).
+
+        Raises
+        ------
+        ConfigError
+            If ``mode`` is not one of :data:`MODES`.
         """
         if mode not in MODES:
             raise ConfigError("mode request", "mode", f"expected one of {', '.join(MODES)}, got {mode!r}")

@@ -50,8 +50,26 @@ class KernelModeParams(NamedTuple):
 
 
 def kernel_params(p: ModeParams) -> KernelModeParams:
-    """The kernel's copy of ``p`` (every field of ModeParams, by name: a new field fails here)."""
+    """The kernel's copy of ``p`` (every field of ModeParams, by name: a field on one side only fails here).
+
+    Parameters
+    ----------
+    p : ModeParams
+        The mode logic's parameters.
+
+    Returns
+    -------
+    KernelModeParams
+        The same values by name (``acquisition`` as bool, the others as float).
+
+    Raises
+    ------
+    ValueError
+        ``p`` has a field the kernel lacks, or the reverse (the compiled twin would drift silently).
+    """
     v = asdict(p)
+    if set(v) != set(KernelModeParams._fields):
+        raise ValueError(f"ModeParams and KernelModeParams differ in {sorted(set(v) ^ set(KernelModeParams._fields))}")
     return KernelModeParams(**{k: (bool(v[k]) if k == "acquisition" else float(v[k])) for k in KernelModeParams._fields})
 
 

@@ -100,7 +100,21 @@ BDOT_FIELDS = (
 
 def check_modes(v: dict, where: str) -> None:
     """The mode schema's rules across fields (``v``: parsed MODE_FIELDS): each entry threshold lies
-    beyond its exit threshold (hysteresis), else the mode could chatter; ConfigError naming the field."""
+    beyond its exit threshold (hysteresis), else the mode could chatter; ConfigError naming the field.
+
+    Parameters
+    ----------
+    v : dict
+        Parsed :data:`MODE_FIELDS` values, by field name.
+    where : str
+        Where the values came from (file or node), named in the error.
+
+    Raises
+    ------
+    ConfigError
+        Unless detumble_entry_rate > detumble_exit_rate, acquisition_abort_rate >= detumble_entry_rate
+        and acquisition_entry_angle > handover_angle (naming the first field that fails).
+    """
     if not v["detumble_entry_rate"] > v["detumble_exit_rate"]:
         raise ConfigError(where, "detumble_entry_rate", f"expected more than detumble_exit_rate "
                                                         f"({v['detumble_exit_rate']:g} rad/s), got {v['detumble_entry_rate']:g}")

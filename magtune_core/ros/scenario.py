@@ -287,6 +287,99 @@ def run_sample_period(ts, sc: SpacecraftParams, gains: dict) -> float:
 
 
 @dataclass(frozen=True)
+class SilRequest:
+    """What is asked of a SIL run, as given (CLI options, a scenario file, a test's keywords): checked
+    once by :meth:`SilScenario.build`, which derives everything else from it."""
+
+    # -- run length and pace
+    orbits: float = 5.0
+    steps: int | None = None
+    #: overrides each gains file's ts
+    ts: float | None = None
+    #: None: re-chosen every step from the rate (sim.substeps.Substeps; 2 throughout from the paper's dw(0))
+    substeps: int | None = None
+    real_time_factor: float = 0.0
+    lockstep: bool = True
+    lockstep_timeout: float = 2.0
+    startup_timeout: float = 30.0
+    timeout: float | None = None
+    # -- the spacecraft, its environment and initial state
+    spacecraft: object = DEFAULT_SPACECRAFT
+    #: "paper" or "full" (with env_options, sim.fullenv.FullEnvironmentOptions)
+    environment: str = "paper"
+    env_options: object = None
+    #: a field file for the paper environment
+    field: object = None
+    #: rotation vector [deg] -> the simulator's initial_quaternion (sim.initial.initial_conditions)
+    initial_attitude_deg: object = None
+    #: dw(0) [deg/s], body axes -> the simulator's initial_rate_error
+    initial_rate_deg: object = None
+    # -- the flight stack
+    #: start the mode manager (initial_mode: DETUMBLE with it, POINTING without)
+    modes: bool = False
+    initial_mode: str | None = None
+    mode_params: dict | None = None
+    #: "truth" or "estimator" (the attitude_estimator node; the sensors default to design.sensors.default_suite)
+    attitude: str = "truth"
+    estimator_params: dict | None = None
+    #: injected faults (design.faults: Fault objects, KIND@T... specs or mappings)
+    faults: tuple = ()
+    #: TORQUER_FIELDS values; errors name torquers_source
+    torquers: dict | None = None
+    torquers_source: str = "torquers"
+    # -- extra ROS parameters of each node (every satellite)
+    simulator_params: dict | None = None
+    sensor_params: dict | None = None
+    controller_params: dict | None = None
+    # -- outputs and network
+    bag: object = None
+    bag_topics: tuple | None = None
+    bag_exclude: str | None = None
+    #: stamps from the spacecraft epoch
+    epoch_time: bool = False
+    foxglove: int | None = None
+    results: object = None
+    log_dir: object = None
+    domain_id: int | None = None
+    dds_interfaces: str = "loopback"
+
+
+def check_outputs(req: SilRequest) -> None:
+    """The run's outputs can be written and their options make sense: ConfigError (one line) otherwise."""
+    for path, flag in ((req.log_dir, "--log-dir"), (req.results, "--results"), (req.bag, "--bag")):
+        if path:
+            check_writable(path, flag, directory=flag != "--results", empty=flag == "--bag")
+    if req.foxglove is not None and not 0 <= int(req.foxglove) <= 65535:
+        raise ConfigError("--foxglove", None, f"{req.foxglove}: expected a TCP port 0..65535 (0: any free port)")
+    if req.bag_exclude:
+        try:
+            re.compile(req.bag_exclude)
+        except re.error as exc:
+            raise ConfigError("--bag-exclude", None, f"{req.bag_exclude!r} is not a regular expression ({exc})") from None
+    if (req.bag_topics or req.bag_exclude) and not req.bag:
+        raise ConfigError("--bag-topics/--bag-exclude", None, "only with --bag")
+
+
+def check_environment(req: SilRequest, sc: SpacecraftParams):
+    """The environment options, checked; returns (FullEnvironmentOptions or None, the spacecraft with the
+    nominal period of the actual orbit for the full environment, derived here once)."""
+    if req.environment not in ("paper", "full"):
+        raise SilError(f"unknown environment {req.environment!r} (expected 'paper' or 'full')")
+    if req.field is not None:
+        if req.environment == "full":
+            raise ConfigError("--field", None, "the full environment uses IGRF along the actual orbit; give "
+                              "--field with --environment paper")
+        field_for_spacecraft(req.field, sc)  # validated here: one line before any process starts
+    if req.environment != "full":
+        return None, sc
+    opts = req.env_options or FullEnvironmentOptions()
+    if opts.epoch is not None or opts.raan_deg is not None or opts.arg_lat_deg is not None or opts.zonal_degree != 2:
+        raise SilError("the simulator node flies the spacecraft file's orbit: set epoch, raan, arg_latitude "
+                       "there (zonal degree 2)")
+    return opts, full_params(sc, opts)
+
+
+@dataclass(frozen=True)
 class SilScenario:
     """Everything a SIL run needs, validated; built by :meth:`build` (see the module docstring)."""
 
@@ -332,105 +425,70 @@ class SilScenario:
     torquers: dict = _field(default_factory=dict)
 
     @classmethod
-    def build(cls, satellites: dict, *, orbits: float = 5.0, steps: int | None = None, ts: float | None = None,
-              spacecraft=DEFAULT_SPACECRAFT, substeps: int | None = None, bag=None, real_time_factor: float = 0.0,
-              lockstep: bool = True, lockstep_timeout: float = 2.0, startup_timeout: float = 30.0,
-              timeout: float | None = None, domain_id: int | None = None, log_dir=None, results=None,
-              dds_interfaces: str = "loopback",
-              simulator_params: dict | None = None, sensor_params: dict | None = None,
-              controller_params: dict | None = None, environment: str = "paper", env_options=None, field=None,
-              epoch_time: bool = False, foxglove: int | None = None, bag_topics=None,
-              bag_exclude: str | None = None, initial_attitude_deg=None, initial_rate_deg=None,
-              modes: bool = False, initial_mode: str | None = None, mode_params: dict | None = None,
-              attitude: str = "truth", estimator_params: dict | None = None, faults=(), torquers: dict | None = None,
-              torquers_source: str = "torquers") -> "SilScenario":
-        """Read and validate every input of a run (``satellites``: namespace -> gains file).
+    def build(cls, satellites: dict, request: SilRequest | None = None) -> "SilScenario":
+        """Read and validate every input of a run, once.
 
-        ``ts`` overrides each gains file's ``ts``; ``environment`` "paper" or "full" (with
-        ``env_options``, :class:`~magtune_core.sim.fullenv.FullEnvironmentOptions`); ``field``: a
-        field file for the paper environment; ``epoch_time``: stamps from the spacecraft epoch;
-        ``*_params``: extra ROS parameters of that node (every satellite).
-        ``initial_attitude_deg`` (rotation vector) and ``initial_rate_deg`` (dw(0), body axes):
-        the simulator's ``initial_quaternion``/``initial_rate_error``
-        (:func:`magtune_core.sim.initial.initial_conditions`); ``substeps`` None = re-chosen every
-        step from the rate (:class:`~magtune_core.sim.substeps.Substeps`: 2 throughout from the paper's
-        dw(0)), a number: that many throughout. ``modes``: start the mode manager (``initial_mode``, default DETUMBLE with it,
-        POINTING without; ``mode_params`` its parameters, validated here). ``attitude``
-        "estimator": start the attitude_estimator (``estimator_params``, validated here by
-        ESTIMATOR_FIELDS) and fly on its estimate; the sensors get the estimator's default suite
-        (design.sensors.default_suite) unless ``sensor_params`` set them. ``faults``: injected faults
-        (:mod:`magtune_core.design.faults`: Fault objects, ``KIND@T...`` specs or mappings), validated here.
-        ``torquers``: TORQUER_FIELDS values, validated here (errors name ``torquers_source``).
+        Parameters
+        ----------
+        satellites : dict
+            Namespace -> gains file (``{"": path}``: one satellite in the root namespace).
+        request : SilRequest, optional
+            What is asked of the run (default: ``SilRequest()``, the paper's 5-orbit run).
 
         Returns
         -------
         SilScenario
-            validated; raises ConfigError (bad input) or SilError (an unsupported combination).
+            The validated scenario.
+
+        Raises
+        ------
+        ConfigError
+            A bad input (one line naming the option or file and field).
+        SilError
+            An unsupported combination.
         """
+        req = request or SilRequest()
         sats = {normalize_namespace(ns): Path(g) for ns, g in satellites.items()}
         if not satellites or len(sats) != len(satellites):
             raise ConfigError("--gains", None, "two satellites with the same namespace" if sats else "no satellite given")
         # one read per file: the rcl-compatibility check returns the parameters the schema validates
         gains_params = {ns: check_ros_params(g, CONTROLLER_NODE) for ns, g in sats.items()}
         gains = {ns: Gains.from_mapping(gains_params[ns], g) for ns, g in sats.items()}
-        sc_doc = load_ros_params(spacecraft)
-        sc = SpacecraftParams.from_mapping(merge_ros_params(sc_doc), spacecraft, strict=True)
+        sc_doc = load_ros_params(req.spacecraft)
+        sc = SpacecraftParams.from_mapping(merge_ros_params(sc_doc), req.spacecraft, strict=True)
         simulator_params, substeps = initial_state_parameters(
-            sc, dict(simulator_params or {}), initial_attitude_deg, initial_rate_deg, substeps,
-            run_sample_period(ts, sc, gains))
-        mode, mparams = check_modes_arguments(modes, initial_mode, mode_params)
-        faults = check_fault_arguments(faults, epoch_time)
-        sensor_params, eparams = check_attitude_arguments(attitude, sensor_params, estimator_params, modes, field)
-        check_run_arguments(orbits=orbits, steps=steps, substeps=substeps, real_time_factor=real_time_factor,
-                            timeout=timeout, lockstep_timeout=lockstep_timeout)
+            sc, dict(req.simulator_params or {}), req.initial_attitude_deg, req.initial_rate_deg, req.substeps,
+            run_sample_period(req.ts, sc, gains))
+        mode, mparams = check_modes_arguments(req.modes, req.initial_mode, req.mode_params)
+        faults = check_fault_arguments(req.faults, req.epoch_time)
+        sensor_params, eparams = check_attitude_arguments(req.attitude, req.sensor_params, req.estimator_params,
+                                                          req.modes, req.field)
+        check_run_arguments(orbits=req.orbits, steps=req.steps, substeps=substeps, real_time_factor=req.real_time_factor,
+                            timeout=req.timeout, lockstep_timeout=req.lockstep_timeout)
         sat_list = []
         for ns, g in sats.items():
-            sat_ts = float(ts if ts is not None else gains[ns].ts)
-            check_sample_period(sat_ts, sc, "--ts" if ts is not None else f"{g}: field 'ts'")
+            sat_ts = float(req.ts if req.ts is not None else gains[ns].ts)
+            check_sample_period(sat_ts, sc, "--ts" if req.ts is not None else f"{g}: field 'ts'")
             sat_list.append(Satellite(ns, g, gains[ns], gains_params[ns], sat_ts))
-        for path, flag in ((log_dir, "--log-dir"), (results, "--results"), (bag, "--bag")):
-            if path:
-                check_writable(path, flag, directory=flag != "--results", empty=flag == "--bag")
-        if environment not in ("paper", "full"):
-            raise SilError(f"unknown environment {environment!r} (expected 'paper' or 'full')")
-        if field is not None:
-            if environment == "full":
-                raise ConfigError("--field", None, "the full environment uses IGRF along the actual orbit; give "
-                                  "--field with --environment paper")
-            field_for_spacecraft(field, sc)  # validated here: one line before any process starts
-        if foxglove is not None and not 0 <= int(foxglove) <= 65535:
-            raise ConfigError("--foxglove", None, f"{foxglove}: expected a TCP port 0..65535 (0: any free port)")
-        if bag_exclude:
-            try:
-                re.compile(bag_exclude)
-            except re.error as exc:
-                raise ConfigError("--bag-exclude", None, f"{bag_exclude!r} is not a regular expression ({exc})") from None
-        if (bag_topics or bag_exclude) and not bag:
-            raise ConfigError("--bag-topics/--bag-exclude", None, "only with --bag")
-        multi = len(sats) > 1 or "" not in sats
-        time_origin_ns = epoch_ns(sc.epoch) if epoch_time else 0
-        if time_origin_ns and multi:
+        check_outputs(req)
+        opts, sc = check_environment(req, sc)
+        time_origin_ns = epoch_ns(sc.epoch) if req.epoch_time else 0
+        if time_origin_ns and (len(sats) > 1 or "" not in sats):
             raise ConfigError("--epoch-time", None, "one satellite at a time (the recorder follows one clock)")
-        opts = None
-        if environment == "full":
-            opts = env_options or FullEnvironmentOptions()
-            if opts.epoch is not None or opts.raan_deg is not None or opts.arg_lat_deg is not None \
-                    or opts.zonal_degree != 2:
-                raise SilError("the simulator node flies the spacecraft file's orbit: set epoch, raan, arg_latitude "
-                               "there (zonal degree 2)")
-            sc = full_params(sc, opts)  # the nominal period of the actual orbit, derived here once
-        return cls(tuple(sat_list), Path(spacecraft), sc, sc_doc, orbits=orbits, steps=steps, substeps=substeps,
-                   real_time_factor=real_time_factor, lockstep=lockstep, lockstep_timeout=lockstep_timeout,
-                   startup_timeout=startup_timeout, timeout=timeout, environment=environment, env_options=opts,
-                   field_file=Path(field) if field is not None else None, bag=Path(bag) if bag else None,
-                   bag_topics=tuple(bag_topics) if bag_topics else None, bag_exclude=bag_exclude,
-                   time_origin_ns=int(time_origin_ns), foxglove=None if foxglove is None else int(foxglove),
-                   domain_id=domain_id, log_dir=Path(log_dir) if log_dir else None,
-                   results=Path(results) if results else None, dds_interfaces=dds_interfaces,
+        return cls(tuple(sat_list), Path(req.spacecraft), sc, sc_doc, orbits=req.orbits, steps=req.steps,
+                   substeps=substeps, real_time_factor=req.real_time_factor, lockstep=req.lockstep,
+                   lockstep_timeout=req.lockstep_timeout, startup_timeout=req.startup_timeout, timeout=req.timeout,
+                   environment=req.environment, env_options=opts,
+                   field_file=Path(req.field) if req.field is not None else None,
+                   bag=Path(req.bag) if req.bag else None, bag_topics=tuple(req.bag_topics) if req.bag_topics else None,
+                   bag_exclude=req.bag_exclude, time_origin_ns=int(time_origin_ns),
+                   foxglove=None if req.foxglove is None else int(req.foxglove), domain_id=req.domain_id,
+                   log_dir=Path(req.log_dir) if req.log_dir else None,
+                   results=Path(req.results) if req.results else None, dds_interfaces=req.dds_interfaces,
                    node_params={"simulator": simulator_params, "attitude_sensors": dict(sensor_params or {}),
-                                "controller": dict(controller_params or {}), ESTIMATOR: eparams},
-                   modes=bool(modes), initial_mode=mode, mode_params=mparams, attitude=attitude, faults=faults,
-                   torquers=check_torquer_arguments(torquers, [s.ts for s in sat_list], torquers_source))
+                                "controller": dict(req.controller_params or {}), ESTIMATOR: eparams},
+                   modes=bool(req.modes), initial_mode=mode, mode_params=mparams, attitude=req.attitude, faults=faults,
+                   torquers=check_torquer_arguments(req.torquers, [s.ts for s in sat_list], req.torquers_source))
 
     # ------------------------------------------------------------------ derived
     @property

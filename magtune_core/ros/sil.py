@@ -29,7 +29,7 @@ from ..design.faults import kill_time
 from ..sim.metrics import format_figures
 from ..sim.simulate import DIVERGED_EXIT, SimResult
 from .process import PACKAGE, DomainLock, NodeProcess, StopSignals, child_env, package_prefix, resolve_executable, start_node, stop_nodes
-from .scenario import MODE_MANAGER, SilScenario, tag
+from .scenario import MODE_MANAGER, SilRequest, SilScenario, tag
 
 #: Recorder executable of the bags helper, started first with
 #: ``--ros-args -p use_sim_time:=true -p path:=<bag>`` when --bag is given; the simulator then
@@ -114,8 +114,9 @@ class SilRun:
 
 def run_sil(gains, *, on_start=None, progress=None, **scenario) -> SilRun:
     """One satellite in the root namespace: :func:`run_fleet` of
-    ``SilScenario.build({"": gains}, **scenario)`` (keywords: :meth:`SilScenario.build`)."""
-    return run_fleet(SilScenario.build({"": gains}, **scenario), on_start=on_start, progress=progress)[""]
+    ``SilScenario.build({"": gains}, SilRequest(**scenario))`` (keywords: the fields of
+    :class:`~magtune_core.ros.scenario.SilRequest`)."""
+    return run_fleet(SilScenario.build({"": gains}, SilRequest(**scenario)), on_start=on_start, progress=progress)[""]
 
 
 # ------------------------------------------------------------------ launch

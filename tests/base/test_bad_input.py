@@ -343,12 +343,12 @@ def test_sil_rejects_bad_scenario_files(tmp_path, capsys, text, words):
 def test_scenario_file_and_cli_faults_reach_the_nodes(tmp_path):
     """A valid scenario file and --fault specs become the nodes' ``faults`` parameters: sensor faults for
     attitude_sensors, torquer faults and the kill for the simulator (exact specs)."""
-    from magtune_core.ros.scenario import SilScenario, load_scenario_file
+    from magtune_core.ros.scenario import SilRequest, SilScenario, load_scenario_file
 
     scen = tmp_path / "scenario.yaml"
     scen.write_text("faults:\n  - {kind: mag_dropout, t: 3000, duration: 30}\n  - {kind: torquer_dead, t: 5, axis: y}\n")
     faults = list(load_scenario_file(scen)["faults"]) + ["sensors_killed@200"]
-    sc = SilScenario.build({"": GAINS}, steps=10, faults=faults)
+    sc = SilScenario.build({"": GAINS}, SilRequest(steps=10, faults=faults))
     params = sc.node_parameters(sc.satellites[0], tmp_path / "r.npz")
     assert params["attitude_sensors"]["faults"] == ["mag_dropout@3000.0:30.0"]
     assert params["simulator"]["faults"] == ["torquer_dead@5.0,axis=y", "sensors_killed@200.0"]
@@ -357,11 +357,11 @@ def test_scenario_file_and_cli_faults_reach_the_nodes(tmp_path):
 
 def test_scenario_torquers_reach_simulator_sensors_and_controller(tmp_path):
     """A scenario's torquers section: the same values for the three nodes that model them (one schema)."""
-    from magtune_core.ros.scenario import SilScenario, load_scenario_file
+    from magtune_core.ros.scenario import SilRequest, SilScenario, load_scenario_file
 
     scen = tmp_path / "scenario.yaml"
     scen.write_text("torquers:\n  torquer_off_time: 0.2\n  torquer_coupling: [2.0e-7, 0, 0, 0, -1.0e-7, 0, 0, 0, -1.0e-7]\n")
-    sc = SilScenario.build({"": GAINS}, steps=10, torquers=load_scenario_file(scen)["torquers"])
+    sc = SilScenario.build({"": GAINS}, SilRequest(steps=10, torquers=load_scenario_file(scen)["torquers"]))
     params = sc.node_parameters(sc.satellites[0], tmp_path / "r.npz")
     for node in ("simulator", "attitude_sensors", "controller"):
         assert params[node]["torquer_off_time"] == 0.2 and params[node]["torquer_coupling"][4] == -1e-7, node

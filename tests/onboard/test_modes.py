@@ -143,3 +143,20 @@ def test_frozen_magnetometer_goes_safe_after_its_persistence():
     state, _ = logic.request(s0, SAFE, 0.0, "x", hold=False)
     _, trs, _ = fly(logic, state, [frozen] * 30)
     assert trs == []
+
+
+def test_the_compiled_twin_refuses_a_field_it_lacks():
+    """kernel_params copies ModeParams by name: a field added on one side only must fail loudly (the
+    compiled mode machine would otherwise ignore a new threshold while the Python one used it)."""
+    from dataclasses import dataclass
+
+    from magtune_core.onboard.modes_kernel import kernel_params
+
+    kernel_params(ModeParams())  # the shipped pair matches
+
+    @dataclass(frozen=True)
+    class Extended(ModeParams):
+        new_threshold: float = 1.0
+
+    with pytest.raises(ValueError, match="new_threshold"):
+        kernel_params(Extended())

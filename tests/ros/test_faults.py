@@ -340,12 +340,12 @@ def test_log_time_equals_stamp_under_cpu_load(tmp_path, gains60):
 def test_diverging_simulation_stops_with_the_step(tmp_path, gains60):
     """Why #6: with ts = 100 s (beyond the nutation period 76.6 s; RK4 at 2 sub-steps is
     unstable there: |omega_n h| = 0.082 * 50 = 4.1 > 2.8) the simulator kept stepping a NaN state
-    and sil exited 0. The runner's own check refuses --ts 100 (test_bad_input); here the nodes
-    are handed ts = 100 directly, and the simulator stops at the first diverged step."""
-    slow = {"ts": 100.0}
+    and sil exited 0. The runner and every node now refuse a ts past Nyquist, so the plant is made
+    unstable by its step alone: ts = 38 s (inside Nyquist, 38.3 s) with one RK4 step per period,
+    |omega_n h| = 0.082 * 38 = 3.1 > 2.83 (RK4's limit on the imaginary axis: the nutation grows by
+    |R(3.1 i)| = 1.86 a step); the simulator stops at the first diverged step."""
     with pytest.raises(SilError, match=r"diverged .*at step (\d+) \(t=\d+\.\d+ s\)") as err:
-        sil.run_sil(gains60, steps=2000, log_dir=tmp_path, timeout=120, simulator_params=slow,
-                    sensor_params=slow, controller_params=slow)
+        sil.run_sil(gains60, steps=2000, ts=38.0, substeps=1, log_dir=tmp_path, timeout=120)
     k = int(re.search(r"at step (\d+)", str(err.value)).group(1))
     assert 1 <= k < 2000  # stopped early, not after 2000 steps of garbage
     assert not (tmp_path / "results.npz").exists()

@@ -19,7 +19,7 @@ from magtune_core.design.lq import lq_gains
 from magtune_core.design.model import AttitudeLTP
 from magtune_core.design.params import SpacecraftParams
 from magtune_core.ros import sil
-from magtune_core.ros.scenario import SilScenario
+from magtune_core.ros.scenario import SilRequest, SilScenario
 from magtune_core.sim.simulate import simulate
 from magtune_core.studies import report
 
@@ -37,7 +37,7 @@ def test_two_namespaced_satellites_one_bag(tmp_path):
         save_gains(files[ns], lq_gains(model, sigma, 1.0))
     procs = []
     bag = tmp_path / "two"
-    fleet = SilScenario.build(files, steps=STEPS, bag=bag, log_dir=tmp_path / "logs", timeout=180)
+    fleet = SilScenario.build(files, SilRequest(steps=STEPS, bag=bag, log_dir=tmp_path / "logs", timeout=180))
     runs = sil.run_fleet(fleet, on_start=lambda did, ps: procs.extend(ps))
     assert sorted(runs) == ["/sat1", "/sat2"]
     assert len(procs) == 7 and all(p.popen.poll() is not None for p in procs)  # 2 x 3 nodes + recorder

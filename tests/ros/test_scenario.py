@@ -12,7 +12,7 @@ from magtune_core.design.gains import Gains, load_gains
 from magtune_core.design.node_params import SIMULATOR_FIELDS
 from magtune_core.design.params import SpacecraftParams, load_spacecraft
 from magtune_core.env.orbit import keplerian_period
-from magtune_core.ros.scenario import DEFAULT_SPACECRAFT, SilScenario
+from magtune_core.ros.scenario import DEFAULT_SPACECRAFT, SilRequest, SilScenario
 from magtune_core.sim.fullenv import FullEnvironmentOptions, full_params
 
 GAINS = [DEFAULT_SPACECRAFT.parents[0] / "gains" / f"sigma_{s}.yaml" for s in (60, 240)]
@@ -27,7 +27,7 @@ def test_each_file_read_once_and_node_files_carry_the_validated_values(tmp_path,
         return load(path)
 
     monkeypatch.setattr(paramfile, "_load", counting)
-    sc = SilScenario.build({"sat1": GAINS[0], "/sat2": GAINS[1]}, steps=10, log_dir=tmp_path)
+    sc = SilScenario.build({"sat1": GAINS[0], "/sat2": GAINS[1]}, SilRequest(steps=10, log_dir=tmp_path))
     assert reads == {str(DEFAULT_SPACECRAFT): 1, str(GAINS[0]): 1, str(GAINS[1]): 1}
     assert [s.namespace for s in sc.satellites] == ["/sat1", "/sat2"] and sc.multi
     for sat, gfile in zip(sc.satellites, GAINS):
@@ -50,7 +50,7 @@ def test_each_file_read_once_and_node_files_carry_the_validated_values(tmp_path,
 
 
 def test_full_environment_period_derived_once_for_every_node(tmp_path):
-    sc = SilScenario.build({"": GAINS[0]}, steps=5, environment="full")
+    sc = SilScenario.build({"": GAINS[0]}, SilRequest(steps=5, environment="full"))
     want = full_params(load_spacecraft(DEFAULT_SPACECRAFT), FullEnvironmentOptions()).orbit_period
     assert sc.spacecraft.orbit_period == want != keplerian_period(sc.spacecraft.altitude)
     sat = sc.satellites[0]
@@ -66,6 +66,6 @@ def test_full_environment_period_derived_once_for_every_node(tmp_path):
 def test_bad_input_is_one_config_error_before_anything_is_written(tmp_path, kwargs, field):
     logs = tmp_path / "logs"
     with pytest.raises(ConfigError) as exc:
-        SilScenario.build({"": GAINS[0]}, log_dir=logs, **kwargs)
+        SilScenario.build({"": GAINS[0]}, SilRequest(log_dir=logs, **kwargs))
     assert str(exc.value).startswith(field) and "\n" not in str(exc.value)
     assert not logs.exists()
