@@ -166,15 +166,7 @@ def run_requirement_front(args) -> int:
     req = load_design_spec(args, model)
     if axis == "ts_max" and min(levels) < req.ts:
         raise ConfigError("--levels", None, f"ts_max levels must be >= the spec's ts_min ({req.ts:g} s)")
-    starts = {}
-    for f in args.start:  # bad files: one line, exit 2, before any work
-        g = load_gains(f)
-        starts[float(g.sigma)] = g.K
-    ref_files = args.reference if args.reference is not None else sorted(Path(repo_path(".")).glob(REFERENCE_GLOB))
-    references = {}
-    for f in ref_files:
-        g = load_gains(f)
-        references[float(g.sigma)] = (f"{Path(f).parent.name}/{Path(f).name}", g.K)
+    starts, references = _start_and_reference_gains(args)
     settings = CmaSettings(popsize=args.popsize, max_evals=args.max_evals, start_scale=args.start_scale)
     t0, load0 = time.perf_counter(), os.getloadavg()[0]
 
@@ -187,13 +179,7 @@ def run_requirement_front(args) -> int:
               file=sys.stderr, flush=True)
 
     partial = out / f"front_{axis}.partial.json"
-    done = []
-    if args.resume and partial.is_file():
-        try:
-            done = [rfront.LevelPoint.from_dict(d) for d in json.loads(partial.read_text())["points"]]
-        except (ValueError, KeyError, TypeError) as exc:
-            raise ConfigError(partial, None, f"not a partial front record ({exc}); remove it or drop --resume") from None
-        print(f"magtune front: resuming with {len(done)} points of {partial}", file=sys.stderr)
+    done = _resumed_points(partial) if args.resume else []
     kept = list(done)
 
     def record(pt):  # the partial record after every point: an interrupted front loses one point, not all
@@ -207,6 +193,44 @@ def run_requirement_front(args) -> int:
                                         workers=args.workers, starts=starts, references=references,
                                         progress=record, executor=executor, done=done)
     wall = time.perf_counter() - t0
+    table = _write_level_front(args, out, points, model, req, wall, load0)
+    partial.unlink(missing_ok=True)
+    print(table)
+    print(f"wrote {', '.join(str(out / n) for n in names)} ({wall:.0f} s)")
+    return 0
+
+
+def _start_and_reference_gains(args) -> tuple[dict, dict]:
+    """``--start`` files as {sigma: K} and the reference gains (``--reference`` or the paper-method files)
+    as {sigma: (label, K)}; a bad file: one line, exit 2, before any work."""
+    starts = {}
+    for f in args.start:
+        g = load_gains(f)
+        starts[float(g.sigma)] = g.K
+    ref_files = args.reference if args.reference is not None else sorted(Path(repo_path(".")).glob(REFERENCE_GLOB))
+    references = {}
+    for f in ref_files:
+        g = load_gains(f)
+        references[float(g.sigma)] = (f"{Path(f).parent.name}/{Path(f).name}", g.K)
+    return starts, references
+
+
+def _resumed_points(partial: Path) -> list:
+    """The points of an interrupted front's partial record (none if there is no record)."""
+    if not partial.is_file():
+        return []
+    try:
+        done = [rfront.LevelPoint.from_dict(d) for d in json.loads(partial.read_text())["points"]]
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ConfigError(partial, None, f"not a partial front record ({exc}); remove it or drop --resume") from None
+    print(f"magtune front: resuming with {len(done)} points of {partial}", file=sys.stderr)
+    return done
+
+
+def _write_level_front(args, out: Path, points, model, req, wall: float, load0: float) -> str:
+    """The front's page, figure and JSON record in ``out``; returns the table printed."""
+    axis, levels, sigmas, names = args.over, args.levels or list(rfront.DEFAULT_LEVELS[args.over]), \
+        args.sigmas or list(rfront.DEFAULT_SIGMAS), outputs(args.over)
     out.mkdir(parents=True, exist_ok=True)
     table = rfront.level_table(points, axis)
     rfront.plot_level_front(points, axis, out / names[1])
@@ -230,7 +254,4 @@ def run_requirement_front(args) -> int:
     atomic_write(out / names[2], jsonout.dumps({"command": cmd, "seconds": wall, "field_model": model.field.name,
                                                "axis": axis, "spec": req.describe(),
                                                "points": [p.as_dict() for p in points]}, indent=1) + "\n")
-    partial.unlink(missing_ok=True)
-    print(table)
-    print(f"wrote {', '.join(str(out / n) for n in names)} ({wall:.0f} s)")
-    return 0
+    return table

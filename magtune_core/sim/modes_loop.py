@@ -91,8 +91,9 @@ def simulate_modes(K, p: SpacecraftParams | None = None, *, q0=(1.0, 0.0, 0.0, 0
     weights = rule.weights(torquers)
     n = int(round(orbits * p.orbit_period / ts))
     Y, M, modes = np.zeros((n + 1, 7)), np.zeros((n + 1, 3)), []
-    state, fstate, transitions = ModeState(initial_mode, 0.0, "start"), FilterState(), []
-    fault_state, b_prev, t_field, m, applied = fl.FaultState(), None, None, np.zeros(3), np.zeros(3)
+    stack = _Stack(logic, bdot_law, point, filt, torquers, ts, dyn.orbit_rate, stale, stale_timeout,
+                   ModeState(initial_mode, 0.0, "start"))
+    fault_state, applied = fl.FaultState(), np.zeros(3)
     for i in range(n + 1):
         t = i * ts
         Y[i] = y
@@ -100,43 +101,60 @@ def simulate_modes(K, p: SpacecraftParams | None = None, *, q0=(1.0, 0.0, 0.0, 0
         if torquers.coupled:
             b_mag = b_mag + torquers.field(applied)
         b, w, fault_state = fl.measure(faults, t, ts, b_mag, y[4:], fault_state) if faults else (b_mag, y[4:], None)
-        if b is not None:  # a field sample: the filter, the logic and the law step on it
-            t_field = t
-            fstate, bdot = filt.step(fstate, b)
-            step = math.nan if b_prev is None else float(np.linalg.norm(b - b_prev))
-            b_prev = b
-            x = linear_state(y[:4], w, dyn.orbit_rate)
-            err = 2.0 * math.asin(min(float(np.linalg.norm(x[:3])), 1.0))
-            is_stale = bool(stale(t)) if stale is not None else False
-            meas = Measurements(rate=float(np.linalg.norm(w)), bdot=float(np.linalg.norm(bdot)),
-                                pointing_error=err, stale=is_stale, field_step=step)
-            state, tr = logic.step(state, meas, t)
-        elif t_field is not None and t - t_field > stale_timeout:  # the manager's stamp check: stale, no sample
-            state, tr = logic.step(state, Measurements(rate=math.nan, stale=True), t)
-        else:
-            tr = None
-        if tr is not None:
-            transitions.append(tr)
-        if b is None:  # no field: the controller holds its dipole for 2 Ts, then zeroes it
-            if t_field is None or t - t_field > 2.0 * ts:
-                m = np.zeros(3)
-        elif state.mode == SAFE:
-            m = np.zeros(3)
-        elif state.mode == DETUMBLE:
-            m = torquers.drive(bdot_law.dipole(b, bdot), ts)
-        else:
-            m = torquers.drive(point(x, b).m, ts)
-        applied = m
+        m = applied = stack.step(t, b, w, y[:4])
         if faults:
             applied, fault_state = fl.actuate(faults, t, m, fault_state)
         M[i] = applied
-        modes.append(state.mode)
+        modes.append(stack.state.mode)
         if i < n:
             S = rule.at(y)
             y = dyn.step(t, y, ts, applied, S, weights[S])
     qv = np.linalg.norm(Y[:, 1:4], axis=1)
     return ModeRun(np.arange(n + 1) * ts, Y[:, :4], Y[:, 4:], M, np.array(modes), pointing_error_deg(qv),
-                   transitions, rule.most)
+                   stack.transitions, rule.most)
+
+
+class _Stack:
+    """The flight software of the offline loop, one period at a time: the derivative filter and the mode
+    logic on each field sample (the manager's stale rule without one), then the law of the mode, as the
+    mode manager and the controller nodes do (perfect attitude: the truth's)."""
+
+    def __init__(self, logic, bdot_law, point, filt, torquers, ts, orbit_rate, stale, stale_timeout, state):
+        self.logic, self.bdot_law, self.point, self.filt, self.torquers = logic, bdot_law, point, filt, torquers
+        self.ts, self.orbit_rate, self.stale, self.stale_timeout, self.state = ts, orbit_rate, stale, stale_timeout, state
+        self.fstate, self.transitions = FilterState(), []
+        self.b_prev = self.t_field = None
+        self.m = np.zeros(3)
+
+    def step(self, t: float, b, w, q) -> np.ndarray:
+        """The commanded dipole of sample t from the measured field ``b`` (None: no sample) and rate ``w``."""
+        tr = None
+        if b is not None:  # a field sample: the filter, the logic and the law step on it
+            self.t_field = t
+            self.fstate, bdot = self.filt.step(self.fstate, b)
+            step = math.nan if self.b_prev is None else float(np.linalg.norm(b - self.b_prev))
+            self.b_prev = b
+            x = linear_state(q, w, self.orbit_rate)
+            err = 2.0 * math.asin(min(float(np.linalg.norm(x[:3])), 1.0))
+            is_stale = bool(self.stale(t)) if self.stale is not None else False
+            meas = Measurements(rate=float(np.linalg.norm(w)), bdot=float(np.linalg.norm(bdot)),
+                                pointing_error=err, stale=is_stale, field_step=step)
+            self.state, tr = self.logic.step(self.state, meas, t)
+        elif self.t_field is not None and t - self.t_field > self.stale_timeout:  # the manager's stamp check
+            self.state, tr = self.logic.step(self.state, Measurements(rate=math.nan, stale=True), t)
+        if tr is not None:
+            self.transitions.append(tr)
+        mode, ts = self.state.mode, self.ts
+        if b is None:  # no field: the controller holds its dipole for 2 Ts, then zeroes it
+            if self.t_field is None or t - self.t_field > 2.0 * ts:
+                self.m = np.zeros(3)
+        elif mode == SAFE:
+            self.m = np.zeros(3)
+        elif mode == DETUMBLE:
+            self.m = self.torquers.drive(self.bdot_law.dipole(b, bdot), ts)
+        else:
+            self.m = self.torquers.drive(self.point(x, b).m, ts)
+        return self.m
 
 
 def transition_table(transitions: list[Transition]) -> list[tuple]:
