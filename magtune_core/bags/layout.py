@@ -12,7 +12,8 @@ import yaml
 from mcap.reader import make_reader
 
 from ..base.atomic import atomic_write
-from ..base.paramfile import check_path
+from ..base.errors import ConfigError
+from ..base.paramfile import USER_FILE_LIMIT, check_path, is_regular_file, open_regular, too_large
 
 METADATA_VERSION = 9
 STORAGE_ID = "mcap"
@@ -115,9 +116,20 @@ def write_metadata(bag_dir: Path, doc: dict) -> Path:
 
 
 def read_metadata(bag_dir: Path) -> dict:
-    """The ``rosbag2_bagfile_information`` mapping of a bag directory."""
+    """The ``rosbag2_bagfile_information`` mapping of a bag directory.
+
+    ``metadata.yaml`` must be a regular file of at most 1 MiB (``USER_FILE_LIMIT``; a FIFO or a
+    device is never read, a huge file never parsed): ConfigError otherwise. A missing or
+    unreadable file raises OSError, a malformed one yaml.YAMLError (callers treat both as no
+    usable metadata).
+    """
+    path = Path(bag_dir) / "metadata.yaml"
+    with open_regular(path) as fh:
+        data = fh.read(USER_FILE_LIMIT + 1)
+    if len(data) > USER_FILE_LIMIT:
+        raise too_large(path, len(data))
     try:
-        text = (Path(bag_dir) / "metadata.yaml").read_bytes().decode("utf-8")
+        text = data.decode("utf-8")
     except UnicodeDecodeError as exc:  # every caller treats it as a malformed metadata.yaml
         raise yaml.YAMLError(f"metadata.yaml is not UTF-8 text (byte offset {exc.start})") from None
     doc = yaml.safe_load(text)
@@ -139,6 +151,11 @@ def listed_files(bag) -> tuple[list[Path], list[str]]:
     there (a split bag has several files: ``relative_file_paths``; without a usable list, every
     ``NAME_<i>.mcap`` by index). A file path gives itself and nothing missing.
 
+    Every file returned is a regular file (or a symbolic link to one): a bag file, a listed file
+    or ``metadata.yaml`` that is a FIFO, a device or a socket (or a link to one) raises
+    :class:`~magtune_core.base.errors.ConfigError` naming it, before anything is opened (a FIFO
+    would block every reader, ``/dev/zero`` never ends).
+
     Returns
     -------
     tuple
@@ -146,20 +163,22 @@ def listed_files(bag) -> tuple[list[Path], list[str]]:
     """
     p = Path(bag)
     check_path(p)  # a symbolic link loop: one line, as for every other file argument
-    if p.is_file():
+    if p.exists() and not p.is_dir():
+        is_regular_file(p)  # ConfigError for a FIFO, a device, a link to one
         return [p], []
     listed: list[str] = []
-    if (p / "metadata.yaml").is_file():
+    if is_regular_file(p / "metadata.yaml"):
         try:
             listed = [str(f) for f in (read_metadata(p).get("relative_file_paths") or [])]
         except (OSError, yaml.YAMLError, KeyError, TypeError, AttributeError, UnicodeDecodeError):
             listed = []
     if listed:
-        present = [p / f for f in listed if (p / f).is_file()]
-        missing = [f for f in listed if not (p / f).is_file()]
+        there = {f for f in listed if _listed_file(p, f)}
+        present = [p / f for f in listed if f in there]
+        missing = [f for f in listed if f not in there]
         if present:
             return present, missing
-    cands = list(p.glob("*.mcap"))
+    cands = [f for f in p.glob("*.mcap") if is_regular_file(f)]  # a dangling link is not there
     if not cands:
         raise FileNotFoundError(f"no .mcap file in {p}" + (f" (metadata.yaml lists {', '.join(listed)})" if listed else ""))
 
@@ -167,6 +186,17 @@ def listed_files(bag) -> tuple[list[Path], list[str]]:
         tail = f.stem.rpartition("_")[2]
         return (0, int(tail), f.name) if tail.isdigit() else (1, 0, f.name)
     return sorted(cands, key=index), listed
+
+
+def _listed_file(bag_dir: Path, name: str) -> bool:
+    """Whether the file ``metadata.yaml`` lists as ``name`` is there (a regular file); ConfigError
+    for anything else there (a FIFO, a device, a directory, a link to one)."""
+    try:
+        return is_regular_file(bag_dir / name)
+    except ConfigError:
+        raise
+    except ValueError:  # a name holding a NUL byte: nothing can be there
+        return False
 
 
 def resolve_mcaps(bag) -> list[Path]:
@@ -182,7 +212,7 @@ def resolve_mcap(bag) -> Path:
 def has_summary(mcap_path: Path) -> bool:
     """True if the file ends with a valid footer + magic (i.e. was closed cleanly)."""
     try:
-        with open(mcap_path, "rb") as f:
+        with open_regular(mcap_path) as f:
             return make_reader(f).get_summary() is not None
     except Exception:  # noqa: BLE001 - any parse failure means: not a complete file
         return False

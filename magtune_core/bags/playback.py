@@ -54,6 +54,38 @@ class Selection:
     warnings: list = field(default_factory=list)   # integrity problems of the bag (damaged/missing files, counts)
 
 
+#: Largest time option [s]: bag times are int64 nanoseconds (9.22e9 s, about 292 years).
+MAX_SECONDS = 9.2e9
+#: Largest --rate (a day of bag in a tenth of a second).
+MAX_RATE = 1e6
+#: Largest --wait-subscribers [s].
+MAX_WAIT = 3600.0
+
+
+def _in_range(option: str, value: float, lo: float, hi: float, what: str) -> None:
+    """ConfigError naming ``option`` unless ``lo <= value <= hi`` (NaN and infinities refused)."""
+    if not (math.isfinite(value) and lo <= value <= hi):
+        raise ConfigError(option, None, f"{value:g}: out of range {lo:g} .. {hi:g} ({what})")
+
+
+def check_numbers(opts: ReplayOptions) -> None:
+    """Every number of ``opts`` within its range before it is used (a time beyond the int64
+    nanoseconds of a bag, ``--start 1e300``, was a traceback).
+
+    Raises
+    ------
+    ConfigError
+        one line naming the option, the value and the range.
+    """
+    ns = "bag times are int64 nanoseconds"
+    _in_range("--rate", opts.rate, 0.0, MAX_RATE, "a speed factor; 0: as fast as acknowledged")
+    _in_range("--start", opts.start, 0.0, MAX_SECONDS, f"seconds from the beginning of the bag; {ns}")
+    _in_range("--playback-duration", opts.playback_duration, 0.0, MAX_SECONDS, f"bag seconds, 0: to the end; {ns}")
+    if opts.playback_until is not None:
+        _in_range("--playback-until", opts.playback_until, -MAX_SECONDS, MAX_SECONDS, f"a log time in seconds; {ns}")
+    _in_range("--wait-subscribers", opts.wait_subscribers, 0.0, MAX_WAIT, "wall seconds")
+
+
 def validate(bag, opts: ReplayOptions) -> Selection:
     """Check ``opts`` against ``bag``; return the playback window and topics.
 
@@ -66,14 +98,7 @@ def validate(bag, opts: ReplayOptions) -> Selection:
     check_path(p)
     if not p.exists():
         raise ConfigError(bag, None, "no such bag (expected a bag directory or an .mcap file)")
-    if not math.isfinite(opts.rate) or opts.rate < 0:
-        raise ConfigError("--rate", None, f"{opts.rate:g}: expected a finite speed factor > 0 (or 0: as fast as acknowledged)")
-    if not math.isfinite(opts.start) or opts.start < 0:
-        raise ConfigError("--start", None, f"{opts.start:g}: expected seconds >= 0 from the beginning of the bag")
-    if not math.isfinite(opts.playback_duration) or opts.playback_duration < 0:
-        raise ConfigError("--playback-duration", None, f"{opts.playback_duration:g}: expected seconds > 0 (0: to the end)")
-    if opts.wait_subscribers < 0 or not math.isfinite(opts.wait_subscribers):
-        raise ConfigError("--wait-subscribers", None, f"{opts.wait_subscribers:g}: expected seconds >= 0")
+    check_numbers(opts)
     if opts.progress not in ("auto", "on", "off"):
         raise ConfigError("--progress", None, f"{opts.progress}: expected auto, on or off")
     if opts.foxglove is not None and not 0 <= opts.foxglove <= 65535:

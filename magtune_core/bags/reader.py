@@ -10,6 +10,7 @@ import yaml
 from mcap.reader import make_reader
 
 from ..base.errors import ConfigError
+from ..base.paramfile import open_regular
 from .integrity import bag_metadata, bag_report, unreadable_report
 from .layout import STORAGE_ID, BagMessage, TopicInfo, has_summary, listed_files, read_metadata, resolve_mcap, resolve_mcaps
 from .scan import scan
@@ -86,7 +87,7 @@ def topics_of(bag) -> dict[str, TopicInfo]:
         return out
     path = resolve_mcap(bag)
     if has_summary(path):
-        with open(path, "rb") as f:
+        with open_regular(path) as f:
             s = make_reader(f).get_summary()
         out = {}
         for cid, ch in s.channels.items():

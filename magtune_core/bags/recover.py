@@ -31,7 +31,7 @@ from pathlib import Path
 import yaml
 from mcap.writer import CompressionType, Writer
 
-from ..base.atomic import atomic_output
+from ..base.atomic import atomic_output, output_entries
 from ..base.errors import ConfigError
 from ..base.paramfile import check_path
 from .integrity import bag_metadata, bag_report, expected_count, unreadable_report
@@ -80,7 +80,7 @@ def _check_output(bag, out, bag_dir: Path, files: list[Path]) -> Path:
     out = Path(out) if out is not None else default_output(bag)
     if out.resolve() == bag_dir.resolve() or any(out.resolve() == f.resolve() for f in files):
         raise ConfigError(out, None, "the output must differ from the input (or use --in-place)")
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+    if out.exists() and (not out.is_dir() or output_entries(out)):  # a lock file does not count
         raise ConfigError(out, None, "output exists and is not an empty directory; choose another --output")
     return out
 

@@ -34,7 +34,7 @@ from mcap.records import Channel, Chunk, Footer, Message, MessageIndex, Schema
 from mcap.stream_reader import breakup_chunk
 
 from ..base.errors import ConfigError
-from ..base.paramfile import check_path
+from ..base.paramfile import check_path, open_regular, read_regular
 from .layout import BagMessage, TopicInfo, listed_files, resolve_mcap
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -347,7 +347,7 @@ def scan(path, topics=None, visit=None) -> ScanResult:
         Messages (or counts), schemas, channels, damaged chunks and what they held.
     """
     path = resolve_mcap(path)
-    data = Path(path).read_bytes()
+    data = read_regular(path, limit=None)  # a FIFO or a device: ConfigError, never read
     if not data:
         raise ConfigError(path, None, "empty file (0 bytes): not an MCAP bag")
     res = ScanResult(Path(path), size=len(data))
@@ -385,7 +385,7 @@ def check_file(bag) -> Path:
 def _check_one(path: Path) -> Path:
     """``path`` if it is a non-empty, MCAP-like file; ConfigError otherwise."""
     try:
-        with open(path, "rb") as f:
+        with open_regular(path) as f:  # a FIFO or a device: ConfigError, never read
             head = f.read(8)
     except OSError as exc:
         raise ConfigError(path, None, f"cannot read: {exc.strerror or exc}") from None

@@ -13,12 +13,19 @@ Every user file (parameter files, gains, spacecraft, campaign and robust specs) 
 every command: a missing file, a symbolic-link loop, a directory, a file that is not UTF-8 text,
 malformed YAML, and a mapping key given twice (PyYAML keeps the last one silently; a SIL once
 flew the second gain under a header naming the first) are :class:`ConfigError`.
+
+Before anything is read, the file must be a regular file (or a symbolic link to one): a FIFO, a
+device or a socket is refused with one line, never opened in a way that blocks
+(:func:`open_regular`; bags are read through it too). A user file larger than
+:data:`USER_FILE_LIMIT` (1 MiB; a gains, spacecraft or spec file is a few kB) is refused before
+it is read or parsed (PyYAML needs about 10 s and 250 MB per MB of YAML).
 """
 from __future__ import annotations
 
 import errno
 import os
 import re
+import stat
 from pathlib import Path
 
 import yaml
@@ -82,18 +89,191 @@ def check_path(path, option: str | None = None) -> None:
             raise ConfigError(option or path, None, (f"{path}: " if option else "") + os_reason(exc)) from None
 
 
+#: Largest user file read [bytes]: 1 MiB. Every YAML or JSON input (gains, spacecraft, design and
+#: campaign specs, scenario, parameter and robust-spec files, a bag's metadata.yaml) is checked
+#: against it before it is read or parsed.
+USER_FILE_LIMIT = 1 << 20
+
+_KINDS = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
+
+def _refuse_irregular(path, mode: int) -> None:
+    """ConfigError unless ``mode`` is a regular file's: what the path is instead, and where a
+    symbolic link points."""
+    if stat.S_ISREG(mode):
+        return
+    if stat.S_ISDIR(mode):
+        raise ConfigError(path, None, _OS_REASONS[errno.EISDIR])
+    kind = next((name for test, name in _KINDS if test(mode)), "not a regular file")
+    what = (f"is a symbolic link to {kind} ({os.path.realpath(path)})" if os.path.islink(path) else f"is {kind}")
+    raise ConfigError(path, None, f"{what}, not a regular file; point it at a regular file")
+
+
+def _size_text(n: int) -> str:
+    return f"{n >> 20} MiB" if n >= 1 << 20 and n % (1 << 20) == 0 else f"{n} bytes"
+
+
+def too_large(path, size: int, limit: int = USER_FILE_LIMIT) -> ConfigError:
+    """The one line for a user file over the size limit (``size`` bytes or more).
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    size : int
+        Its size in bytes (at least what was seen).
+    limit : int
+        The limit in bytes.
+
+    Returns
+    -------
+    ConfigError
+        ``<path>: too large (N bytes): input files are limited to 1 MiB ...``.
+    """
+    return ConfigError(path, None, f"too large ({size} bytes): input files are limited to {_size_text(limit)} "
+                                   "(a gains, spacecraft or spec file is a few kB); is it the right file?")
+
+
+def open_regular(path):
+    """Open ``path`` for reading (binary) if it is a regular file or a symbolic link to one.
+
+    The file is looked at (``stat``) before it is opened, so a device is never opened, and opened
+    without blocking (a FIFO would block ``open`` and ``read`` until a writer comes), then
+    looked at again (``fstat``: a path swapped in between is caught).
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+
+    Returns
+    -------
+    io.BufferedReader
+        The open file, blocking reads.
+
+    Raises
+    ------
+    ConfigError
+        A FIFO, a device, a socket or a directory (or a link to one), naming what it is.
+    OSError
+        The file cannot be looked up or opened (missing, permission): the caller words it.
+    """
+    _refuse_irregular(path, os.stat(path).st_mode)
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    try:
+        _refuse_irregular(path, os.fstat(fd).st_mode)
+        os.set_blocking(fd, True)
+    except BaseException:
+        os.close(fd)
+        raise
+    return os.fdopen(fd, "rb")
+
+
+def is_regular_file(path) -> bool:
+    """Whether a regular file (or a symbolic link to one) is at ``path``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The path looked at (never opened).
+
+    Returns
+    -------
+    bool
+        True for a regular file, False when nothing is there (a dangling link included).
+
+    Raises
+    ------
+    ConfigError
+        Anything else is there (a FIFO, a device, a socket, a directory, a link to one, a link loop).
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return False
+    except OSError as exc:
+        raise ConfigError(path, None, os_reason(exc)) from None
+    _refuse_irregular(path, mode)
+    return True
+
+
+def read_regular(path, limit: int | None = USER_FILE_LIMIT) -> bytes:
+    """The bytes of a regular file (:func:`open_regular`), refused over ``limit`` before reading.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    limit : int or None
+        Largest size read [bytes] (None: no limit, e.g. a bag's MCAP file).
+
+    Returns
+    -------
+    bytes
+        The content.
+
+    Raises
+    ------
+    ConfigError
+        Not a regular file, or larger than ``limit`` (checked on its size, then on what is read).
+    OSError
+        Missing or unreadable (as raised).
+    """
+    with open_regular(path) as fh:
+        size = os.fstat(fh.fileno()).st_size
+        if limit is not None and size > limit:
+            raise too_large(path, size, limit)
+        data = fh.read() if limit is None else fh.read(limit + 1)
+    if limit is not None and len(data) > limit:
+        raise too_large(path, len(data), limit)
+    return data
+
+
+def _os_error(path, exc: OSError, expected: str) -> ConfigError:
+    reason = os_reason(exc)
+    return ConfigError(path, None, f"{reason} ({expected})" if expected and exc.errno == errno.ENOENT else reason)
+
+
+def check_user_file(path, expected: str = "", limit: int = USER_FILE_LIMIT) -> None:
+    """The checks of :func:`read_user_text` without reading (for a reader outside this module):
+    there, a regular file, at most ``limit`` bytes.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    expected : str
+        What the file should be, added to "file not found".
+    limit : int
+        Largest size [bytes].
+
+    Raises
+    ------
+    ConfigError
+        One line naming the file and the problem.
+    """
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        raise _os_error(path, exc, expected) from None
+    _refuse_irregular(path, st.st_mode)
+    if st.st_size > limit:
+        raise too_large(path, st.st_size, limit)
+
+
 def read_user_text(path, expected: str = "") -> str:
-    """The text of a user's file, UTF-8; ConfigError naming the file and the fix otherwise.
+    """The text of a user's file, UTF-8; ConfigError naming the file and the fix otherwise
+    (missing, a link loop, not a regular file, over :data:`USER_FILE_LIMIT`, not UTF-8).
 
     ``expected``: what the file should be, appended to "file not found" (e.g. "expected a ROS 2
     parameter YAML file").
     """
     path = Path(path)
     try:
-        data = path.read_bytes()
+        data = read_regular(path)
     except OSError as exc:
-        reason = os_reason(exc)
-        raise ConfigError(path, None, f"{reason} ({expected})" if expected and exc.errno == errno.ENOENT else reason) from None
+        raise _os_error(path, exc, expected) from None
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -8,12 +8,15 @@ rebuilt, and the report says how many messages were recovered out of how many ex
 """
 from __future__ import annotations
 
+import errno
 import sys
+from pathlib import Path
 
 from .. import bags
 from ..bags import recover
 from ..bags.integrity import integrity_lines
 from ..base import jsonout
+from ..base.atomic import output_lock
 from ..base.errors import ConfigError
 from .common import CommandError
 
@@ -69,12 +72,29 @@ def run_info(args) -> int:
     return 0
 
 
+#: Write errors that more space (or a larger quota or file-size limit) cures.
+NO_SPACE = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+
+
+def _recover_lock(args):
+    """The lock of what ``bag recover`` writes: the output directory, or the bag itself in place."""
+    if not args.in_place:
+        return output_lock(args.output or recover.default_output(args.bag), "magtune bag recover", option="--output")
+    bag = Path(args.bag)
+    return output_lock(bag, "magtune bag recover --in-place", directory=bag.is_dir(), option="BAG")
+
+
 def run_recover(args) -> int:
+    recover.check_storage(args.bag)  # the input's problems first (no output directory made for them)
     try:
-        rep = recover.recover(args.bag, args.output, in_place=args.in_place)
-    except OSError as exc:  # disk full, quota, file-size limit: the partial output is already removed
-        raise CommandError(f"{args.bag}: cannot write the recovered bag ({exc.strerror or exc}); nothing was "
-                           "written and the bag is untouched: free some space and run it again") from None
+        with _recover_lock(args):  # one writer per output, for the whole run
+            rep = recover.recover(args.bag, args.output, in_place=args.in_place)
+    except OSError as exc:  # the partial output is already removed
+        if exc.errno in NO_SPACE:  # disk full, quota, file-size limit
+            raise CommandError(f"{args.bag}: cannot write the recovered bag ({exc.strerror or exc}); nothing was "
+                               "written and the bag is untouched: free some space and run it again") from None
+        raise CommandError(f"{args.bag}: {exc.filename or 'the bag'}: {exc.strerror or exc}; nothing was written and "
+                           "the bag is untouched") from None
     print(jsonout.dumps(rep, indent=1))
     exp, meta = rep["messages_expected"], rep.get("messages_expected_metadata")
     print(f"recovered {rep['messages_recovered']} of {exp} messages"

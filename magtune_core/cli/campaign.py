@@ -6,7 +6,9 @@ import shutil
 import sys
 from pathlib import Path
 
+from ..base.atomic import output_entries, output_lock
 from ..base.errors import ConfigError
+from ..base.paramfile import check_user_file
 from ..studies import campaign, campaign_report, cluster
 from .common import CAMPAIGN_SCHEDULER_HELP, CommandError, add_scheduler_arguments, plain_summary, scheduler_options
 
@@ -34,10 +36,16 @@ def register(sub) -> None:
     r.set_defaults(func=run_report)
 
 
-def _check_out(out: Path, force: bool) -> None:
+def _check_out_kind(out: Path) -> None:
+    """--out is a directory or absent (checked before its lock is taken)."""
     if out.exists() and not out.is_dir():
         raise ConfigError(out, None, "--out exists and is not a directory; choose another --out")
-    if out.is_dir() and any(out.iterdir()):
+
+
+def _check_out(out: Path, force: bool) -> None:
+    """Under the lock: --out is empty (a lock file left by a killed run does not count), or
+    ``force`` and the earlier campaign's own outputs are removed."""
+    if output_entries(out):
         if not force:
             raise ConfigError(out, None, "--out is not empty; choose a new directory or add --force")
         for name in OUTPUTS:
@@ -61,7 +69,14 @@ def run(args) -> int:
     sched, tls = _cluster_options(args)
     spec = campaign.load_spec(args.spec)  # ConfigError -> one line, exit 2, nothing started
     out = Path(args.out)
-    _check_out(out, args.force)
+    _check_out_kind(out)
+    with output_lock(out, "magtune campaign"):  # one writer per output, for the whole run
+        _check_out(out, args.force)
+        return _run(args, spec, out, sched, tls)
+
+
+def _run(args, spec, out: Path, sched, tls) -> int:
+    """The campaign into ``out`` (locked), its summary lines; exit status."""
     steps = spec.steps()
     print(f"campaign {spec.campaign['name']}: {args.runs} runs x {len(spec.gains_files)} gains file(s), "
           f"{spec.campaign['environment']} environment, {spec.campaign['orbits']:g} orbits ({steps} steps of "
@@ -89,7 +104,9 @@ def run_report(args) -> int:
     out = Path(args.dir)
     if not (out / "runs.parquet").is_file() or not (out / "campaign.json").is_file():
         raise ConfigError(out, None, "not a campaign directory (no runs.parquet / campaign.json); run magtune campaign first")
-    md = campaign_report.write_report(out)
+    check_user_file(out / "campaign.json", "written by magtune campaign")  # bounded before it is parsed
+    with output_lock(out, "magtune campaign-report", option="DIR"):  # not while the campaign still writes it
+        md = campaign_report.write_report(out)
     print(md)
     print(f"wrote {out / 'summary.md'}, {out / 'envelopes.png'}, {out / 'histograms.png'}")
     return 0

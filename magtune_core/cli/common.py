@@ -14,7 +14,7 @@ import numpy as np
 
 from ..base.ament import ROOT, AmentNotFound
 from ..base.errors import ConfigError, SilError
-from ..base.paramfile import check_path
+from ..base.paramfile import check_path, check_user_file
 from ..design.field import FIELD_MODELS
 from ..onboard.params import TS_DEFAULT
 from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions
@@ -179,6 +179,7 @@ def load_design_spec(args, model=None):
     path = args.spec or repo_path("config/design.yaml")
     if args.spec is None and not Path(path).is_file():
         return Requirements.from_mapping({}, limit)
+    check_user_file(path, "expected a design spec")  # a regular file within the size limit, before it is parsed
     return replace(load_requirements(path, limit), source=shown_path(path))  # recorded in files: no checkout path
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 from datetime import datetime
 
+from ..base.atomic import output_lock
 from ..design import fitfield
 from ..design.params import check_orbit
 from .common import CommandError, add_force_argument, check_output, plain_summary, repo_path, say
@@ -40,6 +41,12 @@ def run(args) -> int:
         raise CommandError("need --harmonics >= 1, --days > 0, --step > 0, 1 <= --degree <= 13", code=2)
     check_orbit(args.altitude * 1e3, args.inclination, "command line")
     check_output(args.out, force=args.force)
+    with output_lock(args.out, "magtune fit-field", directory=False):  # one writer per output, for the whole run
+        return _fit(args)
+
+
+def _fit(args) -> int:
+    """The fit, its report printed and the field model written to ``--out`` (locked)."""
     say("fit-field", f"sampling IGRF degree {args.degree} along {args.days:g} days of orbit every {args.step:g} s "
                      "and fitting (about a minute for the defaults)")
     field, report = fitfield.fit_field(args.altitude * 1e3, args.inclination, args.harmonics, args.days, args.step,

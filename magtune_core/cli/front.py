@@ -10,8 +10,9 @@ import time
 from pathlib import Path
 
 from ..base import jsonout
-from ..base.atomic import atomic_write
+from ..base.atomic import atomic_write, output_lock
 from ..base.errors import ConfigError
+from ..base.paramfile import read_user_text
 from ..design.cmaes import CmaSettings
 from ..design.gains import load_gains
 from ..studies import front
@@ -93,6 +94,13 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    """Handler of ``magtune front``: the front into ``--out-dir``, locked for the whole run (one writer
+    per output). Returns an exit code."""
+    with output_lock(args.out_dir, "magtune front", option="--out-dir"):
+        return _run(args)
+
+
+def _run(args) -> int:
     for name in ("workers", "max_evals", "popsize"):
         if getattr(args, name) < 1:
             raise ConfigError("--" + name.replace("_", "-"), None, f"must be a positive integer, got {getattr(args, name)}")
@@ -220,7 +228,7 @@ def _resumed_points(partial: Path) -> list:
     if not partial.is_file():
         return []
     try:
-        done = [rfront.LevelPoint.from_dict(d) for d in json.loads(partial.read_text())["points"]]
+        done = [rfront.LevelPoint.from_dict(d) for d in json.loads(read_user_text(partial))["points"]]
     except (ValueError, KeyError, TypeError) as exc:
         raise ConfigError(partial, None, f"not a partial front record ({exc}); remove it or drop --resume") from None
     print(f"magtune front: resuming with {len(done)} points of {partial}", file=sys.stderr)

@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 from ..bags.scan import check_file
+from ..base.atomic import output_lock
 from ..base.errors import ConfigError
 from ..base.topics import DIPOLE, TRUTH
 from ..onboard.law import DEFAULT_DIPOLE_LIMIT
@@ -43,16 +44,17 @@ def run(args) -> int:
         raise CommandError("--dipole-limit must be positive", code=2)
     for b in args.bags:  # missing, loop, no .mcap, not MCAP: one line, exit 2, before any work
         check_file(b)
-    say("report", f"decoding {len(args.bags)} bag(s) and drawing Figs. 2-5 into {args.out}")
-    try:
-        s = report.make_report(args.bags, args.out, run=args.run, truth=args.truth_topic,
-                               dipole=args.dipole_topic, orbit_period=args.orbit_period, labels=args.labels,
-                               dipole_limit=args.dipole_limit, twist=args.truth_twist)
-    except ConfigError:
-        raise
-    except (OSError, ValueError) as exc:
-        raise CommandError(str(exc)) from None
-    print(Path(args.out, "summary.md").read_text())
+    with output_lock(args.out, "magtune report"):  # one writer per output, for the whole run
+        say("report", f"decoding {len(args.bags)} bag(s) and drawing Figs. 2-5 into {args.out}")
+        try:
+            s = report.make_report(args.bags, args.out, run=args.run, truth=args.truth_topic,
+                                   dipole=args.dipole_topic, orbit_period=args.orbit_period, labels=args.labels,
+                                   dipole_limit=args.dipole_limit, twist=args.truth_twist)
+        except ConfigError:
+            raise
+        except (OSError, ValueError) as exc:
+            raise CommandError(str(exc)) from None
+        print(Path(args.out, "summary.md").read_text())
     for name, run in s.items():  # every damaged or missing file, every count metadata.yaml gets wrong
         for line in [] if run["integrity"]["complete"] else integrity_lines(run["integrity"]) or ["bag not complete"]:
             print(f"magtune report: warning: {name}: {line}", file=sys.stderr)

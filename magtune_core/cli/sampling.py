@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..base import jsonout
 from ..base.ament import ROOT
-from ..base.atomic import atomic_write
+from ..base.atomic import atomic_write, output_lock
 from ..base.paramfile import read_user_text
 from ..studies import sampling
 from .common import CommandError, add_environment_arguments, add_force_argument, check_outputs, environment_options, plain_summary, positive_floats
@@ -51,7 +51,12 @@ def run(args) -> int:
                     igrf_degree=opts.igrf_degree)
     out = Path(args.out_dir)
     check_outputs(out, ("sampling.md", "sampling.png", "sampling.json"), force=args.force, option="--out-dir")
-    out.mkdir(parents=True, exist_ok=True)
+    with output_lock(out, "magtune sampling", option="--out-dir"):  # one writer per output, for the whole run
+        return _study(args, out, env_opts, conclusion_arg)
+
+
+def _study(args, out: Path, env_opts: dict, conclusion_arg: str) -> int:
+    """The study's runs and its three files in ``out`` (locked); exit status."""
     t0 = time.perf_counter()
     try:
         rows = sampling.run_study(args.sigmas, args.ts, args.orbits, args.environment, env_opts, max(1, args.workers),

@@ -4,11 +4,15 @@ from __future__ import annotations
 import argparse
 
 from ..base import jsonout
+from ..base.errors import ConfigError
 from ..design.faults import parse_spec
 from ..ros import sil
 from ..ros.process import DDS_INTERFACES
 from ..ros.scenario import SilRequest, SilScenario, load_scenario_file, normalize_namespace
 from .common import CommandError, add_environment_arguments, environment_options, plain_summary
+
+#: The ROS_DOMAIN_IDs whose DDS (RTPS) ports fit in 16 bits: 7400 + 250 x id + offsets <= 65535.
+DOMAIN_ID_MIN, DOMAIN_ID_MAX = 0, 232
 
 
 def register(sub) -> None:
@@ -80,12 +84,28 @@ def register(sub) -> None:
     p.add_argument("--dds-interfaces", choices=DDS_INTERFACES, default="loopback",
                    help="DDS network scope of the nodes: loopback (default: every DDS socket on 127.0.0.1) or all "
                         "(nodes or viewers on other hosts; docs/reliability.md)")
-    p.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: a free one)")
+    p.add_argument("--domain-id", type=int, default=None,
+                   help=f"ROS_DOMAIN_ID, {DOMAIN_ID_MIN}-{DOMAIN_ID_MAX} (the ids whose DDS ports fit in 16 bits; "
+                        "default: a free one)")
     p.add_argument("--timeout", type=float, default=None, help="abort after this many wall seconds")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     add_environment_arguments(p)
     p.set_defaults(func=run)
+
+
+def check_domain_id(domain_id: int | None) -> None:
+    """``--domain-id`` within :data:`DOMAIN_ID_MIN`..:data:`DOMAIN_ID_MAX` (a larger id passed the
+    checks and the nodes died in DDS, "Calculated port number is too high"); None is a free one.
+
+    Raises
+    ------
+    ConfigError
+        one line naming the option and the range (exit 2, before any node starts).
+    """
+    if domain_id is not None and not DOMAIN_ID_MIN <= domain_id <= DOMAIN_ID_MAX:
+        raise ConfigError("--domain-id", None, f"{domain_id}: expected a ROS_DOMAIN_ID in {DOMAIN_ID_MIN}-"
+                                               f"{DOMAIN_ID_MAX} (larger ids give DDS ports above 65535)")
 
 
 def _spacecraft(args) -> str:
@@ -100,6 +120,7 @@ def run(args) -> int:
         if not args.quiet:
             print(f"magtune sil: step {k}/{n} ({100 * k // max(n, 1)} %)", file=sys.stderr, flush=True)
 
+    check_domain_id(args.domain_id)
     sats = satellites(args.gains)
     scen = load_scenario_file(args.scenario) if args.scenario else {"faults": (), "torquers": {},
                                                                     "torquers_source": "torquers"}

@@ -6,6 +6,7 @@ import os
 import signal
 import sys
 
+from ..base.atomic import output_lock
 from ..base.errors import ConfigError
 from ..design.cmaes import CmaSettings
 from ..design.gains import load_gains, save_gains
@@ -123,7 +124,8 @@ def run(args) -> int:
     model = load_model(args)
     req = requirements_of(args)
     start_K = load_gains(args.start).K if args.start else None  # a bad file: one line, exit 2, before any work
-    with cluster_executor(sched, tls) as executor:  # on --scheduler: connected, workers checked
+    with output_lock(out, "magtune tune", directory=False), \
+            cluster_executor(sched, tls) as executor:  # one writer of the gains file; on --scheduler: connected
         if args.robust:
             return _run_robust(args, model, out, start_K, executor)
         return _tune(args, model, out, req, start_K, executor)

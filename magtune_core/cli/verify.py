@@ -4,9 +4,10 @@ fails; 1: a run did not complete; 2: bad input."""
 from __future__ import annotations
 
 import json
+from contextlib import ExitStack
 from pathlib import Path
 
-from ..base.atomic import atomic_write
+from ..base.atomic import atomic_write, output_entries, output_lock
 from ..base.errors import ConfigError
 from ..studies import verify
 from .common import (
@@ -31,7 +32,8 @@ def register(sub) -> None:
     p.add_argument("gains", help="gains file (config/gains/sigma_*.yaml)")
     add_spec_argument(p)
     p.add_argument("--campaign", metavar="CAMPAIGN_SPEC", default=None,
-                   help="dispersions and environment (default config/campaigns/example.yaml); its gains, ts and "
+                   help="dispersions and environment (default config/campaigns/example.yaml of the repository, from "
+                        "any working directory); its gains, ts and "
                         "criteria are replaced by GAINS, the verified periods and the design spec's requirements")
     p.add_argument("--runs", type=int, default=200, help="dispersed runs per sample period (default 200)")
     p.add_argument("--also-ts", metavar="TS", default="",
@@ -58,21 +60,39 @@ def _check(args):
     except ValueError:
         raise ConfigError("--also-ts", None, f"expected comma-separated periods in seconds, got {args.also_ts!r}") from None
     out = Path(args.out)
-    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not args.force)):
+    if out.exists() and not out.is_dir():
         raise ConfigError(out, None, "--out exists and is not an empty directory; choose a new one or add --force")
     return scheduler_options(args, "verify", synchronous=True)
 
 
+def _check_empty(out: Path, force: bool) -> None:
+    """Under the lock: --out is empty (a lock file left by a killed run does not count) unless ``force``."""
+    if output_entries(out) and not force:
+        raise ConfigError(out, None, "--out exists and is not an empty directory; choose a new one or add --force")
+
+
 def run(args) -> int:
+    sched, tls = _check(args)
+    with ExitStack() as held:  # one writer per output, for the whole run: --out, and GAINS with --record
+        held.enter_context(output_lock(args.out, "magtune verify"))
+        if args.record:
+            held.enter_context(output_lock(args.gains, "magtune verify --record", directory=False, option="GAINS"))
+        _check_empty(Path(args.out), args.force)
+        return _verify(args, sched, tls)
+
+
+def _verify(args, sched, tls) -> int:
+    """The verification into ``--out`` (locked): inputs, runs, verify.md/json; exit status."""
     from ..design.gains import load_gains
     from ..design.params import load_spacecraft
 
-    sched, tls = _check(args)
     gains = load_gains(args.gains)  # ConfigError -> one line, exit 2, before any run
     req = load_design_spec(args)
     p = load_spacecraft(args.config)
-    campaign = args.campaign or shown_path(repo_path("config/campaigns/example.yaml"))  # relative: recorded in files
-    verify.load_spec(campaign)  # validated before any worker starts
+    # the default is the repository's file from any working directory; files record its relative name
+    campaign_file = args.campaign or repo_path("config/campaigns/example.yaml")
+    campaign = args.campaign or shown_path(campaign_file)
+    verify.load_spec(campaign_file)  # validated before any worker starts
     lo, hi = req.sampling["ts_min"], req.sampling["ts_max"]
     bad = [t for t in args.also_ts if not lo <= t <= hi]
     if bad:
@@ -89,11 +109,12 @@ def run(args) -> int:
           f"dispersions of {campaign} with the design spec's rates, residual dipoles and torquers "
           f"({req.dipole_budget or req.dipole_limit:g}-{req.dipole_limit:g} A m^2)", flush=True)
     try:
-        res = verify.run_verify(args.gains, req, campaign, args.runs, args.out, tightest=tightest, p=p,
+        res = verify.run_verify(args.gains, req, campaign_file, args.runs, args.out, tightest=tightest, p=p,
                                 scheduler=sched, workers=args.workers, progress=not args.no_progress, tls=tls,
                                 extra_periods=args.also_ts)
     except OSError as exc:
         raise CommandError(f"cannot reach the Dask scheduler {args.scheduler}: {exc}") from None
+    res["campaign"] = campaign  # as given, or the default's name in the repository (no checkout path)
     md = verify.table(res)
     verdict = "PASS" if res["passed"] else ("FAIL (runs did not complete)" if res["failed_runs"] else "FAIL")
     text = f"# verify {args.gains}\n\n{md}\n\n{verdict}: {res['runs']} runs per period, {res['seconds']:.0f} s\n"

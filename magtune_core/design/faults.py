@@ -229,6 +229,56 @@ def from_list(items, where: str = "faults") -> tuple[Fault, ...]:
                  else from_mapping(f, f"{where}[{i}]") for i, f in enumerate(items))
 
 
+def run_end(ts, steps: int | None = None, orbits: float | None = None, period: float | None = None) -> float:
+    """Sim time [s] at which a run of ``steps`` steps of ``ts`` (or ``orbits`` orbits of ``period``) ends,
+    counted as the simulator counts its steps (``round(orbits * period / ts)`` of them).
+
+    Parameters
+    ----------
+    ts : float
+        Sample period [s].
+    steps : int or None
+        Run length in steps; None: from ``orbits``.
+    orbits : float or None
+        Run length in orbits (used when ``steps`` is None).
+    period : float or None
+        Orbit period [s] (with ``orbits``).
+
+    Returns
+    -------
+    float
+        The end [s] of sim time from the start of the run.
+    """
+    n = int(steps) if steps else int(round(float(orbits) * float(period) / float(ts)))
+    return n * float(ts)
+
+
+def check_times(faults, end: float, where: str = "fault") -> None:
+    """Refuse a fault that starts at or after the end of the run (it would never act: a run that
+    ends before its fault says nothing about it). A fault that starts before the end and lasts past
+    it is fine (it acts until the end).
+
+    Parameters
+    ----------
+    faults : iterable of Fault
+        Injected faults.
+    end : float
+        Sim time [s] at which the run ends (:func:`run_end`).
+    where : str
+        Context named in the error (``--fault``, ``faults``).
+
+    Raises
+    ------
+    ConfigError
+        For the first fault whose onset ``t`` is not before ``end``: one line naming the fault and the end.
+    """
+    for f in faults:
+        if not f.t < end:
+            raise ConfigError(f"{where} {f.spec}", "t", f"the fault starts at {f.t:g} s, at or after the end of "
+                                                        f"the run ({end:g} s): it would never act; give a time "
+                                                        f"before {end:g} s or a longer run")
+
+
 def kill_time(faults) -> float | None:
     """Sim time [s] of the first ``sensors_killed`` fault, or None.
 

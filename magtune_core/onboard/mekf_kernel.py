@@ -59,6 +59,12 @@ class KernelMekf(NamedTuple):
     w_prev: np.ndarray  #: (B, 3) previous gyro sample [rad/s]
     counts: np.ndarray  #: (B, 4) int64 mag accepted, mag rejected, sun accepted, sun rejected
     k0: np.ndarray  #: (B,) int64 sample of the coarse fix (-1: not yet)
+    #: the estimate's validity (onboard.validity.ValidityMonitor): valid_sigma^2 [rad^2] (inf: no gate),
+    #: exp(-ts / valid_nis_tau), valid_nis_limit; and each filter's NIS average (nan before the fix)
+    valid_sigma2: float
+    valid_a: float
+    valid_limit: float
+    nis_avg: np.ndarray
 
 
 @njit(cache=True, inline="always")
@@ -382,4 +388,44 @@ def kernel_state(B: int, ts: float, *, arw, rrw, mag_cov, sun_std, gate_probabil
                       math.cos(init_angle), np.zeros((B, 4)), np.zeros((B, 3)), np.zeros((B, 3)), np.zeros((B, 9, 9)),
                       np.zeros(B, dtype=np.bool_),
                       np.full(B, -1, dtype=np.int64), np.zeros((B, 6)), carry, np.zeros((B, 3)),
-                      np.zeros((B, 4), dtype=np.int64), np.full(B, -1, dtype=np.int64))
+                      np.zeros((B, 4), dtype=np.int64), np.full(B, -1, dtype=np.int64),
+                      math.inf, 0.0, math.inf, np.full(B, np.nan))
+
+
+def with_validity(m: KernelMekf, sigma: float, tau: float, limit: float) -> KernelMekf:
+    """``m`` with the validity gate of :class:`~magtune_core.onboard.validity.ValidityMonitor` (the same numbers).
+
+    Parameters
+    ----------
+    m : KernelMekf
+        Filters from :func:`kernel_state` (no gate: every estimate after the fix is valid).
+    sigma : float
+        ``valid_sigma`` [rad].
+    tau : float
+        ``valid_nis_tau`` [s].
+    limit : float
+        ``valid_nis_limit``.
+
+    Returns
+    -------
+    KernelMekf
+        The same filters, gated.
+    """
+    return m._replace(valid_sigma2=float(sigma) * float(sigma), valid_a=math.exp(-m.ts / float(tau)),
+                      valid_limit=float(limit))
+
+
+@njit(cache=True, error_model="numpy")
+def valid_step(m, i, nis_mag):
+    """:meth:`magtune_core.onboard.validity.ValidityMonitor.step` for filter ``i`` after its fix (the same
+    arithmetic: average from 3 at the fix, NIS capped at the gate, a nan NIS holds it)."""
+    if m.valid_sigma2 == math.inf:
+        return True
+    avg = m.nis_avg[i]
+    if math.isnan(avg):
+        avg = 3.0
+    if not math.isnan(nis_mag):
+        avg = m.valid_a * avg + (1.0 - m.valid_a) * min(nis_mag, m.gate_mag)
+    m.nis_avg[i] = avg
+    P = m.P[i]
+    return max(P[0, 0], P[1, 1], P[2, 2]) < m.valid_sigma2 and avg < m.valid_limit

@@ -46,6 +46,7 @@ class ModeParams:
     acquisition_entry_time: float = 120.0
     safe_recovery_time: float = 10.0
     frozen_time: float = 30.0
+    attitude_loss_time: float = 60.0
 
     @classmethod
     def from_mapping(cls, params: dict, where="mode parameters") -> "ModeParams":
@@ -82,7 +83,9 @@ class Measurements:
     unknown: the rate guard alone decides), ``pointing_error`` the attitude estimate's rotation
     angle from the orbital axes [rad] (nan if no estimate), ``stale`` True when a sensor stream is
     older than its timeout (decided by the caller on sim time), ``field_step`` |b_k - b_(k-1)| of
-    the measured field [T] (0: the sample repeated bit for bit; nan: unknown, never frozen).
+    the measured field [T] (0: the sample repeated bit for bit; nan: unknown, never frozen),
+    ``attitude_known`` False while the attitude estimate is not valid (before the estimator's fix, or
+    its covariance or innovations inconsistent: onboard.estimator.ValidityMonitor).
     """
 
     rate: float
@@ -90,6 +93,7 @@ class Measurements:
     pointing_error: float = math.nan
     stale: bool = False
     field_step: float = math.nan
+    attitude_known: bool = True
 
 
 @dataclass(frozen=True)
@@ -165,16 +169,18 @@ class ModeLogic:
                ("frozen", frozen, p.frozen_time, SAFE, f"magnetometer frozen (sample repeated) for {p.frozen_time:g} s")]
         if mode == DETUMBLE:
             bdot_ok = math.isnan(m.bdot) or m.bdot < p.detumble_exit_bdot
-            calm = m.rate < p.detumble_exit_rate and bdot_ok
+            calm = m.rate < p.detumble_exit_rate and bdot_ok and m.attitude_known
             nxt = ACQUISITION if p.acquisition else POINTING
             out.append(("calm", calm, p.detumble_exit_time, nxt,
                         f"|w| < {p.detumble_exit_rate:g} rad/s and |db/dt| < {p.detumble_exit_bdot:g} T/s "
-                        f"for {p.detumble_exit_time:g} s"))
+                        f"and the attitude valid for {p.detumble_exit_time:g} s"))
             return out
         # capturing from a large error spins the body up (measured up to 0.064 rad/s): a higher abort rate
         limit = p.acquisition_abort_rate if mode == ACQUISITION else p.detumble_entry_rate
         out.append(("tumbling", m.rate > limit, p.detumble_entry_time, DETUMBLE,
                     f"|w| > {limit:g} rad/s for {p.detumble_entry_time:g} s"))
+        out.append(("unknown", not m.attitude_known, p.attitude_loss_time, DETUMBLE,
+                    f"attitude estimate not valid for {p.attitude_loss_time:g} s"))
         err = m.pointing_error
         if mode == ACQUISITION:
             out.append(("inside", err < p.handover_angle, p.handover_time, POINTING,

@@ -26,9 +26,9 @@ from .modes import ACQUISITION, DETUMBLE, MODES, POINTING, SAFE, ModeParams
 #: Mode codes of the kernel: the index in :data:`~magtune_core.onboard.modes.MODES`.
 MODE_CODE = {m: i for i, m in enumerate(MODES)}
 _DET, _ACQ, _PNT, _SAFE = (MODE_CODE[m] for m in (DETUMBLE, ACQUISITION, POINTING, SAFE))
-#: Guard slots of the pending timers (ModeLogic's guard names): stale, fresh, calm, tumbling, inside, outside, frozen.
-GUARDS = ("stale", "fresh", "calm", "tumbling", "inside", "outside", "frozen")
-_STALE, _FRESH, _CALM, _TUMBLING, _INSIDE, _OUTSIDE, _FROZEN = range(len(GUARDS))
+#: Guard slots of the pending timers (ModeLogic's guard names).
+GUARDS = ("stale", "fresh", "calm", "tumbling", "inside", "outside", "frozen", "unknown")
+_STALE, _FRESH, _CALM, _TUMBLING, _INSIDE, _OUTSIDE, _FROZEN, _UNKNOWN = range(len(GUARDS))
 
 
 class KernelModeParams(NamedTuple):
@@ -47,6 +47,7 @@ class KernelModeParams(NamedTuple):
     acquisition_entry_time: float
     safe_recovery_time: float
     frozen_time: float
+    attitude_loss_time: float
 
 
 def kernel_params(p: ModeParams) -> KernelModeParams:
@@ -84,13 +85,14 @@ def _hold(holds, g, persist, t, pending, newp):
 
 
 @njit(cache=True, error_model="numpy")
-def mode_step(mode, pending, rate, bdot, err, stale, t, P, fstep=math.nan, held=False):
+def mode_step(mode, pending, rate, bdot, err, stale, t, P, fstep=math.nan, held=False, known=True):
     """:meth:`ModeLogic.step` on floats: the new mode code (== ``mode``: no transition).
 
-    ``pending`` (7,) the guards' start times [s] (nan: not holding; :data:`GUARDS`), updated in
+    ``pending`` (8,) the guards' start times [s] (nan: not holding; :data:`GUARDS`), updated in
     place (cleared on a transition); ``rate`` |w_gyro| [rad/s], ``bdot`` filtered |db/dt| [T/s] (nan:
     unknown), ``err`` estimated pointing error [rad] (nan: none), ``stale`` bool, ``t`` sim time [s],
-    ``fstep`` |b_k - b_(k-1)| [T] (0: frozen sample; nan: unknown), ``held`` a commanded (sticky) SAFE.
+    ``fstep`` |b_k - b_(k-1)| [T] (0: frozen sample; nan: unknown), ``held`` a commanded (sticky) SAFE,
+    ``known`` the attitude estimate is valid.
     """
     newp = np.full(pending.size, np.nan)
     target = -1
@@ -104,12 +106,14 @@ def mode_step(mode, pending, rate, bdot, err, stale, t, P, fstep=math.nan, held=
         target = _SAFE
     elif mode == _DET:
         bdot_ok = math.isnan(bdot) or bdot < P.detumble_exit_bdot
-        calm = rate < P.detumble_exit_rate and bdot_ok
+        calm = rate < P.detumble_exit_rate and bdot_ok and known
         if _hold(calm, _CALM, P.detumble_exit_time, t, pending, newp):
             target = _ACQ if P.acquisition else _PNT
     else:
         limit = P.acquisition_abort_rate if mode == _ACQ else P.detumble_entry_rate
         if _hold(rate > limit, _TUMBLING, P.detumble_entry_time, t, pending, newp):
+            target = _DET
+        elif _hold(not known, _UNKNOWN, P.attitude_loss_time, t, pending, newp):
             target = _DET
         elif mode == _ACQ:
             if _hold(err < P.handover_angle, _INSIDE, P.handover_time, t, pending, newp):

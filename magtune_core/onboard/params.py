@@ -87,6 +87,9 @@ MODE_FIELDS = (
           nonnegative=True, bounds=(0.0, 1e6), unit="s"),
     Field("frozen_time", "float", "a magnetometer sample repeated bit for bit this long [s] is a frozen sensor "
           "-> SAFE", 30.0, positive=True, bounds=(1e-3, 1e6), unit="s"),
+    Field("attitude_loss_time", "float", "ACQUISITION and POINTING fall back to DETUMBLE (a law that needs no "
+          "attitude) when the attitude estimate stays not valid this long [s]; DETUMBLE ends only on a valid one",
+          60.0, nonnegative=True, bounds=(0.0, 1e6), unit="s"),
 )
 
 #: The detumble (B-dot) law's options (onboard/bdot.py).
@@ -126,6 +129,22 @@ def check_modes(v: dict, where: str) -> None:
                                                             f"({v['handover_angle']:g} rad), got {v['acquisition_entry_angle']:g}")
 
 
+#: The estimate's validity (onboard/estimator.py ValidityMonitor): the estimator publishes an estimate as
+#: valid only while its covariance and its innovations are consistent (docs/modes.md, how the defaults
+#: were derived). Off without the flight modes: the estimate is then published as soon as it exists.
+VALIDITY_FIELDS = (
+    Field("validity_gate", "bool", "publish the estimate as not known (orientation_covariance[0] = -1) while "
+          "it is not valid (``magtune sil --modes`` sets it)", False),
+    Field("valid_sigma", "float", "the estimate is valid only while every axis' attitude sigma is below this "
+          "[rad] (default: handover_angle / 3, so a valid estimate resolves the hand-over angle at 3 sigma)",
+          0.029, positive=True, bounds=(1e-5, 1.0), unit="rad"),
+    Field("valid_nis_tau", "float", "time constant of the averaged magnetometer NIS [s]", 60.0, positive=True,
+          bounds=(1.0, 1e5), unit="s"),
+    Field("valid_nis_limit", "float", "... valid only while that average stays below this (3 when consistent; "
+          "the default is the 1e-9 quantile of its distribution for tau = 60 s, docs/modes.md)", 4.6,
+          positive=True, bounds=(3.0, 1e3)),
+)
+
 #: attitude_estimator: the filter's model of the sensors (defaults: the filter matched to design.sensors.default_suite,
 #: which ``magtune sil --attitude estimator`` also gives the sensors node), its on-board models and
 #: its tuning (docs/estimation.md).
@@ -157,7 +176,7 @@ ESTIMATOR_FIELDS = (
           nonnegative=True, bounds=(0.0, 1e-7), unit="T/s^0.5"),
     Field("sun_wait", "float", "wall seconds to wait for a sun sample the on-board model predicts (lit) before "
           "the step goes on without it (counted as sun_missing)", 0.5, positive=True, bounds=(1e-3, 60.0), unit="s"),
-)
+) + VALIDITY_FIELDS
 
 #: Managed (lifecycle) nodes (controller, attitude_sensors): who drives the transitions.
 AUTOSTART = Field("autostart", "bool", "configure and activate at start (false: wait for the mode manager's "

@@ -183,7 +183,7 @@ def check_modes_arguments(modes: bool, initial_mode, mode_params) -> tuple[str, 
     return mode, mparams
 
 
-def check_attitude_arguments(attitude: str, sensor_params, estimator_params, modes: bool, field) -> tuple[dict, dict]:
+def check_attitude_arguments(attitude: str, sensor_params, estimator_params, field) -> tuple[dict, dict]:
     """The sensors' and the estimator's parameters for ``attitude`` ("truth": unchanged, no
     estimator), validated by ESTIMATOR_FIELDS before anything starts (ConfigError: one line).
     With the estimator the sensors default to :func:`magtune_core.design.sensors.default_suite`
@@ -195,8 +195,6 @@ def check_attitude_arguments(attitude: str, sensor_params, estimator_params, mod
         if estimator_params:
             raise ConfigError("estimator parameters", None, "only with --attitude estimator")
         return sensor_params, {}
-    if modes:
-        raise ConfigError("--attitude", None, "estimator: not yet with --modes (the mode manager does not manage it)")
     if field is not None:
         raise ConfigError("--attitude", None, "estimator: the on-board model is the spacecraft's field_model; "
                                               "no --field file")
@@ -257,11 +255,21 @@ def check_torquer_arguments(torquers, ts_values, where: str = "torquers") -> dic
     return {k: _plain(values[k]) for k in given}
 
 
-def check_fault_arguments(faults, epoch_time: bool) -> tuple:
-    """The injected faults (Fault objects, spec strings or mappings), validated (ConfigError: one line)."""
+def check_fault_arguments(faults, epoch_time: bool, *, steps=None, orbits=None, ts=(), period=None) -> tuple:
+    """The injected faults (Fault objects, spec strings or mappings), validated (ConfigError: one line).
+
+    Given the run's length (``steps``, or ``orbits`` of ``period`` [s]) and the satellites' sample
+    periods ``ts`` [s], a fault that starts at or after the end of the run is refused too
+    (:func:`magtune_core.design.faults.check_times`; the end of the longest satellite's run, as
+    :func:`magtune_core.design.faults.run_end` counts it); a length that is not a positive number
+    is left to :func:`check_run_arguments`.
+    """
     out = fl.from_list(list(faults or ()), "--fault")
     if out and epoch_time:
         raise ConfigError("--fault", None, "fault times are sim time from 0: not with --epoch-time")
+    known = _positive_finite(steps) if steps is not None else _positive_finite(orbits) and _positive_finite(period)
+    if out and ts and known and all(_positive_finite(t) for t in ts):
+        fl.check_times(out, max(fl.run_end(t, steps, orbits, period) for t in ts), "--fault")
     return out
 
 
@@ -460,9 +468,8 @@ class SilScenario:
             sc, dict(req.simulator_params or {}), req.initial_attitude_deg, req.initial_rate_deg, req.substeps,
             run_sample_period(req.ts, sc, gains))
         mode, mparams = check_modes_arguments(req.modes, req.initial_mode, req.mode_params)
-        faults = check_fault_arguments(req.faults, req.epoch_time)
         sensor_params, eparams = check_attitude_arguments(req.attitude, req.sensor_params, req.estimator_params,
-                                                          req.modes, req.field)
+                                                          req.field)
         check_run_arguments(orbits=req.orbits, steps=req.steps, substeps=substeps, real_time_factor=req.real_time_factor,
                             timeout=req.timeout, lockstep_timeout=req.lockstep_timeout)
         sat_list = []
@@ -472,6 +479,8 @@ class SilScenario:
             sat_list.append(Satellite(ns, g, gains[ns], gains_params[ns], sat_ts))
         check_outputs(req)
         opts, sc = check_environment(req, sc)
+        faults = check_fault_arguments(req.faults, req.epoch_time, steps=req.steps, orbits=req.orbits,
+                                       ts=[s.ts for s in sat_list], period=sc.orbit_period)
         time_origin_ns = epoch_ns(sc.epoch) if req.epoch_time else 0
         if time_origin_ns and (len(sats) > 1 or "" not in sats):
             raise ConfigError("--epoch-time", None, "one satellite at a time (the recorder follows one clock)")
@@ -503,8 +512,8 @@ class SilScenario:
         return nodes + ((MODE_MANAGER,) if self.modes else ())
 
     def remaps(self, node: str) -> list[str]:
-        """Extra ``-r`` arguments of ``node``: with the estimator the controller reads its estimate."""
-        if self.attitude == "estimator" and node == "controller":
+        """Extra ``-r`` arguments of ``node``: with the estimator the controller and the mode manager read its estimate."""
+        if self.attitude == "estimator" and node in ("controller", MODE_MANAGER):
             return ["-r", f"{TOPIC_ATTITUDE}:={TOPIC_ESTIMATE}"]
         return []
 
@@ -563,6 +572,9 @@ class SilScenario:
             own["attitude_sensors"]["autostart"] = own["controller"]["autostart"] = False
             own["controller"].update(bd)
             own[MODE_MANAGER] = dict(common, initial_mode=self.initial_mode, **self.mode_params)
+            if self.attitude == "estimator":  # managed too; an estimate counts only while valid
+                own[ESTIMATOR].update(autostart=False, validity_gate=True)
+                own[MODE_MANAGER]["managed_nodes"] = ["attitude_sensors", ESTIMATOR, "controller"]
         out = {}
         for node in self.nodes:
             params = self._spacecraft_params(f"{sat.namespace}/{node}")

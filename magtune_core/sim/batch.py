@@ -56,10 +56,10 @@ from ..env.sun import shadow_cylindrical
 from ..onboard.bdot import FieldDerivativeFilter, bdot_gain, geomagnetic_inclination
 from ..onboard.law import DEFAULT_MIN_FIELD
 from ..onboard.mekf import MAG_BIAS_STD
-from ..onboard.mekf_kernel import kernel_state
+from ..onboard.mekf_kernel import kernel_state, with_validity
 from ..onboard.modes import DETUMBLE, MODES, ModeParams
 from ..onboard.modes_kernel import GUARDS, MODE_CODE, kernel_params
-from ..onboard.params import TS_DEFAULT
+from ..onboard.params import TS_DEFAULT, VALIDITY_FIELDS
 from ..onboard.torquers import NONE as NO_TORQUERS
 from ..onboard.torquers import Torquers
 from .batch_kernels import (
@@ -85,6 +85,7 @@ NOISE_CHUNK = 1024
 #: Controller steps whose environment is computed at once (bounded memory: ~15 x 8 B x
 #: (2 substeps x CHUNK + 1) per run).
 ENV_CHUNK = 512
+_VALIDITY = {f.name: f.default for f in VALIDITY_FIELDS}
 assert NOISE_CHUNK % ENV_CHUNK == 0
 #: A run whose body rate exceeds this [rad/s] (or turns non-finite) is marked diverged.
 DIVERGED_RATE = 1.0
@@ -174,6 +175,11 @@ class BatchEstimator:
     initial_mag_bias_std: float = MAG_BIAS_STD
     mag_bias_rw: float = 0.0
     sun_sensor_std: float = math.radians(0.5)
+    #: the estimate's validity (onboard.validity; VALIDITY_FIELDS' defaults): off unless the modes fly it
+    validity_gate: bool = _VALIDITY["validity_gate"]
+    valid_sigma: float = _VALIDITY["valid_sigma"]
+    valid_nis_tau: float = _VALIDITY["valid_nis_tau"]
+    valid_nis_limit: float = _VALIDITY["valid_nis_limit"]
 
 
 @dataclass
@@ -636,6 +642,8 @@ def _estimator_state(estimator: BatchEstimator | None, sensors: SensorNoise, B: 
     est = kernel_state(B, ts, arw=e.gyro_arw, rrw=e.gyro_rrw, mag_cov=e.mag_noise_std**2 * np.eye(3),
                        sun_std=e.sun_noise_std, gate_probability=e.gate_probability, bias_std=e.initial_bias_std,
                        init_angle=e.init_angle, mag_bias_std=e.initial_mag_bias_std, mag_bias_rw=e.mag_bias_rw)
+    if e.validity_gate:
+        est = with_validity(est, e.valid_sigma, e.valid_nis_tau, e.valid_nis_limit)
     shape = (B, n + 1) if full else (B, 1)
     eio = EstimatorIO(np.zeros((1, 1, 13)), np.zeros((B, 1, 9)), np.full(B, float(e.sun_sensor_std)),
                       np.full(shape + (3,), np.nan, np.float32), np.full(shape + (3,), np.nan, np.float32),

@@ -38,7 +38,7 @@ from ..env.atmosphere import HP_HEIGHT_KM, HP_RHO_MAX, HP_RHO_MIN, RA_LAG
 from ..env.earth import F_WGS84, GM_EARTH, J2, J3, J4, JD_J2000, OMEGA_EARTH, R_EARTH, R_WGS84, SECONDS_PER_DAY
 from ..env.igrf import IGRF_RADIUS, NT
 from ..env.sun import AU, OBLIQUITY_J2000, SOLAR_PRESSURE_1AU
-from ..onboard.mekf_kernel import matrix_quat, rotation, stream_step
+from ..onboard.mekf_kernel import matrix_quat, rotation, stream_step, valid_step
 from ..onboard.modes_kernel import MODE_CODE, KernelModeParams, bdot_dipole, filter_step, mode_step
 
 #: heights, rho_min, rho_max, scale heights of rho_min and rho_max per interval (atmosphere.harris_priester_bounds)
@@ -521,7 +521,7 @@ class Modes(NamedTuple):
     a: float  #: derivative-filter pole exp(-cutoff Ts)
     ts: float  #: controller period [s] (sim time t_k = k ts)
     mode: np.ndarray  #: (B,) int64 current mode code (onboard.modes_kernel.MODE_CODE)
-    pending: np.ndarray  #: (B, 7) guard start times [s] (nan: not holding)
+    pending: np.ndarray  #: (B, 8) guard start times [s] (nan: not holding)
     fb: np.ndarray  #: (B, 3) previous measured field [T] (filter memory)
     fy: np.ndarray  #: (B, 3) previous filter output [T/s]
     first: np.ndarray  #: (B,) bool: no field sample yet
@@ -543,7 +543,7 @@ class EstimatorIO(NamedTuple):
     err: np.ndarray  #: (B, n + 1, 3) float32 estimation error dtheta [rad], body axes (with Outputs.full; nan: no estimate)
     sig: np.ndarray  #: (B, n + 1, 3) float32 sqrt of the attitude variances [rad] (with Outputs.full)
     nees: np.ndarray  #: (B, n + 1) float32 dtheta^T P_tt^-1 dtheta (with Outputs.full)
-    no_att: np.ndarray  #: (B,) int64 steps without an estimate (before the coarse fix: zero dipole)
+    no_att: np.ndarray  #: (B,) int64 steps without a valid estimate (before the coarse fix, or not valid: zero dipole)
     Qe: np.ndarray  #: (B, R, 4) recorded estimate, body w.r.t. orbital axes
     be: np.ndarray  #: (B, R, 3) recorded bias estimate [rad/s]
     Pe: np.ndarray  #: (B, R, 9, 9) recorded covariance
@@ -556,7 +556,8 @@ def _estimate(est, eio, u, b, r, k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1, fo2,
     true attitude (a0..a3, body w.r.t. orbital), the MEKF step (onboard.mekf_kernel.stream_step) on the
     measured field and the previous gyro sample against the reference vectors in ECI (the field of the
     table rotated back with R_oi^T, the Sun of date), the estimate in orbital axes. Returns (have, q_bo (4,),
-    rate (3,)): the controller's attitude and rate (gyro minus the estimated bias)."""
+    rate (3,)): the controller's attitude and rate (gyro minus the estimated bias); ``have`` False before the fix
+    and while :func:`~magtune_core.onboard.mekf_kernel.valid_step` says not valid."""
     ec = eio.cols[u, k - kc]
     Roi = ec[:9].reshape(3, 3)
     bref = np.empty(3)
@@ -590,13 +591,16 @@ def _estimate(est, eio, u, b, r, k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1, fo2,
             nr = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
             s0, s1, s2 = r0 / nr, r1 / nr, r2 / nr
         sm[0], sm[1], sm[2] = s0, s1, s2
-    stream_step(est, b, mag, bref, lit, sm, sref)
+    nis_m, _ = stream_step(est, b, mag, bref, lit, sm, sref)
     est.w_prev[b, 0], est.w_prev[b, 1], est.w_prev[b, 2] = wm0, wm1, wm2
     qe = np.zeros(4)
     rate = np.zeros(3)
     if not est.started[b]:
         eio.no_att[b] += 1
         return False, qe, rate
+    valid = valid_step(est, b, nis_m)  # not valid (validity gate): flown as no estimate, recorded as one
+    if not valid:
+        eio.no_att[b] += 1
     qe = matrix_quat(Roi @ rotation(est.q[b]))
     rate[0], rate[1], rate[2] = wm0 - est.b[b, 0], wm1 - est.b[b, 1], wm2 - est.b[b, 2]
     if full:  # dtheta with q_true = q_est (x) exp(dtheta/2) (onboard.mekf.attitude_error)
@@ -623,7 +627,7 @@ def _estimate(est, eio, u, b, r, k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1, fo2,
         for i in range(9):
             for j in range(9):
                 eio.Pe[b, r, i, j] = est.P[b, i, j]
-    return True, qe, rate
+    return valid, qe, rate
 
 
 @njit(cache=True, error_model="numpy")
@@ -748,9 +752,9 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio):
                 modes.first[b] = False
                 t = k * mts
                 old = modes.mode[b]
+                err = 2.0 * math.asin(min(math.sqrt(x0 * x0 + x1 * x1 + x2 * x2), 1.0)) if have else math.nan
                 md = mode_step(old, modes.pending[b], math.sqrt(wm0 * wm0 + wm1 * wm1 + wm2 * wm2),
-                               math.sqrt(d0 * d0 + d1 * d1 + d2 * d2),
-                               2.0 * math.asin(min(math.sqrt(x0 * x0 + x1 * x1 + x2 * x2), 1.0)), False, t, MP, fst)
+                               math.sqrt(d0 * d0 + d1 * d1 + d2 * d2), err, False, t, MP, fst, False, have)
                 if md != old:
                     modes.n_tr[b] += 1
                     if old == _DET and math.isnan(modes.t_detumble[b]):

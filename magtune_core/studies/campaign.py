@@ -229,11 +229,13 @@ class CampaignSpec:
                           bdot_cutoff=v["bdot_cutoff"])
 
     def batch_estimator(self) -> BatchEstimator | None:
-        """The estimator every run flies (``campaign.attitude: estimator``; section ``estimator``), else None."""
+        """The estimator every run flies (``campaign.attitude: estimator``; section ``estimator``; with
+        ``campaign.modes`` the full stack: its validity gate on), else None."""
         if self.campaign["attitude"] != "estimator":
             return None
-        return BatchEstimator(**{f.name: self.estimator[f.name] for f in ESTIMATOR_SECTION_FIELDS},
-                              sun_sensor_std=self.dispersions["sun_noise_std"])
+        v = {f.name: self.estimator[f.name] for f in ESTIMATOR_SECTION_FIELDS}
+        v["validity_gate"] = v["validity_gate"] or self.campaign["modes"]  # the full stack trusts only a valid estimate
+        return BatchEstimator(**v, sun_sensor_std=self.dispersions["sun_noise_std"])
 
     def batch_torquers(self) -> Torquers:
         """The torquers' coupling into the magnetometer and duty cycle every run flies (section ``torquers``,
@@ -347,9 +349,6 @@ def load_spec(path) -> CampaignSpec:
     check_modes(values["modes"], path)
     if raw.get("estimator") and c["attitude"] != "estimator":
         raise ConfigError(path, "estimator", "an estimator section needs campaign.attitude: estimator")
-    if c["attitude"] == "estimator" and c["modes"]:
-        raise ConfigError(path, "campaign.attitude", "estimator is not available with campaign.modes (the mode "
-                          "machine reads the measured attitude)")
     Torquers.from_values(values["torquers"]).check(c["ts"], f"{path}: torquers")
     Ks, files = [], []
     for g in c["gains"]:

@@ -21,7 +21,9 @@ Signals: truth attitude from ``/sim/truth`` (nav_msgs/Odometry: pose.orientation
 body rate w from ``/sim/inertial_rate`` (else from the Odometry twist, see :func:`load_run`),
 ``x = linear_state(q, w, W0)``, |dq_R| = |x[0:3]|,
 pointing error = 2 asin |dq_R|; dipole from ``/controller/dipole_command``
-(geometry_msgs/Vector3Stamped). Time axis = the header stamps (sim time). A bag of several
+(geometry_msgs/Vector3Stamped), only the commands the simulator flies (:func:`screen_dipoles`: a
+non-finite one, which the simulator rejects, or one beyond the per-axis limit, which no controller
+sends, is counted, named in the summary and left out of the figures). Time axis = the header stamps (sim time). A bag of several
 namespaced satellites (``magtune sil --gains sat1=... sat2=...``) gives one run per namespace.
 Legends use the bag's ``custom_data`` ``sigma`` (recorder ``--custom-data sigma=60``) or else
 the bag name. Topic names can be overridden.
@@ -65,6 +67,8 @@ class Run:
     m: np.ndarray        # (k, 3)
     integrity: dict
     modes: list = field(default_factory=list)  # report_modes.ModeChange of the mode topic (none: no band)
+    #: dipole commands left out (:func:`screen_dipoles`): "rejected" (non-finite), "beyond_limit"
+    dipoles_left_out: dict = field(default_factory=lambda: {"rejected": 0, "beyond_limit": 0})
 
     @property
     def dq_norm(self):
@@ -158,6 +162,65 @@ def _inertial(q, twist_angular, w0: float, mode: str):
     if mode == "inertial":
         return twist_angular
     return np.asarray(twist_angular, dtype=float) + rotation_matrix(q).T @ np.array([0.0, 0.0, -w0])
+
+
+def screen_dipoles(run: Run, dipole_limit) -> Run:
+    """Keep the dipole commands the simulator flies; count the others (``run.dipoles_left_out``).
+
+    A bag records every message on the dipole topic, also those the simulator refused: a peer on the
+    domain can publish there. A non-finite command (nan, inf) is rejected by the simulator ("rejected");
+    a finite one beyond the per-axis limit (a relative 1e-9 over it) is one no controller sends (it
+    saturates to the same limit) and the simulator would clip ("beyond_limit"). Both are left out of
+    peak and RMS abs(m) and of the figures; the summary says how many (:func:`dipole_note`).
+
+    Parameters
+    ----------
+    run : Run
+        A run as decoded (:func:`load_run`); changed in place.
+    dipole_limit : float or array_like (3,)
+        Per-axis dipole limit [A m^2] the run was flown with.
+
+    Returns
+    -------
+    Run
+        ``run``, its ``tm``/``m`` the commands kept.
+    """
+    m = np.asarray(run.m, dtype=float).reshape(-1, 3)
+    finite = np.isfinite(m).all(axis=1)
+    lim = np.broadcast_to(np.asarray(dipole_limit, dtype=float), (3,))
+    within = np.zeros(len(m), bool)
+    within[finite] = (np.abs(m[finite]) <= lim * (1.0 + 1e-9)).all(axis=1)
+    run.dipoles_left_out = {"rejected": int(np.count_nonzero(~finite)),
+                            "beyond_limit": int(np.count_nonzero(finite & ~within))}
+    run.tm, run.m = np.asarray(run.tm)[within], m[within]
+    return run
+
+
+def dipole_note(left_out: dict, dipole_limit) -> str:
+    """One sentence on the dipole commands :func:`screen_dipoles` left out ("" when none).
+
+    Parameters
+    ----------
+    left_out : dict
+        ``{"rejected": N, "beyond_limit": M}``.
+    dipole_limit : float or array_like (3,)
+        The per-axis limit [A m^2] they were screened with.
+
+    Returns
+    -------
+    str
+        E.g. "1 dipole command rejected by the simulator (non-finite); left out of abs(m) and the figures".
+    """
+    parts = []
+    if left_out.get("rejected"):
+        n = left_out["rejected"]
+        parts.append(f"{n} dipole command{'s' if n != 1 else ''} rejected by the simulator (non-finite)")
+    if left_out.get("beyond_limit"):
+        n = left_out["beyond_limit"]
+        lim = np.broadcast_to(np.asarray(dipole_limit, dtype=float), (3,))
+        parts.append(f"{n} dipole command{'s' if n != 1 else ''} beyond the per-axis limit "
+                     f"+-{', '.join(f'{v:g}' for v in np.unique(lim))} A m^2 (the simulator flies at most the limit)")
+    return "; ".join(parts) + ("; left out of abs(m) and the figures" if parts else "")
 
 
 def bag_namespaces(path, truth=TRUTH) -> list[str]:
@@ -325,8 +388,8 @@ def make_report(bags, out, *, run: str | None = None, truth=TRUTH, dipole=DIPOLE
     T = orbit_period or SpacecraftParams().orbit_period
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    runs = [r for b in bags for r in report_modes.attach(load_runs(b, truth=truth, dipole=dipole,
-                                                                   orbit_rate=2 * np.pi / T, twist=twist), b)]
+    runs = [screen_dipoles(r, dipole_limit) for b in bags
+            for r in report_modes.attach(load_runs(b, truth=truth, dipole=dipole, orbit_rate=2 * np.pi / T, twist=twist), b)]
     if labels:
         if len(labels) != len(runs):
             raise ValueError(f"{len(labels)} labels for {len(runs)} runs")
@@ -347,7 +410,9 @@ def make_report(bags, out, *, run: str | None = None, truth=TRUTH, dipole=DIPOLE
         (out / FIGURES[1]).unlink(missing_ok=True)  # no stale figure from an earlier report
     plot_quaternion(detail, T, out / FIGURES[2])
     plot_rates_dipoles(detail, T, out / FIGURES[3], dipole_limit)
-    summary = {r.name: {"label": r.label, **run_figures(r, T), "integrity": r.integrity,
+    summary = {r.name: {"label": r.label, **run_figures(r, T), "integrity": _with_note(r, dipole_limit),
+                        "dipole_commands_rejected": r.dipoles_left_out["rejected"],
+                        "dipole_commands_beyond_limit": r.dipoles_left_out["beyond_limit"],
                         **({"modes": report_modes.summary_entry(r.modes, float(r.t[-1]))} if r.modes else {})}
                for r in runs}
     atomic_write(out / "summary.json", jsonout.dumps(summary, indent=1))
@@ -360,16 +425,24 @@ def make_report(bags, out, *, run: str | None = None, truth=TRUTH, dipole=DIPOLE
     return summary
 
 
+def _with_note(run: Run, dipole_limit) -> dict:
+    """The run's integrity report, with ``note`` (:func:`dipole_note`) when dipole commands were left out."""
+    note = dipole_note(run.dipoles_left_out, dipole_limit)
+    return {**run.integrity, "note": note} if note else run.integrity
+
+
 def _integrity_cell(integ: dict) -> str:
-    """The report table's "bag integrity" cell: complete, or what was recovered and what is wrong."""
+    """The report table's "bag integrity" cell: complete, or what was recovered and what is wrong; then
+    the note on dipole commands left out, if any (a bag with forged commands is never just "complete")."""
+    note = f"; {integ['note']}" if integ.get("note") else ""
     if integ["complete"]:
-        return "complete"
+        return f"files complete{note}" if note else "complete"
     text = f"damaged: {integ.get('messages_recovered')} msgs recovered"
     if integ.get("missing_files"):
         text += f"; missing file(s) {', '.join(integ['missing_files'])}"
     if integ.get("metadata_disagreements"):
         text += f"; metadata.yaml says {integ.get('metadata_message_count')} msgs"
-    return text
+    return text + note
 
 
 def _rows(summary: dict) -> tuple[list[str], list[list[str]]]:
@@ -405,6 +478,7 @@ def _markdown(summary: dict, detail: list[str], T: float, win: dict, dipole_limi
     lines = ["# magtune run report", "", *[n + "\n" for n in _notes(T, win, detail, dipole_limit)],
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
+    lines += [f"\n{name}: {s['integrity']['note']}." for name, s in summary.items() if s["integrity"].get("note")]
     lines += report_modes.markdown(summary)
     figs = ", ".join(f"`{f}`" for f in FIGURES if f != FIGURES[1] or win["fig3"])
     lines += ["", f"Figures: {figs} (Figs. 2-5); all in one file: `report.html`.", ""]

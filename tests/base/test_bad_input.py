@@ -167,8 +167,9 @@ def test_node_parameters_come_from_the_schemas():
     # fields are the other nodes' names), plus the faults of issue 30 (frozen_time, faults), plus the 4
     # torquer fields of issue 30 item 6 (coupling, off time, decay time, compensation), plus the estimator's
     # magnetometer-bias states of issue 31 (initial_mag_bias_std, mag_bias_rw), plus the simulator's
-    # max_substeps (the sub-steps re-chosen from the rate)
-    assert len(NODE_PARAMETERS) == 37 + 8 + 12 + 2 + 1 + 4 + 1 + 4 + 2 + 4 + 2 + 1
+    # max_substeps (the sub-steps re-chosen from the rate), plus issue 44's full stack: the mode logic's
+    # attitude_loss_time and the estimator's 4 validity fields
+    assert len(NODE_PARAMETERS) == 37 + 8 + 12 + 2 + 1 + 4 + 1 + 4 + 2 + 4 + 2 + 1 + 1 + 4
     assert {"initial_quaternion", "mag_quantum", "min_field", "seed"} <= names
 
 
@@ -348,7 +349,7 @@ def test_scenario_file_and_cli_faults_reach_the_nodes(tmp_path):
     scen = tmp_path / "scenario.yaml"
     scen.write_text("faults:\n  - {kind: mag_dropout, t: 3000, duration: 30}\n  - {kind: torquer_dead, t: 5, axis: y}\n")
     faults = list(load_scenario_file(scen)["faults"]) + ["sensors_killed@200"]
-    sc = SilScenario.build({"": GAINS}, SilRequest(steps=10, faults=faults))
+    sc = SilScenario.build({"": GAINS}, SilRequest(steps=4000, faults=faults))  # every fault inside the run
     params = sc.node_parameters(sc.satellites[0], tmp_path / "r.npz")
     assert params["attitude_sensors"]["faults"] == ["mag_dropout@3000.0:30.0"]
     assert params["simulator"]["faults"] == ["torquer_dead@5.0,axis=y", "sensors_killed@200.0"]

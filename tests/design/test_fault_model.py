@@ -75,3 +75,47 @@ def test_actuate_dead_and_stuck_torquers():
         assert m.tolist() == [0.0, 5.0, 3.0]  # x dead, z holds its dipole of the step before 10 s
     m, st = fl.actuate(faults, 20.0, [4.0, 5.0, 6.0], st)
     assert m.tolist() == [0.0, 7.0, 3.0]
+
+
+def test_run_end_counts_steps_as_the_simulator():
+    assert fl.run_end(1.0, steps=100) == 100.0
+    assert fl.run_end(2.0, orbits=1.0, period=5.0) == 4.0  # int(round(2.5)) = 2 steps, as the simulator node
+    assert fl.run_end(0.5, orbits=0.01, period=5677.0) == 57.0  # round(113.54) = 114 steps of 0.5 s
+
+
+def test_a_fault_after_the_end_of_the_run_is_refused():
+    """Issue 45: ``--fault mag_dropout@99999:30 --steps 100`` was accepted and the run said nothing of it."""
+    end = fl.run_end(1.0, steps=100)
+    fl.check_times(fl.from_list(["mag_dropout@99:30", "mag_bias@0", "torquer_dead@99.5,axis=x"]), end)  # fine
+    for spec in ("mag_dropout@99999:30", "gyro_bias@100,axis=z"):
+        with pytest.raises(ConfigError) as exc:
+            fl.check_times(fl.from_list(["mag_bias@3", spec]), end, "--fault")
+        msg = str(exc.value)
+        assert msg.startswith(f"--fault {fl.parse_spec(spec).spec}: field 't': the fault starts at ")
+        assert "at or after the end of the run (100 s)" in msg and "\n" not in msg, msg
+
+
+def test_sil_fault_check_refuses_a_fault_after_the_end_before_any_node():
+    """The SIL's fault check (ros.scenario.check_fault_arguments) with the run's length: by steps, by
+    orbits (the simulator's rounding), several satellites (the longest run), a length it leaves to
+    check_run_arguments."""
+    from magtune_core.ros.scenario import check_fault_arguments
+
+    late = ["mag_dropout@99999:30"]
+    with pytest.raises(ConfigError, match=r"^--fault mag_dropout@99999.0:30.0: field 't': .* end of the run \(100 s\)"):
+        check_fault_arguments(late, False, steps=100, ts=(1.0,))
+    with pytest.raises(ConfigError, match=r"end of the run \(5677 s\)"):
+        check_fault_arguments(late, False, orbits=1.0, period=5677.0, ts=(1.0,))
+    with pytest.raises(ConfigError, match=r"end of the run \(200 s\)"):  # two satellites: 100 x 1 s, 100 x 2 s
+        check_fault_arguments(["mag_bias@200"], False, steps=100, ts=(1.0, 2.0))
+    assert len(check_fault_arguments(["mag_bias@150"], False, steps=100, ts=(1.0, 2.0))) == 1
+    assert len(check_fault_arguments(late, False)) == 1  # no length given: the spec checks only
+    assert len(check_fault_arguments(late, False, steps=-5, ts=(1.0,))) == 1  # a bad length is check_run_arguments'
+
+
+def test_sil_scenario_refuses_a_fault_after_the_end():
+    """``magtune sil --fault mag_dropout@99999:30 --steps 100``: one line, exit 2, before any node starts."""
+    from magtune_core.ros.scenario import SilRequest, SilScenario
+
+    with pytest.raises(ConfigError, match=r"mag_dropout@99999.0:30.0: field 't': .* end of the run \(100 s\)"):
+        SilScenario.build({"": "config/gains/sigma_60.yaml"}, SilRequest(steps=100, faults=("mag_dropout@99999:30",)))

@@ -160,3 +160,21 @@ def test_the_compiled_twin_refuses_a_field_it_lacks():
 
     with pytest.raises(ValueError, match="new_threshold"):
         kernel_params(Extended())
+
+
+def test_an_attitude_not_known_holds_detumble_and_leaves_pointing_after_its_persistence():
+    """The full stack's estimate validity (Measurements.attitude_known): DETUMBLE ends only after
+    detumble_exit_time of calm *and* a valid estimate; ACQUISITION and POINTING fall back to DETUMBLE
+    (B-dot needs no attitude) after attitude_loss_time without one, and a short gap is ridden through."""
+    p = ModeParams(**{**P.__dict__, "attitude_loss_time": 40.0})
+    logic = ModeLogic(p)
+    unknown = Measurements(rate=3e-3, bdot=1e-7, attitude_known=False)
+    calm = Measurements(rate=3e-3, bdot=1e-7, pointing_error=0.05)
+    state, trs, t = fly(logic, ModeState(), [unknown] * 300 + [calm] * 101)
+    assert [(tr.target, tr.t) for tr in trs] == [(ACQUISITION, 400.0)]  # the calm timer starts at 300 s
+    assert "attitude valid" in trs[0].reason
+    for mode in (ACQUISITION, POINTING):
+        gap = Measurements(rate=3e-3, bdot=1e-7, attitude_known=False)
+        state, trs, _ = fly(logic, ModeState(mode), [gap] * 39 + [calm] + [gap] * 41)
+        assert [(tr.target, tr.t) for tr in trs] == [(DETUMBLE, 80.0)], (mode, trs)
+        assert trs[0].reason == "attitude estimate not valid for 40 s"

@@ -50,6 +50,8 @@ def _imu(Imu, frame_id, rng):
     m.orientation.w, m.orientation.x, m.orientation.y, m.orientation.z = (float(x) for x in q / np.linalg.norm(q))
     m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z = (float(x) for x in rng.normal(size=3))
     m.orientation_covariance = [float(x) for x in rng.normal(size=9)]
+    if rng.uniform() < 0.3:  # REP-145's "orientation not known"
+        m.orientation_covariance[0] = -1.0
     m.angular_velocity_covariance = [float(x) for x in rng.normal(size=9)]
     m.linear_acceleration.x = 9.81
     return m
@@ -63,7 +65,8 @@ def test_raw_readers_equal_rclpy_deserialization(ros, frame_id):
         data = ser(_imu(Imu, frame_id, rng))
         m = deser(data, Imu)
         o, w = m.orientation, m.angular_velocity
-        assert c.raw_imu(data) == (_ns(m.header.stamp), (o.w, o.x, o.y, o.z), (w.x, w.y, w.z))
+        known = m.orientation_covariance[0] != -1.0
+        assert c.raw_imu(data) == (_ns(m.header.stamp), (o.w, o.x, o.y, o.z), (w.x, w.y, w.z), known)
         f = MagneticField()
         f.header = m.header
         f.magnetic_field.x, f.magnetic_field.y, f.magnetic_field.z = (float(x) for x in rng.normal(size=3) * 3e-5)

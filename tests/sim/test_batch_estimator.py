@@ -30,7 +30,8 @@ from magtune_core.env.environment import Environment
 from magtune_core.env.orbit import eci_to_orbital
 from magtune_core.env.sun import shadow_cylindrical
 from magtune_core.onboard.estimator import MekfStream
-from magtune_core.onboard.mekf import attitude_error
+from magtune_core.onboard.mekf import MekfParams, attitude_error
+from magtune_core.onboard.validity import ValidityMonitor
 from magtune_core.sim.batch import NOISE_CHUNK, BatchEstimator, BatchRuns, SensorNoise, simulate_batch
 from magtune_core.sim.fullenv import FullEnvironmentOptions
 
@@ -39,8 +40,7 @@ BIAS = np.deg2rad(np.array([40.0, -60.0, 30.0])) / 3600.0
 MAG_BIAS = np.array([2e-7, -2e-7, 2e-7])  #: the campaigns' 200 nT per axis (the default filter estimates it)
 
 
-@pytest.fixture(scope="module")
-def batch():
+def _fly(est: BatchEstimator):
     """Two full-environment runs on different orbits (RAAN 0 and 40 deg: the batched ephemeris), default
     estimator, the default sensors (100 nT, sigma_v 1e-4, sigma_u 1e-6, bias (40, -60, 30) deg/h, 0.5 deg sun)
     and a 200 nT per-axis magnetometer bias."""
@@ -51,9 +51,32 @@ def batch():
     opts = [FullEnvironmentOptions(raan_deg=40.0 * i) for i in range(B)]
     runs = BatchRuns(g.K, np.tile(np.asarray(p.inertia, dtype=float), (B, 1)), np.ones((B, 3)), np.full(B, 50.0),
                      np.tile([1.0, 0.0, 0.0, 0.0], (B, 1)), np.tile([1e-3, 2e-3, 0.0], (B, 1)), p, "full", opts, sens)
-    est = BatchEstimator()
     res = simulate_batch(runs, ts=1.0, steps=STEPS, substeps=2, record_every=1, full_series=True, estimator=est)
     return p, opts, sens, est, res
+
+
+@pytest.fixture(scope="module")
+def batch():
+    """The default estimator (no validity gate)."""
+    return _fly(BatchEstimator())
+
+
+def test_validity_gate_equals_the_python_monitor_sample_for_sample():
+    """With the validity gate (the full stack's), a run flies zero dipole exactly at the samples where
+    onboard.validity.ValidityMonitor, fed by the Python MekfStream on the same measurements, says not
+    valid. A tight gate (NIS averaged over 5 s, limit 3: a consistent filter's mean) makes it flip
+    many times in 900 s; the two filters agree to ~1e-10 (above), far from any sample's margin."""
+    p, opts, sens, est, res = _fly(BatchEstimator(validity_gate=True, valid_nis_tau=5.0, valid_nis_limit=3.0))
+    cap = MekfParams(1.0, 1.0, est.gate_probability).gate(3)
+    for b in range(2):
+        states, *_, nis = _python_filter(p, opts[b], sens, est, res, b)
+        mon = ValidityMonitor(1.0, est.valid_sigma, est.valid_nis_tau, est.valid_nis_limit, cap)
+        invalid = np.array([not mon.step(s.P if s is not None else None, n) for s, n in zip(states, nis)])
+        switches = int(np.sum(invalid[1:] != invalid[:-1]))
+        assert 100 < invalid.sum() < len(invalid) - 100 and switches > 20, (invalid.sum(), switches)
+        assert res.no_attitude_steps[b] == invalid.sum()
+        zero = np.all(res.m[b] == 0.0, axis=1)
+        np.testing.assert_array_equal(zero[:STEPS], invalid[:STEPS])
 
 
 def _python_filter(p, opt, sens, est, res, b):
@@ -79,11 +102,12 @@ def _python_filter(p, opt, sens, est, res, b):
                         SunSensor(est.sun_noise_std))
     stream = MekfStream(suite)
     b_ref = env.magnetic_field_eci(t, r)
-    out = []
+    out, nis = [], []
     for k in range(t.size):
         step = stream.step(w_m[k - 1] if k else None, mag[k], b_ref[k], *((s_m[k], s_ref[k]) if ok[k] else (None, None)))
         out.append(step.state)
-    return out, R_oi, w_m, lit
+        nis.append(step.nis_mag)
+    return out, R_oi, w_m, lit, nis
 
 
 @pytest.mark.parametrize("b", [0, 1])
@@ -98,7 +122,7 @@ def test_batched_filter_equals_python_filter_on_the_same_measurements(batch, b):
     (t = 30-300 s): measured 1.3e-10 rad, 5e-10 (gyro bias), 3e-10 (P), 7e-11 (magnetometer bias); the
     kernel itself equals the Python filter on identical inputs to ~1e-13 (tests/onboard/test_mekf_kernel.py)."""
     p, opts, sens, est, res = batch
-    states, R_oi, w_m, lit = _python_filter(p, opts[b], sens, est, res, b)
+    states, R_oi, w_m, lit, _ = _python_filter(p, opts[b], sens, est, res, b)
     assert lit.all() and res.est_k0[b] == 0 and res.no_attitude_steps[b] == 0  # lit at t = 0: the Davenport fix
     worst = np.zeros(4)
     for k, s in enumerate(states):

@@ -28,17 +28,17 @@ def _transitions(mode_codes, ts=1.0):
 
 
 def test_kernel_machine_equals_mode_logic_on_random_measurements():
-    """Every guard of the machine (stale, frozen, fresh, calm, tumbling, inside, outside, with and without
+    """Every guard of the machine (stale, frozen, fresh, calm, tumbling, unknown, inside, outside, with and without
     ACQUISITION) and the sticky commanded SAFE on seeded random measurement sequences that cross every
     threshold: same mode and same pending timers as ModeLogic at every step (exact: the same comparisons on
     the same floats)."""
     rng = np.random.default_rng(30)
     for acquisition in (True, False):
         p = ModeParams(detumble_exit_time=20.0, detumble_entry_time=5.0, handover_time=15.0, acquisition_entry_time=8.0,
-                       safe_recovery_time=4.0, acquisition=acquisition, frozen_time=6.0)
+                       safe_recovery_time=4.0, acquisition=acquisition, frozen_time=6.0, attitude_loss_time=7.0)
         logic, kp = ModeLogic(p), kernel_params(p)
         state, code, pending = ModeState(), MODE_CODE["DETUMBLE"], np.full(len(GUARDS), np.nan)
-        seen, frozen_left, fired = set(), 0, set()
+        seen, frozen_left, unknown_left, fired = set(), 0, 0, set()
         # slowly varying levels (a random walk in log space) so that guards hold for their persistence times
         lr, le, lb = math.log(5e-3), math.log(0.1), math.log(5e-7)
         for k in range(20000):
@@ -59,11 +59,14 @@ def test_kernel_machine_equals_mode_logic_on_random_measurements():
                 frozen_left = int(rng.integers(1, 13))
             step = 0.0 if frozen_left else (math.nan if rng.uniform() < 0.01 else 1e-7)
             frozen_left = max(frozen_left - 1, 0)
-            m = Measurements(math.exp(lr), bdot, err, stale, step)
+            if unknown_left == 0 and rng.uniform() < 0.002:  # the estimate not valid for 1-15 samples
+                unknown_left = int(rng.integers(1, 16))
+            known, unknown_left = unknown_left == 0, max(unknown_left - 1, 0)
+            m = Measurements(math.exp(lr), bdot, err, stale, step, known)
             before = state.mode
             state, tr = logic.step(state, m, t)
             code = mode_step(code, pending, m.rate, m.bdot, m.pointing_error, m.stale, t, kp, m.field_step,
-                             state.held)
+                             state.held, m.attitude_known)
             assert MODES[code] == state.mode, k
             held = {g: s for g, s in state.pending}
             assert {GUARDS[i]: pending[i] for i in range(len(GUARDS)) if not math.isnan(pending[i])} == held, k
@@ -72,6 +75,7 @@ def test_kernel_machine_equals_mode_logic_on_random_measurements():
                 fired.add((before, tr.reason.split(" ")[0]))
         assert seen == (set(MODES) if acquisition else set(MODES) - {"ACQUISITION"})
         assert any(r == "magnetometer" for _, r in fired), fired  # the frozen guard fired
+        assert any(r == "attitude" for _, r in fired), fired  # the unknown-attitude guard fired
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,9 @@ from magtune_core.studies import report
 T = 600.0  # short "orbit" so a 5-orbit run stays small
 
 
-def _make(tmp_path, name, sigma, n=3001, dt=1.0, **split):
+def _make(tmp_path, name, sigma, n=3001, dt=1.0, forged=(), **split):
+    """A bag of ``n`` truth and dipole samples; ``forged``: (t, (x, y, z)) dipole commands written after them
+    (what a peer publishing on the dipole topic leaves in a recording)."""
     d = Decoder()
     Ty = d.types()
     w = bag.BagWriter(tmp_path / name, custom_data={"sigma": sigma}, **split)
@@ -51,6 +53,11 @@ def _make(tmp_path, name, sigma, n=3001, dt=1.0, **split):
         m = Ty["geometry_msgs/msg/Vector3Stamped"](
             header=hdr, vector=Ty["geometry_msgs/msg/Vector3"](x=3.0 * a / 0.1, y=0.0, z=4.0 * a / 0.1))
         w.write(DIPOLE, d.encode(m, "geometry_msgs/msg/Vector3Stamped"), int(round(t * 1e9)))
+    for t, (x, y, z) in forged:
+        sec, nsec = divmod(int(round(t * 1e9)), 10**9)
+        hdr = Ty["std_msgs/msg/Header"](stamp=Ty["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id="body")
+        m = Ty["geometry_msgs/msg/Vector3Stamped"](header=hdr, vector=Ty["geometry_msgs/msg/Vector3"](x=x, y=y, z=z))
+        w.write(DIPOLE, d.encode(m, "geometry_msgs/msg/Vector3Stamped"), int(round((n - 1) * dt * 1e9)))
     w.close()
     t = np.arange(n) * dt
     a = 0.1 * np.exp(-t / tau)
@@ -168,3 +175,26 @@ def test_report_short_runs_state_their_windows(tmp_path, n, fig3):
         assert s["rms_m"] == pytest.approx(np.sqrt(np.mean(mn ** 2)), rel=1e-12)
         assert np.isnan(s["rms_m_orbits_2_5"])  # not a one-sample RMS
     assert f"| {s['rms_window'][0]:.0f}-{s['rms_window'][1]:.0f} |" in md
+
+
+def test_report_leaves_out_dipole_commands_the_simulator_rejects(tmp_path):
+    """Issue 45: nan commands a peer published (the simulator rejects them) made peak abs(m) nan and the bag
+    was called complete. Now: the figures come from the commands flown, and the summary counts the others."""
+    forged = [(100.5, (float("nan"), 0.0, 0.0)), (200.5, (float("inf"), 1.0, 1.0)), (300.5, (0.0, -1e6, 0.0))]
+    path, t, dq, mn = _make(tmp_path, "forged", 60, n=1301, forged=forged)
+    clean, *_ = _make(tmp_path, "clean", 60, n=1301)
+    out = tmp_path / "rep"
+    assert cli_main(["report", str(path), str(clean), "--out", str(out), "--orbit-period", str(T)]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    r, c = s["forged"], s["clean"]
+    assert r["peak_m"] == pytest.approx(mn.max(), rel=1e-12) and r["peak_m"] == c["peak_m"]
+    assert r["rms_m"] == c["rms_m"] and np.isfinite(r["rms_m"]) and r["dipole_samples"] == len(t)
+    assert (r["dipole_commands_rejected"], r["dipole_commands_beyond_limit"]) == (2, 1)
+    assert (c["dipole_commands_rejected"], c["dipole_commands_beyond_limit"]) == (0, 0)
+    note = ("2 dipole commands rejected by the simulator (non-finite); 1 dipole command beyond the per-axis "
+            "limit +-50 A m^2 (the simulator flies at most the limit); left out of abs(m) and the figures")
+    assert r["integrity"] == {"complete": True, "note": note} and c["integrity"] == {"complete": True}
+    md = (out / "summary.md").read_text()
+    assert f"| files complete; {note} |" in md and f"forged: {note}." in md and "| complete |" in md
+    assert "nan" not in md.split("| bag |")[1].split("\n\n")[0]  # no nan in the table
+    assert note in (out / "report.html").read_text()

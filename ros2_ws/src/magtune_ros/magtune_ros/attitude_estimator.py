@@ -27,8 +27,10 @@ A sample t_k is processed when its gyro, magnetometer (and, full environment, po
 messages are in: with its sun message if that arrived, without one if the on-board model puts the
 satellite in the Earth's shadow, else after waiting ``sun_wait`` wall seconds (sun_missing); a sun
 message of an already processed stamp is dropped (sun_late). Before the coarse fix each sample's message has
-orientation_covariance[0] = -1 (unknown; the
-controller commands zero dipole).
+orientation_covariance[0] = -1 (unknown; the controller commands zero dipole outside DETUMBLE). With
+``validity_gate`` (the full stack, ``magtune sil --modes --attitude estimator``) so does every estimate
+that magtune_core.onboard.validity.ValidityMonitor does not call valid (diagnostics values valid,
+nis_average): the mode manager reads it as "attitude not known" (docs/modes.md).
 
 The node is on the lockstep's critical path (sensors -> estimator -> controller), so it takes its
 inputs serialized (raw) and reads only the fields it uses (raw.raw_imu, raw_magnetic_field,
@@ -49,6 +51,7 @@ from magtune_core.base.topics import FRAME_BODY, TOPIC_ESTIMATE, TOPIC_IMU, TOPI
 from magtune_core.design.params import SpacecraftParams
 from magtune_core.onboard.estimator import FilterModel, MekfStream, OnboardModels
 from magtune_core.onboard.params import ESTIMATOR_FIELDS
+from magtune_core.onboard.validity import ValidityMonitor
 
 from .inputs import PairSync, StampGate, finite, now_wall, ns_to_stamp, sec_to_ns
 from .lifecycle import ManagedNode
@@ -102,6 +105,8 @@ class AttitudeEstimator(ManagedNode):
         self.stream = MekfStream(self.model, bias_std=v["initial_bias_std"], gate_probability=v["gate_probability"],
                                  init_angle=v["init_angle"], mag_bias_std=v["initial_mag_bias_std"],
                                  mag_bias_rw=v["mag_bias_rw"], compiled=True)
+        self.validity = ValidityMonitor.from_values(v, self.model.ts, self.stream.gate_mag) \
+            if v["validity_gate"] else None
         self.ts_ns = sec_to_ns(self.model.ts)
         self.gate = StampGate(self, 2 * self.ts_ns, n=4)
         self.sync = PairSync(3 if self.full else 2)  # imu, mag (, position): same stamp t_k
@@ -215,18 +220,23 @@ class AttitudeEstimator(ManagedNode):
             else:
                 self.diag.count("sun_rejected", f"sun innovation gated (NIS {out.nis_sun:.3g})")
             self.diag.extra["nis_sun"] = f"{out.nis_sun:.4g}"
-        self.publish(ns, t, out.state, r, v)
+        valid = self.validity is None or self.validity.step(out.state.P, out.nis_mag)
+        if self.validity is not None:
+            self.diag.extra["valid"] = str(valid).lower()
+            self.diag.extra["nis_average"] = f"{self.validity.average:.4g}"
+        self.publish(ns, t, out.state, r, v, valid)
 
-    def publish(self, ns, t, state, r, v):
-        """Publish estimate/attitude of sample ``ns``: the attitude w.r.t. the orbital axes with the MEKF's covariance, gyro rate minus the
-        estimated bias."""
+    def publish(self, ns, t, state, r, v, valid=True):
+        """Publish estimate/attitude of sample ``ns``: the attitude w.r.t. the orbital axes with the MEKF's covariance (not
+        ``valid``: the estimate with orientation_covariance[0] = -1), gyro rate minus the estimated bias."""
         m = self.msg
         m.header.stamp = ns_to_stamp(ns)
         q = self.models.to_orbital(state.q, t, r, v)
         o = m.orientation
         o.w, o.x, o.y, o.z = float(q[0]), float(q[1]), float(q[2]), float(q[3])
         P = state.P
-        m.orientation_covariance = P[:3, :3].ravel()  # a float64 (9,) copy: rclpy takes it as is
+        # a float64 (9,) copy: rclpy takes it as is; not valid (validity_gate): REP-145's "not known"
+        m.orientation_covariance = P[:3, :3].ravel() if valid else self.unknown.copy()
         av = m.angular_velocity
         w, bias = self.w_prev, state.b
         av.x, av.y, av.z = float(w[0] - bias[0]), float(w[1] - bias[1]), float(w[2] - bias[2])

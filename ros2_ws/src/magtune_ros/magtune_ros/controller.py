@@ -46,6 +46,7 @@ from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import Imu, MagneticField
 
 from magtune_core.base.errors import ConfigError
+from magtune_core.base.text import printable
 from magtune_core.base.topics import FRAME_BODY, TOPIC_ATTITUDE, TOPIC_DIPOLE, TOPIC_MAG, TOPIC_MODE
 from magtune_core.design.gains import Gains
 from magtune_core.design.params import SpacecraftParams
@@ -133,7 +134,7 @@ class Controller(ManagedNode):
         if mode != self.mode:
             self.diag.count("mode_changes")
             self.get_logger().info(f"mode {self.mode} -> {mode} (decided at t={stamp_to_ns(msg.header.stamp) * 1e-9:.1f}"
-                                   f" s: {msg.reason})")
+                                   f" s: {printable(msg.reason)})")  # a peer's string: one bounded line
             self.mode = mode
         self.diag.extra["mode"] = mode
 

@@ -6,18 +6,41 @@ created in ``activate()`` and destroyed at deactivation instead of being lifecyc
 ``on_configure``. A lockstep peer (the simulator waits for its subscribers and the controller's
 command) must see the node only while it takes and sends data; an inactive lifecycle publisher
 would still match and its readers would wait for data that never comes.
+
+A second difference: ``~/change_state`` answers every request. rclpy's own callback asks rcl for the
+requested transition without checking it first, and a transition the current state does not have
+(``activate`` while unconfigured, an unknown id such as 99) raises "Transition is not registered" in
+the executor: any peer on the domain could end a flight node with one request. ManagedNode checks the
+request against the current state's transitions first (:meth:`ManagedNode.refused_transition`):
+an invalid one is answered success=false, counted (``rejected_transition`` on /diagnostics, logged
+first and every 100th time, the peer's label made one bounded line) and the node stays where it was.
 """
 from __future__ import annotations
 
 from diagnostic_msgs.msg import DiagnosticStatus
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.task import Future
 
 from magtune_core.base.errors import ConfigError
+from magtune_core.base.text import printable
 from magtune_core.onboard.params import AUTOSTART
 
 from .diagnostics import Diagnostics
 from .params import ParamError, declare_field
+
+
+def state_machine(node: LifecycleNode):
+    """rclpy's lifecycle state machine of ``node``: ``current_state`` (id, label) and
+    ``available_transitions`` (id, label, start id, start label, goal id, goal label) of that state.
+
+    rclpy keeps it in the private ``LifecycleNodeMixin._state_machine`` and has no public reader of the
+    current state or its transitions (a node's own ``get_state`` / ``get_available_transitions``
+    services are name-mangled callbacks). This is the one place that reads it
+    (tests/ros/test_lifecycle_interfaces.py fails if rclpy renames it or changes its shape).
+    """
+    return node._state_machine
 
 
 class ManagedNode(LifecycleNode):
@@ -42,10 +65,59 @@ class ManagedNode(LifecycleNode):
         self.done = Future()
         self.config_error: str | None = None
         self.autostart_on = declare_field(self, AUTOSTART)
-        self.diag = Diagnostics(self, counters)
+        self.diag = Diagnostics(self, [*counters, "rejected_transition"])
         self.diag.extra["state"] = "unconfigured"
         self.diag.extra["namespace"] = self.get_namespace()  # /diagnostics is shared by every satellite
         self._entities: list = []
+        self._guard_change_state()
+
+    # ~/change_state answers every request (module docstring)
+    def _guard_change_state(self):
+        """Put :meth:`refused_transition` in front of rclpy's ``~/change_state`` callback.
+
+        The service is found among the node's public ``services`` by its type and its public
+        ``callback`` attribute (what every executor calls) is wrapped; rclpy's callback still runs
+        every valid request, so the transitions and their callbacks are rclpy's."""
+        srv = next(s for s in self.services if s.srv_type is ChangeState)
+        accept = srv.callback
+
+        def change_state(req: ChangeState.Request, resp: ChangeState.Response):
+            why = self.refused_transition(req.transition)
+            if why is None:
+                return accept(req, resp)
+            self.diag.count("rejected_transition", why)
+            resp.success = False
+            return resp
+
+        srv.callback = change_state
+
+    def refused_transition(self, transition: Transition) -> str | None:
+        """Why a peer's ``change_state`` request cannot run from the current state (one bounded line),
+        or None when it can. The label decides when it is set (as in rclpy), else the id.
+
+        Parameters
+        ----------
+        transition : lifecycle_msgs.msg.Transition
+            The requested transition.
+
+        Returns
+        -------
+        str or None
+            The reason, naming the transition and the current state; None for a valid transition.
+        """
+        machine = state_machine(self)
+        state = machine.current_state[1]
+        valid = machine.available_transitions
+        if transition.label:
+            if any(t[1] == transition.label for t in valid):
+                return None
+            asked = f"label '{printable(transition.label, 64)}'"
+        else:
+            if any(t[0] == transition.id for t in valid):
+                return None
+            asked = f"id {transition.id}"
+        allowed = ", ".join(f"{t[1]} ({t[0]})" for t in valid) or "none"
+        return f"change_state refused: transition {asked} is not valid from state '{state}' (valid: {allowed})"
 
     # the transitions, as rclpy calls them; each calls the base class (lifecycle_py's pattern)
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:

@@ -12,7 +12,10 @@ sample t_k (sensors/magnetic_field and sensors/attitude paired by stamp) with th
 quantities only: |w_gyro| (the gyro sample, which sensors/attitude carries as sensors/imu does),
 the filtered |db/dt| of sensors/magnetic_field (onboard.bdot.FieldDerivativeFilter, bdot_cutoff),
 |b_k - b_(k-1)| of sensors/magnetic_field (a sample repeated for frozen_time: a frozen magnetometer
--> SAFE) and the pointing error of the attitude estimate. The manager is outside the lockstep and
+-> SAFE) and the pointing error of the attitude estimate. With the estimator (``magtune sil --modes
+--attitude estimator``) sensors/attitude is remapped to estimate/attitude and the estimator is a managed
+node; an estimate with orientation_covariance[0] = -1 (REP-145: not known, i.e. not valid) has no
+pointing error and sets the logic's ``attitude_known`` false. The manager is outside the lockstep and
 shares the cores with it, so it takes the two streams serialized (raw) and reads the few fields it
 needs (raw.raw_imu, raw.raw_magnetic_field) instead of building the messages.
 
@@ -47,6 +50,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 
 import numpy as np
 import rclpy
@@ -62,6 +66,7 @@ from rclpy.task import Future
 from sensor_msgs.msg import Imu, MagneticField
 
 from magtune_core.base.errors import ConfigError
+from magtune_core.base.text import printable
 from magtune_core.base.topics import SERVICE_SET_MODE, TOPIC_ATTITUDE, TOPIC_DIAGNOSTICS, TOPIC_MAG, TOPIC_MODE
 from magtune_core.onboard.bdot import FieldDerivativeFilter, FilterState
 from magtune_core.onboard.modes import MODES, SAFE, Measurements, ModeLogic, ModeParams, ModeState
@@ -209,7 +214,7 @@ class ModeManager(Node):
                 continue
             self.beats[node] = now
             if st.level == DiagnosticStatus.ERROR:
-                self.errors[node] = st.message
+                self.errors[node] = printable(st.message, 500)  # a peer's string, printed on a failed bring-up
             if node in self.lost:
                 self.lost.discard(node)
                 self.get_logger().warning(f"heartbeat of {node} back")
@@ -259,8 +264,7 @@ class ModeManager(Node):
         at = lg[2] if lg[3] is not None else max(last)  # the first step at the stamp the lag was seen
         self.lagging = (slot, last[slot], max(last), None)  # confirmed: later messages step at their stamp
         self.diag.count("stale", f"{STREAMS[slot]} {lag * 1e-9:.1f} s behind the other sensor stream")
-        m = self.last or Measurements(rate=math.nan)
-        self.step(Measurements(m.rate, m.bdot, m.pointing_error, stale=True, field_step=m.field_step), at * 1e-9)
+        self.step(replace(self.last or Measurements(rate=math.nan), stale=True), at * 1e-9)
 
     # ---------------------------------------------------------------- mode logic
     def on_mag(self, data: bytes):
@@ -292,14 +296,17 @@ class ModeManager(Node):
             self.check_stale()
 
     def sample(self, ns: int, b, att):
-        """One sample t_k: the measured quantities (field b, attitude (q, gyro w)), then one step of the logic."""
-        (qw, qx, qy, qz), (wx, wy, wz) = att
+        """One sample t_k: the measured quantities (field b, attitude (q, gyro w, known)), then one step of the
+        logic; an attitude not known (orientation_covariance[0] = -1: the estimator has no valid estimate) has
+        no pointing error."""
+        (qw, qx, qy, qz), (wx, wy, wz), known = att
         self.fstate, bdot = self.filter.step(self.fstate, b)
         qv = math.sqrt(qx * qx + qy * qy + qz * qz) / max(math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), 1e-300)
         step = math.nan if self.b_prev is None else math.dist(b, self.b_prev)
         self.b_prev = b
         m = Measurements(rate=math.sqrt(wx * wx + wy * wy + wz * wz), bdot=float(np.linalg.norm(bdot)),
-                         pointing_error=2.0 * math.asin(min(qv, 1.0)), field_step=step)
+                         pointing_error=2.0 * math.asin(min(qv, 1.0)) if known else math.nan, field_step=step,
+                         attitude_known=known)
         self.last = m
         self.diag.count("samples")
         self.step(m, ns * 1e-9)
@@ -307,7 +314,7 @@ class ModeManager(Node):
     def step(self, m: Measurements, t: float):
         """One step of the mode logic at sim time ``t`` (``stale`` forced while a heartbeat is lost, so SAFE holds); applies the result."""
         if self.lost:  # a silent node: SAFE holds (the logic's only health input is ``stale``)
-            m = Measurements(m.rate, m.bdot, m.pointing_error, stale=True, field_step=m.field_step)
+            m = replace(m, stale=True)
         state, tr = self.logic.step(self.state, m, t)
         self.apply(state, tr)
 
@@ -329,14 +336,16 @@ class ModeManager(Node):
         self.pub_mode.publish(msg)
 
     def on_set_mode(self, req: SetMode.Request, res: SetMode.Response):
-        """set_mode service: the commanded mode goes through the logic (reason recorded); an unknown id fails; answers the mode in force."""
+        """set_mode service: the commanded mode goes through the logic (reason recorded as one bounded
+        printable line, ``base.text.printable``: it reaches the log and the mode topic); an unknown id fails;
+        answers the mode in force."""
         self.diag.count("requests")
         if req.mode >= len(MODES):
             res.success, res.message = False, f"unknown mode id {req.mode} (expected 0..{len(MODES) - 1}: " \
                                               f"{', '.join(MODES)})"
         else:
             self.apply(*self.logic.request(self.state, MODES[req.mode], self.now_s(),
-                                           f"commanded: {req.reason or 'set_mode'}"))
+                                           f"commanded: {printable(req.reason) or 'set_mode'}"))
             res.success, res.message = True, f"mode {self.state.mode}"
         res.mode = MODES.index(self.state.mode)
         return res

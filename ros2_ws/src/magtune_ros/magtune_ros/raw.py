@@ -11,8 +11,9 @@ import struct
 #: CDR encapsulation (XCDR1, the rmw's for ROS 2 types) -> struct byte order.
 _CDR_ORDER = {b"\x00\x01": "<", b"\x00\x00": ">"}
 _HEADER = {o: struct.Struct(o + "iII") for o in "<>"}  # stamp sec, nanosec, frame_id length (with its NUL)
-#: sensor_msgs/Imu after the header: orientation x y z w, 9 covariances (skipped), angular_velocity x y z
-_IMU = {o: struct.Struct(o + "4d72x3d") for o in "<>"}
+#: sensor_msgs/Imu after the header: orientation x y z w, the first of 9 covariances (the rest skipped),
+#: angular_velocity x y z
+_IMU = {o: struct.Struct(o + "4dd64x3d") for o in "<>"}
 _IMU_SIZE = 32 + 72 + 24 + 72 + 24 + 72  # orientation .. linear_acceleration_covariance [bytes]
 #: sensor_msgs/MagneticField after the header: magnetic_field x y z, 9 covariances
 _VEC3 = {o: struct.Struct(o + "3d") for o in "<>"}
@@ -40,14 +41,15 @@ def _raw_header(data: bytes, strings: int = 0):
 
 
 def raw_imu(data: bytes):
-    """(stamp [ns], (qw, qx, qy, qz), (wx, wy, wz)) of a serialized sensor_msgs/Imu (a ``raw=True``
-    subscription's bytes), or None if malformed: the two fields without building the message."""
+    """(stamp [ns], (qw, qx, qy, qz), (wx, wy, wz), known) of a serialized sensor_msgs/Imu (a
+    ``raw=True`` subscription's bytes), or None if malformed: the two fields without building the
+    message, and whether the orientation is known (orientation_covariance[0] != -1, REP-145)."""
     h = _raw_header(data)
     if h is None or len(data) < h[2] + _IMU_SIZE:
         return None
     order, ns, at = h
-    x, y, z, w, wx, wy, wz = _IMU[order].unpack_from(data, at)
-    return ns, (w, x, y, z), (wx, wy, wz)
+    x, y, z, w, c0, wx, wy, wz = _IMU[order].unpack_from(data, at)
+    return ns, (w, x, y, z), (wx, wy, wz), c0 != -1.0
 
 
 def raw_magnetic_field(data: bytes):
