@@ -14,6 +14,10 @@ spiking; an actuator that is off or stuck), named for this satellite's hardware:
 ``gyro_bias``      ``value`` [rad/s] added on ``axis`` of the gyro from ``t``
 ``torquer_dead``   the torquer of ``axis`` produces no dipole from ``t``
 ``torquer_stuck``  the torquer of ``axis`` holds its dipole of the step before ``t`` (or ``value``)
+``torquer_reversed`` the torquer of ``axis`` produces the opposite of its command (a swapped wire)
+``torquer_gain``   the torquer of ``axis`` produces ``value`` times its command (default 0.5: a gain drop of
+                   half, e.g. a lost winding or a drifted driver)
+``sun_loss``       the sun sensor puts out nothing (as in eclipse) for ``duration`` s (default: to the end)
 ``sensors_killed`` the SIL runner sends SIGKILL to the attitude_sensors process at ``t`` (SIL only)
 =================  ==============================================================================
 
@@ -36,16 +40,20 @@ from ..base.schema import Field, parse
 
 MAG_STUCK, MAG_SPIKE, MAG_BIAS, MAG_DROPOUT = "mag_stuck", "mag_spike", "mag_bias", "mag_dropout"
 GYRO_BIAS, TORQUER_DEAD, TORQUER_STUCK, SENSORS_KILLED = "gyro_bias", "torquer_dead", "torquer_stuck", "sensors_killed"
+TORQUER_REVERSED, TORQUER_GAIN, SUN_LOSS = "torquer_reversed", "torquer_gain", "sun_loss"
 #: Every fault kind.
-KINDS = (MAG_STUCK, MAG_SPIKE, MAG_BIAS, MAG_DROPOUT, GYRO_BIAS, TORQUER_DEAD, TORQUER_STUCK, SENSORS_KILLED)
+KINDS = (MAG_STUCK, MAG_SPIKE, MAG_BIAS, MAG_DROPOUT, GYRO_BIAS, TORQUER_DEAD, TORQUER_STUCK, TORQUER_REVERSED,
+         TORQUER_GAIN, SUN_LOSS, SENSORS_KILLED)
 #: Kinds that act on the sensors' samples / on the applied dipole.
-SENSOR_KINDS = (MAG_STUCK, MAG_SPIKE, MAG_BIAS, MAG_DROPOUT, GYRO_BIAS)
-TORQUER_KINDS = (TORQUER_DEAD, TORQUER_STUCK)
+SENSOR_KINDS = (MAG_STUCK, MAG_SPIKE, MAG_BIAS, MAG_DROPOUT, GYRO_BIAS, SUN_LOSS)
+TORQUER_KINDS = (TORQUER_DEAD, TORQUER_STUCK, TORQUER_REVERSED, TORQUER_GAIN)
 AXES = ("x", "y", "z")
 
 #: kind -> (default value, largest |value|, unit) of the kinds that take a value.
 VALUES = {MAG_SPIKE: (5e-4, 1e-3, "T"), MAG_BIAS: (1e-5, 1e-3, "T"), GYRO_BIAS: (1e-2, 1.0, "rad/s"),
-          TORQUER_STUCK: (math.nan, 1e4, "A m^2")}
+          TORQUER_STUCK: (math.nan, 1e4, "A m^2"), TORQUER_GAIN: (0.5, 1.0, "(fraction of the command)")}
+#: Kinds that act on a whole unit (no axis).
+WHOLE_UNIT = (MAG_STUCK, MAG_DROPOUT, SUN_LOSS, SENSORS_KILLED)
 
 #: The one schema of a fault (a scenario file's ``faults:`` entry; the CLI's spec parses into it).
 FAULT_FIELDS = (
@@ -55,8 +63,8 @@ FAULT_FIELDS = (
     Field("duration", "float", "how long [s] (default: to the end of the run; mag_dropout: required)", None,
           positive=True, bounds=(1e-9, 1e8), unit="s"),
     Field("axis", "str", "body axis of a bias, a spike or a torquer (x, y, z)", "x", choices=AXES),
-    Field("value", "float", "size of a bias [T, rad/s], a spike [T] or a stuck dipole [A m^2] (default per kind)",
-          None),
+    Field("value", "float", "size of a bias [T, rad/s], a spike [T], a stuck dipole [A m^2] or a torquer's remaining "
+          "gain (fraction; default per kind)", None),
 )
 
 
@@ -96,7 +104,7 @@ class Fault:
             ``KIND@T[:DURATION][,axis=A][,value=V]`` (axis only for kinds that take one; value unless nan).
         """
         out = f"{self.kind}@{self.t!r}" + (f":{self.duration!r}" if math.isfinite(self.duration) else "")
-        if self.kind not in (MAG_STUCK, MAG_DROPOUT, SENSORS_KILLED):
+        if self.kind not in WHOLE_UNIT:
             out += f",axis={AXES[self.axis]}"
         return out + (f",value={self.value!r}" if not math.isnan(self.value) else "")
 
@@ -135,16 +143,17 @@ def from_mapping(m, where: str = "fault") -> Fault:
     if kind in (MAG_SPIKE, SENSORS_KILLED) and v["duration"] is not None:
         raise ConfigError(where, "duration", f"{kind} takes no duration ("
                           + ("one sample" if kind == MAG_SPIKE else "the process stays dead") + "); remove it")
-    if kind in (MAG_STUCK, MAG_DROPOUT, SENSORS_KILLED) and "axis" in m:
+    if kind in WHOLE_UNIT and "axis" in m:
         raise ConfigError(where, "axis", f"{kind} takes no axis (it acts on the whole sensor); remove it")
     value = v["value"]
     if kind in VALUES:
         default, limit, unit = VALUES[kind]
         if value is None:
             value = default
-        elif not (value != 0.0 and abs(value) <= limit):
-            raise ConfigError(where, "value", f"expected a nonzero number within +-{limit:g} {unit} for {kind}, "
-                                              f"got {value!r}")
+        elif not (value != 0.0 and abs(value) <= limit) or (kind == TORQUER_GAIN and not 0.0 < value < 1.0):
+            expected = ("a fraction in (0, 1) (the torquer's remaining gain; 0 is torquer_dead, 1 no fault)"
+                        if kind == TORQUER_GAIN else f"a nonzero number within +-{limit:g} {unit}")
+            raise ConfigError(where, "value", f"expected {expected} for {kind}, got {value!r}")
     elif value is not None:
         raise ConfigError(where, "value", f"{kind} takes no value; remove it")
     duration = math.inf if v["duration"] is None else v["duration"]
@@ -279,6 +288,24 @@ def check_times(faults, end: float, where: str = "fault") -> None:
                                                         f"before {end:g} s or a longer run")
 
 
+def sun_lost(faults, t: float) -> bool:
+    """True while a ``sun_loss`` fault silences the sun sensor at sim time ``t`` [s].
+
+    Parameters
+    ----------
+    faults : iterable of Fault
+        Injected faults (any kinds).
+    t : float
+        Sample time [s].
+
+    Returns
+    -------
+    bool
+        Whether the sun sensor puts out nothing at ``t``.
+    """
+    return any(f.kind == SUN_LOSS and f.active(t) for f in faults)
+
+
 def kill_time(faults) -> float | None:
     """Sim time [s] of the first ``sensors_killed`` fault, or None.
 
@@ -374,7 +401,8 @@ def actuate(faults, t: float, m, state: FaultState = FaultState()):
     -------
     tuple
         (applied dipole, new :class:`FaultState`): a dead axis gives 0, a stuck axis its ``value`` or the dipole it
-        applied the step before (the commanded one at the first step).
+        applied the step before (the commanded one at the first step), a reversed axis minus its command, a
+        gain-drop axis ``value`` times its command.
     """
     m = np.array(m, dtype=float)
     for f in faults:
@@ -382,6 +410,10 @@ def actuate(faults, t: float, m, state: FaultState = FaultState()):
             continue
         if f.kind == TORQUER_DEAD:
             m[f.axis] = 0.0
+        elif f.kind == TORQUER_REVERSED:
+            m[f.axis] = -m[f.axis]
+        elif f.kind == TORQUER_GAIN:
+            m[f.axis] = f.value * m[f.axis]
         elif not math.isnan(f.value):
             m[f.axis] = f.value
         elif state.last_dipole is not None:

@@ -281,6 +281,12 @@ class MekfStream:
             self._R_mag, self._R_sun = np.ascontiguousarray(self.R_mag, dtype=float), np.ascontiguousarray(self.R_sun)
             self._warm_up()
 
+    def reset(self) -> None:
+        """Drop the estimate: the next sample starts again as the first (coarse fix; the validity monitor's
+        ``reinit_due``)."""
+        self.state, self.k, self._first = None, -1, None
+        self._carry = np.array([1.0, 0.0, 0.0, 0.0])
+
     def _warm_up(self) -> None:
         """One call of each compiled function on a throw-away state (loads numba's cache, or compiles
         once, here rather than at the first sample of a lockstep run)."""

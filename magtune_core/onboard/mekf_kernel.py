@@ -65,6 +65,8 @@ class KernelMekf(NamedTuple):
     valid_a: float
     valid_limit: float
     nis_avg: np.ndarray
+    valid_reinit: int  #: samples not valid after the fix before the filter restarts (0: never)
+    invalid_run: np.ndarray  #: (B,) int64 samples in a row not valid since the fix
 
 
 @njit(cache=True, inline="always")
@@ -297,7 +299,8 @@ def stream_step(m, i, mag, bref, sun_ok, sun, sref):
             if sun_ok:
                 q, Pf = davenport2(mag, bref, m.sig_mag[i] / math.sqrt(mag @ mag), sun, sref, m.sun_std[i])
                 _start(m, i, q, Pf)
-                m.k0[i] = k
+                if m.k0[i] < 0:  # the first fix (a restart keeps it)
+                    m.k0[i] = k
             else:
                 for j in range(3):
                     m.first[i, j], m.first[i, 3 + j] = mag[j], bref[j]
@@ -317,7 +320,8 @@ def stream_step(m, i, mag, bref, sun_ok, sun, sref):
             s_old = math.sqrt((m.sig_mag[i] / math.sqrt(mag0 @ mag0)) ** 2 + (m.bias_std * T) ** 2 + m.sv2[i] * T)
             q, Pf = davenport2(mag, bref, m.sig_mag[i] / math.sqrt(mag @ mag), b_old, b0, s_old)
             _start(m, i, q, Pf)
-            m.k0[i] = k
+            if m.k0[i] < 0:
+                m.k0[i] = k
     else:
         propagate(m.q[i], m.b[i], m.P[i], m.w_prev[i], m.ts, m.sv2[i], m.su2[i], m.sm2, GL_X, GL_W)
     nis_m, ok = update(m.q[i], m.b[i], m.mb[i], m.P[i], mag, bref, m.R_mag[i], m.gate_mag, True)
@@ -389,10 +393,10 @@ def kernel_state(B: int, ts: float, *, arw, rrw, mag_cov, sun_std, gate_probabil
                       np.zeros(B, dtype=np.bool_),
                       np.full(B, -1, dtype=np.int64), np.zeros((B, 6)), carry, np.zeros((B, 3)),
                       np.zeros((B, 4), dtype=np.int64), np.full(B, -1, dtype=np.int64),
-                      math.inf, 0.0, math.inf, np.full(B, np.nan))
+                      math.inf, 0.0, math.inf, np.full(B, np.nan), 0, np.zeros(B, dtype=np.int64))
 
 
-def with_validity(m: KernelMekf, sigma: float, tau: float, limit: float) -> KernelMekf:
+def with_validity(m: KernelMekf, sigma: float, tau: float, limit: float, reinit: float = 0.0) -> KernelMekf:
     """``m`` with the validity gate of :class:`~magtune_core.onboard.validity.ValidityMonitor` (the same numbers).
 
     Parameters
@@ -405,6 +409,8 @@ def with_validity(m: KernelMekf, sigma: float, tau: float, limit: float) -> Kern
         ``valid_nis_tau`` [s].
     limit : float
         ``valid_nis_limit``.
+    reinit : float
+        ``reinit_time`` [s] (0: never).
 
     Returns
     -------
@@ -412,13 +418,14 @@ def with_validity(m: KernelMekf, sigma: float, tau: float, limit: float) -> Kern
         The same filters, gated.
     """
     return m._replace(valid_sigma2=float(sigma) * float(sigma), valid_a=math.exp(-m.ts / float(tau)),
-                      valid_limit=float(limit))
+                      valid_limit=float(limit), valid_reinit=int(math.ceil(float(reinit) / m.ts - 1e-9)))
 
 
 @njit(cache=True, error_model="numpy")
 def valid_step(m, i, nis_mag):
     """:meth:`magtune_core.onboard.validity.ValidityMonitor.step` for filter ``i`` after its fix (the same
-    arithmetic: average from 3 at the fix, NIS capped at the gate, a nan NIS holds it)."""
+    arithmetic: average from 3 at the fix, NIS capped at the gate, a nan NIS holds it), and its restart
+    when not valid for ``valid_reinit`` samples (MekfStream.reset: the next sample is a first one)."""
     if m.valid_sigma2 == math.inf:
         return True
     avg = m.nis_avg[i]
@@ -428,4 +435,9 @@ def valid_step(m, i, nis_mag):
         avg = m.valid_a * avg + (1.0 - m.valid_a) * min(nis_mag, m.gate_mag)
     m.nis_avg[i] = avg
     P = m.P[i]
-    return max(P[0, 0], P[1, 1], P[2, 2]) < m.valid_sigma2 and avg < m.valid_limit
+    valid = max(P[0, 0], P[1, 1], P[2, 2]) < m.valid_sigma2 and avg < m.valid_limit
+    m.invalid_run[i] = 0 if valid else m.invalid_run[i] + 1
+    if m.valid_reinit > 0 and m.invalid_run[i] >= m.valid_reinit:  # ValidityMonitor.reinit_due: restart
+        m.started[i], m.k[i], m.invalid_run[i], m.nis_avg[i] = False, -1, 0, math.nan
+        m.carry[i, 0], m.carry[i, 1], m.carry[i, 2], m.carry[i, 3] = 1.0, 0.0, 0.0, 0.0
+    return valid

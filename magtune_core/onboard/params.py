@@ -143,6 +143,9 @@ VALIDITY_FIELDS = (
     Field("valid_nis_limit", "float", "... valid only while that average stays below this (3 when consistent; "
           "the default is the 1e-9 quantile of its distribution for tau = 60 s, docs/modes.md)", 4.6,
           positive=True, bounds=(3.0, 1e3)),
+    Field("reinit_time", "float", "an estimate not valid this long after the fix is dropped and the filter starts "
+          "again from a coarse fix [s] (a diverged filter gates every update and does not come back by itself; "
+          "0: never)", 300.0, nonnegative=True, bounds=(0.0, 1e6), unit="s"),
 )
 
 #: attitude_estimator: the filter's model of the sensors (defaults: the filter matched to design.sensors.default_suite,
@@ -176,6 +179,9 @@ ESTIMATOR_FIELDS = (
           nonnegative=True, bounds=(0.0, 1e-7), unit="T/s^0.5"),
     Field("sun_wait", "float", "wall seconds to wait for a sun sample the on-board model predicts (lit) before "
           "the step goes on without it (counted as sun_missing)", 0.5, positive=True, bounds=(1e-3, 60.0), unit="s"),
+    Field("sun_loss_samples", "int", "the sun sensor is lost after this many samples predicted lit without a sun "
+          "sample in a row (WARN 'sun sensor' on /diagnostics; the steps then go on without waiting sun_wait; "
+          "0: never)", 10, nonnegative=True, bounds=(0, 1000000)),
 ) + VALIDITY_FIELDS
 
 #: Managed (lifecycle) nodes (controller, attitude_sensors): who drives the transitions.

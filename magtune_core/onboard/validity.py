@@ -12,7 +12,10 @@ its measurements. :class:`ValidityMonitor` calls the estimate valid while
 The defaults are derived, not picked (:func:`nis_limit`, docs/modes.md): ``valid_sigma`` is a third
 of the hand-over angle; ``valid_nis_limit`` is the 1e-9 quantile of the average's distribution for a
 consistent filter. The persistence before a mode changes on validity is the mode logic's
-(``attitude_loss_time``, ``detumble_exit_time``), so this monitor has no timer of its own.
+(``attitude_loss_time``, ``detumble_exit_time``). One timer is the monitor's: an estimate not valid for
+``reinit_time`` after the fix is dropped (:attr:`ValidityMonitor.reinit_due`; the caller restarts the
+filter from a coarse fix): a filter that diverged, e.g. while tumbling faster than its gyro model
+allows, gates every update and would never come back by itself.
 """
 from __future__ import annotations
 
@@ -59,7 +62,8 @@ class ValidityMonitor:
 
     ``ts`` [s] the sample period, ``sigma`` [rad] ``valid_sigma``, ``tau`` [s] ``valid_nis_tau``,
     ``limit`` ``valid_nis_limit``, ``cap`` the magnetometer gate (a rejected update counts as the
-    gate's value, so one outlier moves the average by at most (1 - a) cap).
+    gate's value, so one outlier moves the average by at most (1 - a) cap), ``reinit`` [s] ``reinit_time``
+    (0: never).
     """
 
     ts: float
@@ -67,7 +71,24 @@ class ValidityMonitor:
     tau: float
     limit: float
     cap: float
+    reinit: float = 0.0
     average: float = math.nan  #: the NIS average (nan before the fix)
+    invalid: int = 0  #: samples in a row not valid since the fix
+
+    @property
+    def reinit_due(self) -> bool:
+        """Whether the estimate has not been valid for ``reinit`` s since the fix.
+
+        Returns
+        -------
+        bool
+            True: the caller restarts the filter from a coarse fix, then calls :meth:`reset`.
+        """
+        return self.reinit > 0 and self.invalid * self.ts >= self.reinit
+
+    def reset(self) -> None:
+        """Back to the state before a fix (the filter restarts)."""
+        self.average, self.invalid = math.nan, 0
 
     @classmethod
     def from_values(cls, v: dict, ts: float, cap: float) -> "ValidityMonitor":
@@ -76,7 +97,7 @@ class ValidityMonitor:
         Parameters
         ----------
         v : dict
-            Parsed values (``valid_sigma``, ``valid_nis_tau``, ``valid_nis_limit``).
+            Parsed values (``valid_sigma``, ``valid_nis_tau``, ``valid_nis_limit``, ``reinit_time``).
         ts : float
             Sample period [s].
         cap : float
@@ -87,7 +108,7 @@ class ValidityMonitor:
         ValidityMonitor
             A monitor before the fix.
         """
-        return cls(ts, v["valid_sigma"], v["valid_nis_tau"], v["valid_nis_limit"], cap)
+        return cls(ts, v["valid_sigma"], v["valid_nis_tau"], v["valid_nis_limit"], cap, v["reinit_time"])
 
     def step(self, P, nis_mag: float) -> bool:
         """Take one sample's covariance and NIS; is the estimate valid?
@@ -113,4 +134,6 @@ class ValidityMonitor:
             a = math.exp(-self.ts / self.tau)
             self.average = a * self.average + (1.0 - a) * min(float(nis_mag), self.cap)
         var = np.diagonal(np.asarray(P))[:3]
-        return bool(max(var) < self.sigma * self.sigma and self.average < self.limit)
+        valid = bool(max(var) < self.sigma * self.sigma and self.average < self.limit)
+        self.invalid = 0 if valid else self.invalid + 1
+        return valid

@@ -180,6 +180,7 @@ class BatchEstimator:
     valid_sigma: float = _VALIDITY["valid_sigma"]
     valid_nis_tau: float = _VALIDITY["valid_nis_tau"]
     valid_nis_limit: float = _VALIDITY["valid_nis_limit"]
+    reinit_time: float = _VALIDITY["reinit_time"]
 
 
 @dataclass
@@ -643,7 +644,7 @@ def _estimator_state(estimator: BatchEstimator | None, sensors: SensorNoise, B: 
                        sun_std=e.sun_noise_std, gate_probability=e.gate_probability, bias_std=e.initial_bias_std,
                        init_angle=e.init_angle, mag_bias_std=e.initial_mag_bias_std, mag_bias_rw=e.mag_bias_rw)
     if e.validity_gate:
-        est = with_validity(est, e.valid_sigma, e.valid_nis_tau, e.valid_nis_limit)
+        est = with_validity(est, e.valid_sigma, e.valid_nis_tau, e.valid_nis_limit, e.reinit_time)
     shape = (B, n + 1) if full else (B, 1)
     eio = EstimatorIO(np.zeros((1, 1, 13)), np.zeros((B, 1, 9)), np.full(B, float(e.sun_sensor_std)),
                       np.full(shape + (3,), np.nan, np.float32), np.full(shape + (3,), np.nan, np.float32),

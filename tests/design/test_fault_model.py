@@ -119,3 +119,28 @@ def test_sil_scenario_refuses_a_fault_after_the_end():
 
     with pytest.raises(ConfigError, match=r"mag_dropout@99999.0:30.0: field 't': .* end of the run \(100 s\)"):
         SilScenario.build({"": "config/gains/sigma_60.yaml"}, SilRequest(steps=100, faults=("mag_dropout@99999:30",)))
+
+
+def test_reversed_and_gain_drop_torquers_and_sun_loss():
+    """The kinds issue 44 added: a reversed axis flies minus its command, a gain drop value times it (default
+    0.5; only a fraction in (0, 1) accepted), both from their onset and on their axis only; sun_loss is a
+    whole-unit sensor fault (no axis, no value) that fl.sun_lost reports while it acts."""
+    from magtune_core.design import faults as fl
+
+    rev = fl.parse_spec("torquer_reversed@10,axis=y")
+    gain = fl.parse_spec("torquer_gain@10:5,axis=z")
+    assert gain.value == 0.5 and fl.parse_spec("torquer_gain@0,axis=x,value=0.25").value == 0.25
+    m = [10.0, -20.0, 30.0]
+    assert np.array_equal(fl.actuate([rev, gain], 9.0, m)[0], m)
+    assert np.array_equal(fl.actuate([rev, gain], 10.0, m)[0], [10.0, 20.0, 15.0])
+    assert np.array_equal(fl.actuate([rev, gain], 15.0, m)[0], [10.0, 20.0, 30.0])  # the gain drop ended
+    for bad, field in (("torquer_gain@1,value=1.0", "value"), ("torquer_gain@1,value=0", "value"),
+                       ("torquer_gain@1,value=-0.5", "value"), ("torquer_reversed@1,value=2", "value"),
+                       ("sun_loss@1,axis=x", "axis"), ("sun_loss@1,value=1", "value")):
+        with pytest.raises(ConfigError, match=f"field '{field}'"):
+            fl.parse_spec(bad)
+    for text in ("torquer_reversed@10.0,axis=y", "torquer_gain@10.0:5.0,axis=z,value=0.5", "sun_loss@100.0:50.0"):
+        assert fl.parse_spec(text).spec == text  # what the nodes are given parses back
+    sun = fl.parse_spec("sun_loss@100:50")
+    assert sun.kind in fl.SENSOR_KINDS and sun.kind not in fl.TORQUER_KINDS
+    assert [fl.sun_lost([sun], t) for t in (99.0, 100.0, 149.0, 150.0)] == [False, True, True, False]

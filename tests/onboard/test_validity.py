@@ -69,3 +69,25 @@ def test_one_outlier_moves_the_average_by_at_most_the_capped_share():
     assert m.step(P, 1e6)
     a = math.exp(-1.0 / 60.0)
     assert m.average - before == pytest.approx((1.0 - a) * (21.1 - 3.0))
+
+
+def test_reinit_due_after_its_time_not_valid_and_reset():
+    """reinit_time 30 s at ts 1: due at the 30th sample in a row not valid after the fix, not before; a valid
+    sample restarts the count; reset() returns the monitor to its state before a fix; 0 never."""
+    m, P = ValidityMonitor(1.0, 0.03, 60.0, 4.6, 21.1, reinit=30.0), np.diag([1e-4] * 3 + [1e-8] * 6)
+    big = np.diag([1.0] * 3 + [1e-8] * 6)
+    for _ in range(29):
+        m.step(big, 3.0)
+    assert not m.reinit_due
+    m.step(P, 3.0)  # valid: the count restarts
+    for _ in range(29):
+        m.step(big, 3.0)
+    assert not m.reinit_due
+    m.step(big, 3.0)
+    assert m.reinit_due
+    m.reset()
+    assert math.isnan(m.average) and not m.reinit_due
+    never = ValidityMonitor(1.0, 0.03, 60.0, 4.6, 21.1, reinit=0.0)
+    for _ in range(1000):
+        never.step(big, 3.0)
+    assert not never.reinit_due

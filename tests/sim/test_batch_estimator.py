@@ -61,17 +61,21 @@ def batch():
     return _fly(BatchEstimator())
 
 
-def test_validity_gate_equals_the_python_monitor_sample_for_sample():
+@pytest.mark.parametrize("reinit", [0.0, 15.0])
+def test_validity_gate_equals_the_python_monitor_sample_for_sample(reinit):
     """With the validity gate (the full stack's), a run flies zero dipole exactly at the samples where
     onboard.validity.ValidityMonitor, fed by the Python MekfStream on the same measurements, says not
-    valid. A tight gate (NIS averaged over 5 s, limit 3: a consistent filter's mean) makes it flip
-    many times in 900 s; the two filters agree to ~1e-10 (above), far from any sample's margin."""
-    p, opts, sens, est, res = _fly(BatchEstimator(validity_gate=True, valid_nis_tau=5.0, valid_nis_limit=3.0))
+    valid, and restarts its filter at the same samples (reinit_time 15 s: several restarts). A tight gate
+    (NIS averaged over 5 s, limit 3: a consistent filter's mean) makes it flip many times in 900 s; the
+    two filters agree to ~1e-10 (above), far from any sample's margin."""
+    p, opts, sens, est, res = _fly(BatchEstimator(validity_gate=True, valid_nis_tau=5.0, valid_nis_limit=3.0,
+                                                  reinit_time=reinit))
     cap = MekfParams(1.0, 1.0, est.gate_probability).gate(3)
     for b in range(2):
-        states, *_, nis = _python_filter(p, opts[b], sens, est, res, b)
-        mon = ValidityMonitor(1.0, est.valid_sigma, est.valid_nis_tau, est.valid_nis_limit, cap)
-        invalid = np.array([not mon.step(s.P if s is not None else None, n) for s, n in zip(states, nis)])
+        mon = ValidityMonitor(1.0, est.valid_sigma, est.valid_nis_tau, est.valid_nis_limit, cap, reinit)
+        states, *_, valid, restarts = _python_filter(p, opts[b], sens, est, res, b, monitor=mon)
+        invalid = ~valid
+        assert (len(restarts) >= 2) == (reinit > 0), restarts  # restarts happened, and only with reinit_time
         switches = int(np.sum(invalid[1:] != invalid[:-1]))
         assert 100 < invalid.sum() < len(invalid) - 100 and switches > 20, (invalid.sum(), switches)
         assert res.no_attitude_steps[b] == invalid.sum()
@@ -79,7 +83,7 @@ def test_validity_gate_equals_the_python_monitor_sample_for_sample():
         np.testing.assert_array_equal(zero[:STEPS], invalid[:STEPS])
 
 
-def _python_filter(p, opt, sens, est, res, b):
+def _python_filter(p, opt, sens, est, res, b, monitor=None):
     """MekfStream on run b's measurements: the batch's sensor models on its recorded truth (true q_bo, rate,
     body field) with the run's generators, reference vectors from the single-run Environment."""
     t = res.t
@@ -102,12 +106,17 @@ def _python_filter(p, opt, sens, est, res, b):
                         SunSensor(est.sun_noise_std))
     stream = MekfStream(suite)
     b_ref = env.magnetic_field_eci(t, r)
-    out, nis = [], []
+    out, valid, restarts = [], [], []
     for k in range(t.size):
         step = stream.step(w_m[k - 1] if k else None, mag[k], b_ref[k], *((s_m[k], s_ref[k]) if ok[k] else (None, None)))
         out.append(step.state)
-        nis.append(step.nis_mag)
-    return out, R_oi, w_m, lit, nis
+        if monitor is not None:  # the node's order: the step, the validity, a restart when due
+            valid.append(step.state is not None and monitor.step(step.state.P, step.nis_mag))
+            if monitor.reinit_due:
+                stream.reset()
+                monitor.reset()
+                restarts.append(k)
+    return out, R_oi, w_m, lit, np.array(valid), restarts
 
 
 @pytest.mark.parametrize("b", [0, 1])
@@ -122,7 +131,7 @@ def test_batched_filter_equals_python_filter_on_the_same_measurements(batch, b):
     (t = 30-300 s): measured 1.3e-10 rad, 5e-10 (gyro bias), 3e-10 (P), 7e-11 (magnetometer bias); the
     kernel itself equals the Python filter on identical inputs to ~1e-13 (tests/onboard/test_mekf_kernel.py)."""
     p, opts, sens, est, res = batch
-    states, R_oi, w_m, lit, _ = _python_filter(p, opts[b], sens, est, res, b)
+    states, R_oi, w_m, lit, *_ = _python_filter(p, opts[b], sens, est, res, b)
     assert lit.all() and res.est_k0[b] == 0 and res.no_attitude_steps[b] == 0  # lit at t = 0: the Davenport fix
     worst = np.zeros(4)
     for k, s in enumerate(states):

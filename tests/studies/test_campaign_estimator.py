@@ -50,12 +50,22 @@ def test_estimator_section_is_the_node_schema():
     (dict(estimator=dict(igrf_degree=8)), "estimator.igrf_degree"),  # node-only field: unknown here
     (dict(campaign=dict(SPEC["campaign"], attitude="kalman")), "attitude"),
     (dict(campaign=dict(SPEC["campaign"], attitude="truth")), "estimator"),  # a section without the estimator
-    (dict(campaign=dict(SPEC["campaign"], modes=True)), "campaign.attitude"),  # not with the mode machine
+    (dict(estimator=dict(reinit_time=-1.0)), "reinit_time"),  # the validity fields are the node's too
     (dict(dispersions=dict(SPEC["dispersions"], sun_noise_std=-1.0)), "sun_noise_std"),
 ])
 def test_bad_estimator_spec_names_the_field(tmp_path, change, field):
     with pytest.raises(ConfigError, match=field):
         campaign.load_spec(_spec(tmp_path, dict(SPEC, **change)))
+
+
+def test_modes_with_the_estimator_fly_the_full_stack(tmp_path):
+    """campaign.modes with attitude: estimator is the full stack (issue 44): accepted, and its estimator has the
+    validity gate on whatever the section says (the mode machine must read only a valid estimate)."""
+    spec = campaign.load_spec(_spec(tmp_path, dict(SPEC, campaign=dict(SPEC["campaign"], modes=True),
+                                                   estimator=dict(validity_gate=False))))
+    assert spec.batch_modes() is not None and spec.batch_estimator().validity_gate
+    plain = campaign.load_spec(_spec(tmp_path, SPEC, name="plain.yaml"))
+    assert not plain.batch_estimator().validity_gate  # without the modes, as before
 
 
 def test_bad_estimator_spec_cli_one_line_exit_2(tmp_path):

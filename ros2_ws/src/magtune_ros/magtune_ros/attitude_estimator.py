@@ -26,7 +26,9 @@ Publishes:
 A sample t_k is processed when its gyro, magnetometer (and, full environment, position fix)
 messages are in: with its sun message if that arrived, without one if the on-board model puts the
 satellite in the Earth's shadow, else after waiting ``sun_wait`` wall seconds (sun_missing); a sun
-message of an already processed stamp is dropped (sun_late). Before the coarse fix each sample's message has
+message of an already processed stamp is dropped (sun_late). Sun sensor loss (onboard.fdir.SunSensorWatch,
+``sun_loss_samples`` predicted-lit samples in a row without one): WARN "sun sensor" on /diagnostics at
+that sample, and steps no longer wait for it until a sun sample comes again (OK "sun sensor"). Before the coarse fix each sample's message has
 orientation_covariance[0] = -1 (unknown; the controller commands zero dipole outside DETUMBLE). With
 ``validity_gate`` (the full stack, ``magtune sil --modes --attitude estimator``) so does every estimate
 that magtune_core.onboard.validity.ValidityMonitor does not call valid (diagnostics values valid,
@@ -50,6 +52,7 @@ from sensor_msgs.msg import Imu, MagneticField
 from magtune_core.base.topics import FRAME_BODY, TOPIC_ESTIMATE, TOPIC_IMU, TOPIC_MAG, TOPIC_POSITION, TOPIC_SUN
 from magtune_core.design.params import SpacecraftParams
 from magtune_core.onboard.estimator import FilterModel, MekfStream, OnboardModels
+from magtune_core.onboard.fdir import BACK, LOST, SunSensorWatch
 from magtune_core.onboard.params import ESTIMATOR_FIELDS
 from magtune_core.onboard.validity import ValidityMonitor
 
@@ -79,7 +82,7 @@ class AttitudeEstimator(ManagedNode):
 
     def __init__(self):
         super().__init__(self.NODE_NAME, ["samples", "estimates", "mag_accepted", "mag_rejected", "sun_accepted",
-                                          "sun_rejected", "sun_missing", "sun_late", "rejected_nonfinite",
+                                          "sun_rejected", "sun_missing", "sun_late", "reinitialised", "rejected_nonfinite",
                                           "rejected_malformed", "rejected_stamp", "stale_inputs"])
         self.pending = None
         self.create_timer(0.05, self.check_pending, clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -111,6 +114,7 @@ class AttitudeEstimator(ManagedNode):
         self.gate = StampGate(self, 2 * self.ts_ns, n=4)
         self.sync = PairSync(3 if self.full else 2)  # imu, mag (, position): same stamp t_k
         self.suns: dict = {}
+        self.sun_watch = SunSensorWatch(int(v["sun_loss_samples"]))
         self.last_ns, self.w_prev, self.pending = -1, None, None
         self.pub = self.data_publisher(Imu, TOPIC_ESTIMATE, LOCKSTEP_QOS)
         self.data_subscription(Imu, TOPIC_IMU, self.on_imu, LOCKSTEP_QOS, raw=True)
@@ -160,6 +164,9 @@ class AttitudeEstimator(ManagedNode):
         if not abs(n - 1.0) < 1e-3:
             return self.diag.count("rejected_nonfinite", "sun vector not finite and unit")
         if ns <= self.last_ns:
+            if self.sun_watch.lost:  # a lost sensor's samples come late (no step waits): it is back
+                self.sun_watch.lost, self.sun_watch.missing = False, 0
+                self.diag.unit_back("sun sensor", "samples again", ns)
             return self.diag.count("sun_late", f"sun sample of {ns * 1e-9:.3f} s after that step was estimated")
         self.suns[ns] = np.array([x, y, z])
         while len(self.suns) > 16:
@@ -177,8 +184,8 @@ class AttitudeEstimator(ManagedNode):
         if self.pending is not None:  # a newer sample is complete: the pending one goes on without its sun
             self.diag.count("sun_missing", "no sun sample for a step predicted lit")
             self._process(*self.pending[:2])
-        if not self.full or ns in self.suns or not self.models.lit(self._t(ns), group[2][0]):
-            return self._process(ns, group)
+        if not self.full or ns in self.suns or self.sun_watch.lost or not self.models.lit(self._t(ns), group[2][0]):
+            return self._process(ns, group)  # a lost sun sensor: no wait
         self.pending = (ns, group, now_wall())
 
     def check_pending(self):
@@ -202,6 +209,8 @@ class AttitudeEstimator(ManagedNode):
         for k in [k for k in self.suns if k < ns]:
             del self.suns[k]
         s_ref = self.models.sun(t, r) if sun is not None else None
+        if self.full:
+            self.watch_sun(ns, t, r, sun is not None)
         out = self.stream.step(self.w_prev, b, self.models.field(t, r), sun, s_ref)
         self.w_prev = np.array(w)
         self.diag.count("samples")
@@ -224,7 +233,23 @@ class AttitudeEstimator(ManagedNode):
         if self.validity is not None:
             self.diag.extra["valid"] = str(valid).lower()
             self.diag.extra["nis_average"] = f"{self.validity.average:.4g}"
+            if self.validity.reinit_due:  # not valid for reinit_time: start again from a coarse fix
+                self.stream.reset()
+                self.validity.reset()
+                self.diag.count("reinitialised")
+                self.get_logger().info(f"t={t:.1f} s: estimate not valid for {self.values['reinit_time']:g} s: "
+                                       "restarting from a coarse fix")
         self.publish(ns, t, out.state, r, v, valid)
+
+    def watch_sun(self, ns, t, r, have_sun: bool):
+        """The sun sensor's watch (onboard.fdir.SunSensorWatch) on this sample: WARN 'sun sensor' at the sample
+        its loss is detected, OK when it is back (both stamped with the sample)."""
+        verdict = self.sun_watch.step(self.models.lit(t, r), have_sun)
+        if verdict == LOST:
+            self.diag.unit_fault("sun sensor", f"lost: no sample for {self.sun_watch.loss_samples} steps predicted "
+                                               "lit; estimating on magnetometer and gyro", ns)
+        elif verdict == BACK:
+            self.diag.unit_back("sun sensor", "samples again", ns)
 
     def publish(self, ns, t, state, r, v, valid=True):
         """Publish estimate/attitude of sample ``ns``: the attitude w.r.t. the orbital axes with the MEKF's covariance (not

@@ -28,7 +28,8 @@ Publishes (stamp = truth stamp):
   /diagnostics           counters: samples, rejected_nonfinite, rejected_quaternion, rejected_stamp,
                          stale_inputs, sun_samples, sun_eclipse, sun_out_of_fov, faulted_samples, mag_dropped
 Faults (parameter ``faults``, magtune_core.design.faults): the magnetometer and gyro faults act on
-the samples of their sim time (``faults.measure``); a dropped magnetometer sample is not published.
+the samples of their sim time (``faults.measure``); a dropped magnetometer sample is not published,
+nor a sun sample while ``sun_loss`` acts (``faults.sun_lost``).
 QoS: magtune_ros.qos.LOCKSTEP_QOS. Noise: one row of design.sensors.NORMALS_PER_STEP standard
 normals per sample from numpy default_rng(seed), drawn only when some noise or bias is set (so
 zero-noise runs pass the truth through bit for bit); sun and position from sensors.aux_rng(seed).
@@ -267,6 +268,8 @@ class AttitudeSensors(ManagedNode):
         self.pub_pos.publish(pos)
         if not valid:
             return self.diag.count("sun_out_of_fov" if lit else "sun_eclipse")
+        if self.faults and fl.sun_lost(self.faults, stamp_to_ns(stamp) * 1e-9):  # injected: nothing comes out
+            return self.diag.count("faulted_samples")
         m = self.msg_sun
         m.header.stamp = stamp
         m.vector.x, m.vector.y, m.vector.z = (float(x) for x in s_m)
