@@ -66,8 +66,9 @@ def register(sub) -> None:
     p.add_argument("--rtf", type=float, default=0.0, help="pace at this real-time factor (default 0: max speed)")
     p.add_argument("--lockstep-timeout", type=float, default=2.0, metavar="S",
                    help="wall seconds the simulator waits for a step's command before it holds the last one and "
-                        "counts a missed step (default 2; a fault that silences the controller's input, e.g. "
-                        "mag_dropout, costs this per step: 0.25 keeps such runs short)")
+                        "counts a missed step (default 2): a step nobody answered, e.g. a killed or deactivated "
+                        "controller or sensors node, or an input it rejected. A magnetometer dropout costs nothing: "
+                        "the controller answers each sample without a field at once (held dipole, then zero)")
     p.add_argument("--bag", default=None, help="record the run to this MCAP bag (needs the recorder node)")
     p.add_argument("--bag-topics", nargs="+", default=None, metavar="TOPIC",
                    help="with --bag: record only these topics (/name or /name:pkg/msg/Type; default: every project topic)")

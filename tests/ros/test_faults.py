@@ -253,9 +253,10 @@ def test_nan_bursts_in_sensor_stream(tmp_path, gains60, offline):
 
 
 def test_relay_drops_ten_percent(tmp_path, gains60, offline):
-    """A relay drops 10 % of the sensor messages (seeded): a step with a dropped input has no
-    command and is counted missed, no other step is; the attitude stays bounded; the bag holds
-    exactly what the relay passed on. Lockstep timeout 1 s (each lost step waits it out: ~20 s in
+    """A relay drops 10 % of the sensor messages (seeded): a step whose attitude was dropped has no
+    command and is counted missed; a step whose magnetometer sample alone was dropped is answered at once
+    with the held or zero dipole (controller no_field, the offline loop's rule), no other step is missed;
+    the attitude stays bounded; the bag holds exactly what the relay passed on. Lockstep timeout 1 s (each lost step waits it out: ~20 s in
     all): at 0.25 s a CI run once counted a 21st miss for 20 lost steps, a stall, not a drop."""
     rig = Rig(tmp_path, gains60, relay_args=["--drop", 0.1, "--seed", 7], timeout=1.0).start()
     try:
@@ -267,8 +268,12 @@ def test_relay_drops_ten_percent(tmp_path, gains60, offline):
     assert 0.1 * (N + 1) <= len(lost) <= 0.35 * (N + 1)  # 1 - 0.9^2 = 19 % expected, seed 7
     counters = json.loads(str(res.info["counters"]))
     missed = counters["missed_steps"]
-    # as for NaN bursts: 3+ consecutive lost steps may be answered by the stale-data guard
-    assert len(lost) - _diag(rig.bag, "controller").get("stale_data", 0) <= missed <= len(lost)
+    att = set(rep["dropped"]["att"])
+    ctrl = _diag(rig.bag, "controller")
+    # as for NaN bursts: 3+ consecutive lost steps may be answered by the stale-data guard; a field-only loss
+    # before the controller's first matched pair (start-up) is not answered yet, hence the slack of no_field
+    assert len(att) - ctrl.get("stale_data", 0) <= missed <= len(lost) - ctrl.get("no_field", 0)
+    assert 0 < ctrl.get("no_field", 0) <= len(lost - att)
     assert _diag(rig.bag, "simulator")["missed_steps"] == missed
     c = _counts(rig.bag)
     assert c["/sensors/attitude"] == N + 1 - len(rep["dropped"]["att"])

@@ -1,9 +1,10 @@
 """Injected faults under the mode manager, over real DDS (issue 30): the sensors node killed during
 POINTING puts the manager in SAFE within its heartbeat_timeout, naming the node, and leaves no process
-behind; a magnetometer dropout goes SAFE on stale data and recovers to DETUMBLE. Each run starts in
+behind; a magnetometer dropout goes SAFE on stale data and recovers to DETUMBLE, with the offline loop's
+dipoles and no missed step (the controller answers a sample without a field at once). Each run starts in
 POINTING (aligned, the paper's dw(0)), in its own ROS domain (magtune_core.ros.sil: process groups,
-localhost discovery, every process stopped in a finally). Lockstep timeout 0.25 s: a step without a
-command (the controller has no input while a sensor is silent) costs that much wall time."""
+localhost discovery, every process stopped in a finally). Lockstep timeout 0.25 s where a node is
+killed: each step without a command (nobody answers) costs that much wall time."""
 from __future__ import annotations
 
 import os
@@ -15,8 +16,12 @@ import pytest
 
 from magtune_core import bags as bag
 from magtune_core.bags.decode import Decoder
+from magtune_core.design.gains import load_gains
+from magtune_core.design.node_params import INITIAL_RATE_ERROR
+from magtune_core.design.params import SpacecraftParams
 from magtune_core.onboard.modes import DETUMBLE, POINTING, SAFE
 from magtune_core.ros import sil
+from magtune_core.sim.modes_loop import simulate_modes
 from magtune_core.studies.report_modes import load_modes
 
 pytestmark = [pytest.mark.ros, pytest.mark.fault]
@@ -74,22 +79,60 @@ def test_sensors_killed_in_pointing_goes_safe_within_the_heartbeat_timeout(tmp_p
     assert np.all(m[205:] == 0.0) and np.any(m[:200] != 0.0)
 
 
+def _offline_dropout(steps: int):
+    """The offline loop of the SIL's run: aligned, the simulator's default dw(0), POINTING, the same dropout."""
+    p = SpacecraftParams()
+    return simulate_modes(load_gains(GAINS).K, p, dw0=INITIAL_RATE_ERROR, orbits=steps / p.orbit_period,
+                          initial_mode=POINTING, faults=["mag_dropout@100:30"])
+
+
+def test_mag_dropout_at_full_speed_runs_to_the_end(tmp_path):
+    """`magtune sil --modes --initial-mode POINTING --fault mag_dropout@100:30` at full speed and the default
+    lockstep timeout (2 s): the controller answers each of the 30 samples without a field at once (no_field:
+    the held dipole 2 Ts, then zero, the offline loop's to the last bit), so no step is missed and the run
+    ends in seconds (before, each of the 30 steps waited the 2-s timeout out and counted as missed). The
+    world crosses the dropout in a fraction of a wall second, less than the manager's 0.5-s
+    stale confirmation: the manager sees the silence proven by the field's return (its next sample, 130 s)
+    and still stamps SAFE where the lag was seen (103 s), DETUMBLE at 140 s, as offline (within one sample:
+    a manager behind the world may see the lag one sample late). The controller applies SAFE from its first
+    sample after the message, which can be a few samples after the field returned."""
+    run = sil.run_sil(GAINS, steps=160, ts=1.0, modes=True, initial_mode=POINTING, faults=["mag_dropout@100:30"],
+                      bag=tmp_path / "bag", log_dir=tmp_path / "logs", timeout=120)
+    assert run.counters["missed_steps"] == 0, run.counters
+    ctl = _diag(tmp_path / "bag", "controller")[-1][2]
+    assert int(ctl["no_field"]) == 30 and int(ctl["late_field"]) == 0, ctl
+    modes = _modes(tmp_path / "bag")
+    assert [m[1] for m in modes] == [POINTING, SAFE, DETUMBLE], modes
+    assert abs(modes[1][0] - 103.0) <= 1.0 and modes[1][2] == "sensor data stale"
+    assert abs(modes[2][0] - 140.0) <= 1.0 and "fresh for 10 s" in modes[2][2]
+    off = _offline_dropout(160)
+    assert np.all(run.result.m[102:130] == 0.0)  # held 2 Ts after the last field (99 s), then zero
+    assert np.array_equal(run.result.m[:130], off.m[:130]) and np.array_equal(run.result.q[:131], off.q[:131])
+
+
 def test_mag_dropout_goes_safe_then_detumble(tmp_path, monkeypatch):
-    """No magnetometer message for 30 s from t = 100 s: SAFE at 103 s (the last field is stamped 99 s and lags
-    the other streams by more than stale_timeout = 3 s from 103 s, as offline: tests/sim/test_faults_loop.py),
-    DETUMBLE at 140 s (fresh from 130 s for safe_recovery_time = 10 s). The manager's stale check runs on a
-    sim-time timer outside the lockstep: within one sample (1 s) of those times (measured 103 s and 140 s).
+    """No magnetometer message for 30 s from t = 100 s, paced at 20x real time: SAFE at 103 s (the last field is
+    stamped 99 s and lags the other streams by more than stale_timeout = 3 s from 103 s, as offline:
+    tests/sim/test_faults_loop.py), DETUMBLE at 140 s (fresh from 130 s for safe_recovery_time = 10 s): the
+    stamps of the samples the logic stepped on, within one sample of the offline times (a manager behind the
+    world may see the lag one sample late; measured 103 s and 140 s). At 20x the 30-s dropout lasts 1.5 s of
+    wall time, so the manager's SAFE (its 0.5-s confirmation) reaches the controller long before the field
+    returns: no step missed, and the dipoles and the attitude are the offline loop's bit for bit until the
+    controller applies DETUMBLE (from its first sample after the manager's message; offline at 140 s).
     ``magtune report`` on the bag draws the three mode bands on the pointing-error plot and lists the
     transitions in summary.md."""
     run = sil.run_sil(GAINS, steps=160, ts=1.0, modes=True, initial_mode=POINTING, faults=["mag_dropout@100:30"],
-                      lockstep_timeout=0.25, bag=tmp_path / "bag", log_dir=tmp_path / "logs", timeout=120)
+                      real_time_factor=20.0, bag=tmp_path / "bag", log_dir=tmp_path / "logs", timeout=120)
     modes = _modes(tmp_path / "bag")
     assert [m[1] for m in modes] == [POINTING, SAFE, DETUMBLE], modes
     assert abs(modes[1][0] - 103.0) <= 1.0 and modes[1][2] == "sensor data stale"
     assert abs(modes[2][0] - 140.0) <= 1.0 and "fresh for 10 s" in modes[2][2]
     counters = _diag(tmp_path / "bag", "attitude_sensors")[-1][2]
     assert int(counters["mag_dropped"]) == 30
-    assert np.all(run.result.m[104:140] == 0.0)  # no field, then SAFE: torquers off
+    assert run.counters["missed_steps"] == 0, run.counters
+    off = _offline_dropout(160)
+    assert np.all(off.m[102:140] == 0.0) and np.all(run.result.m[102:140] == 0.0)  # no field, then SAFE
+    assert np.array_equal(run.result.m[:140], off.m[:140]) and np.array_equal(run.result.q[:141], off.q[:141])
 
     # the report of the bag: bands on Fig. 2 (captured from the drawing call) and the transitions in the text
     from magtune_core.studies import report, report_modes

@@ -190,7 +190,7 @@ class AttitudeEstimator(ManagedNode):
 
     def check_pending(self):
         """Steady-time timer (20 Hz): a sample waiting for its sun message more than ``sun_wait`` wall s goes on without it (sun_missing)."""
-        if self.pending is not None and now_wall() - self.pending[2] > self.values["sun_wait"]:
+        if self.data_active and self.pending is not None and now_wall() - self.pending[2] > self.values["sun_wait"]:
             self.diag.count("sun_missing", "no sun sample for a step predicted lit")
             self._process(*self.pending[:2])
 

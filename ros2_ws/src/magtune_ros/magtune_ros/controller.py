@@ -29,11 +29,25 @@ Publishes:
                              one per input pair; recomputed every ``ts`` of sim time, held between.
   /diagnostics  counters: samples, commands, weak_field, saturated, rejected_nonfinite, rejected_implausible,
                 rejected_quaternion, rejected_stamp, stale_inputs, stale_data, mode_changes, rejected_mode,
-                no_attitude;
+                no_attitude, no_field, late_field;
                 state (lifecycle), mode
 Inputs are paired by identical stamps. Bad inputs are rejected with a logged reason and
 counted; |b| < min_field gives a zero dipole (counted as weak_field); if no valid input for
 more than 2 ts of sim time, the held dipole is zeroed (stale_data).
+
+A sample without its magnetometer message (a dropout: the attitude of t_k came, no field of t_k)
+is answered at once with the dipole the offline mode loop models (sim/modes_loop.py): the held
+one until 2 ts after the last field, then zero (counted no_field), so the lockstep goes on and the
+simulator counts no missed step. How the node knows at once that the field of t_k is missing:
+attitude_sensors publishes a step's magnetometer sample before its attitude, from one DDS participant
+to this one, and in the lockstep only the current step's few messages are in flight, so none is lost
+and resent out of order: the field of t_k, when there is one, arrives and is taken (the executor
+takes messages in arrival order, the field's subscription first) before the attitude of t_k. The
+rule applies once a first pair came after activation (at start-up the two readers match the sensors
+one by one, and transient-local history may bring the field after the attitude). A field message of
+t_k that came but was rejected (non-finite, implausible, stale) leaves the sample unanswered, as
+before: the simulator holds and counts the step. A field of t_k that arrives after its sample was
+answered is dropped and counted (late_field): the order above did not hold.
 """
 from __future__ import annotations
 
@@ -76,9 +90,11 @@ class Controller(ManagedNode):
     def __init__(self):
         super().__init__(self.NODE_NAME, ["samples", "commands", "weak_field", "saturated", "rejected_nonfinite",
                                           "rejected_implausible", "rejected_quaternion", "rejected_stamp",
-                                          "stale_inputs", "stale_data", "mode_changes", "rejected_mode", "no_attitude"])
+                                          "stale_inputs", "stale_data", "mode_changes", "rejected_mode", "no_attitude",
+                                          "no_field", "late_field"])
         self.m = np.zeros(3)
         self.last_input_ns = None
+        self.answered_ns = None  # stamp of the last sample answered with a command (a pair or no_field)
         self.create_timer(0.1, self.check_stale, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     # ---------------------------------------------------------------- lifecycle
@@ -119,6 +135,8 @@ class Controller(ManagedNode):
         self.fstate = FilterState()
         self.next_sample_ns = None
         self.last_input_ns = None
+        self.answered_ns = None  # no_field answers only after a first pair (the module docstring)
+        self.field_seen_ns = -1  # newest stamp of any magnetometer message taken, valid or not
         self.m = np.zeros(3)
         self.pub = self.data_publisher(Vector3Stamped, TOPIC_DIPOLE, LOCKSTEP_QOS)
         self.data_subscription(Mode, TOPIC_MODE, self.on_mode, MODE_QOS)
@@ -140,6 +158,7 @@ class Controller(ManagedNode):
 
     def on_mag(self, msg: MagneticField):
         """sensors/magnetic_field: rejects and counts a non-finite or implausible (> MAX_FIELD) field; else stamp-gated and paired."""
+        self.field_seen_ns = max(self.field_seen_ns, stamp_to_ns(msg.header.stamp))
         b = msg.magnetic_field
         if not finite(b.x, b.y, b.z):
             return self.diag.count("rejected_nonfinite", "non-finite magnetic field")
@@ -157,18 +176,36 @@ class Controller(ManagedNode):
         self._input(1, msg)
 
     def _input(self, slot, msg):
+        if self.diag.extra.get("state") != "active":
+            # a message the executor hands over after a peer's deactivate destroyed the topics: dropped (its command
+            # would go to the destroyed publisher, which raises and ended the node)
+            return
         ns = stamp_to_ns(msg.header.stamp)
         bad = self.gate.check(slot, ns)
         if bad:
             return self.diag.count(*bad)
+        if slot == 0 and self.answered_ns is not None and ns <= self.answered_ns:
+            return self.diag.count("late_field", f"field of t={ns * 1e-9:.3f} s came after its sample was answered "
+                                                 "without it: dropped")
         pair = self.sync.add(slot, ns, msg)
         if pair:
             self.command(ns, *pair)
+        elif slot == 1 and self.answered_ns is not None and self.field_seen_ns < ns:
+            self.no_field(ns)
+
+    def no_field(self, ns):
+        """The attitude of t = ``ns`` came without its magnetometer sample (module docstring): hold the dipole until
+        2 ts after the last field, then zero it, as the offline loop (``modes_loop._Stack.step``); publish it stamped ``ns``."""
+        self.diag.count("no_field", f"no magnetometer sample of t={ns * 1e-9:.3f} s: dipole held 2 ts, then zero")
+        if self.last_input_ns is None or ns - self.last_input_ns > 2 * self.ts_ns:
+            self.m = np.zeros(3)
+        self.answered_ns = ns
+        self.publish(ns)
 
     def command(self, ns, mag: MagneticField, att: Imu):
         """A stamp-paired sample: recompute the dipole with the mode's law when a sample period ``ts`` is due (else hold it), then
         publish it stamped ``ns``."""
-        self.last_input_ns = ns
+        self.last_input_ns = self.answered_ns = ns
         if self.next_sample_ns is None or ns >= self.next_sample_ns:
             o, w, b = att.orientation, att.angular_velocity, mag.magnetic_field
             bv = np.array([b.x, b.y, b.z])
@@ -204,10 +241,12 @@ class Controller(ManagedNode):
 
     def check_stale(self):
         """Steady-time timer (10 Hz): while active, zero a nonzero held dipole and publish it when no valid input came for 2 ts of
-        sim time (stale_data)."""
+        sim time (stale_data); not while the attitude still comes (no_field answers each sample at its own stamp)."""
         if self.last_input_ns is None or not np.any(self.m) or self.diag.extra.get("state") != "active":
             return
         now = self.get_clock().now().nanoseconds
+        if self.answered_ns is not None and now - self.answered_ns <= self.ts_ns:
+            return
         if now - self.last_input_ns > 2 * self.ts_ns:
             self.m = np.zeros(3)
             self.diag.count("stale_data", f"no valid input since t={self.last_input_ns * 1e-9:.3f} s "

@@ -169,11 +169,24 @@ class ManagedNode(LifecycleNode):
         self._entities.append(pub)
         return pub
 
-    def data_subscription(self, *args, **kw):
-        """A subscription that exists while the node is active (``raw=True``: the callback gets the bytes)."""
-        sub = self.create_subscription(*args, **kw)
+    def data_subscription(self, msg_type, topic, callback, *args, **kw):
+        """A subscription that exists while the node is active (``raw=True``: the callback gets the bytes).
+
+        The callback is skipped once the node left *active*: a message the executor took before a peer's
+        deactivate was served would otherwise publish on a destroyed publisher (InvalidHandle: the node died).
+        """
+        def while_active(msg):
+            if self._entities:
+                callback(msg)
+
+        sub = self.create_subscription(msg_type, topic, while_active, *args, **kw)
         self._entities.append(sub)
         return sub
+
+    @property
+    def data_active(self) -> bool:
+        """The data topics exist (the node is *active*): timers that publish check it."""
+        return bool(self._entities)
 
     def _destroy_entities(self):
         for e in self._entities:

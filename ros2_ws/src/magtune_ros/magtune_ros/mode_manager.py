@@ -27,6 +27,18 @@ Health, two clocks:
              heartbeat) at 1 Hz of steady time; none for ``heartbeat_timeout`` s -> SAFE, the
              node named in the reason and on /diagnostics (ERROR). Wall time, because in lockstep
              a dead node stalls the simulator and so /clock: a sim-time timeout would never expire.
+             The ages count what the manager watched: after a gap between two checks above
+             SELF_STALL (the manager itself stopped or starved; counter self_stalls) it first listens
+             for heartbeat_timeout, taking in what the stall held back (a reliable stream's gap is
+             repaired within a DDS writer's heartbeat period, seconds), and every age counts from the
+             end of that: a manager that did not run never blames a node for the silence it could
+             not watch.
+  lifecycle  each managed node's ``<node>/transition_event`` (lifecycle_msgs/TransitionEvent): while
+             monitoring, a node that leaves *active* (a peer's deactivate or shutdown; the manager
+             changes states only at bring-up and bring-down) is lost as a silent one is: SAFE, the
+             reason ``controller left active (deactivated by a peer)`` on mode and /diagnostics
+             (ERROR, counter left_active); its heartbeat goes on in every state, so only the event
+             tells. Active again: back, as a heartbeat that comes back.
   staleness  sim time, from the stamps only: at every sensor message, a stream whose last stamp
              lags the newest of the other by more than ``stale_timeout`` -> the logic steps with
              ``stale`` at the newest stamp -> SAFE, once the lagging stream stayed silent for
@@ -41,7 +53,8 @@ Publishes:
   mode           magtune_interfaces/Mode (MODE_QOS: reliable, transient-local): the mode, the
                  previous one and the reason of the last transition, stamped with its sim time
   /diagnostics   counters: samples, transitions, requests, rejected_nonfinite, rejected_malformed,
-                 rejected_stamp, stale, heartbeat_lost; mode; ERROR naming the node whose heartbeat is missing
+                 rejected_stamp, stale, heartbeat_lost, left_active, self_stalls; mode; lost (the nodes lost);
+                 ERROR naming each node whose heartbeat is missing or which left active, and why
 Service:
   set_mode       magtune_interfaces/SetMode: a commanded mode (reason recorded); a commanded SAFE
                  is sticky: it holds until another mode is commanded (docs/decisions.md)
@@ -51,17 +64,19 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from lifecycle_msgs.msg import State, Transition
+from lifecycle_msgs.msg import State, Transition, TransitionEvent
 from lifecycle_msgs.srv import ChangeState, GetState
 from magtune_interfaces.msg import Mode
 from magtune_interfaces.srv import SetMode
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from sensor_msgs.msg import Imu, MagneticField
 
@@ -85,6 +100,21 @@ STREAMS = ("sensors/magnetic_field", "sensors/attitude")
 #: world may drain one subscription in a burst before the other (a one-off SAFE in CI at 3 s of lag), while
 #: a dropped stream stays silent; the stale step keeps the stamp where the lag was seen.
 STALE_CONFIRM = 0.5
+#: Period of the liveness check [steady s].
+CHECK_PERIOD = 0.25
+#: A gap between two liveness checks above this [steady s] (4 periods) means the manager itself did not run
+#: (stopped, starved of CPU): it listens for heartbeat_timeout before any heartbeat age counts again (stalled;
+#: docs/modes.md, "The node side"). A shorter one adds at most 1 s to an age, within heartbeat_timeout (3 s)
+#: less the 1-s heartbeat period.
+SELF_STALL = 1.0
+#: Why a managed node left active, by the state its event goes to from active (rcl_lifecycle's events carry
+#: no transition id or label). The manager changes states only outside monitoring, so while it monitors
+#: these came from elsewhere.
+LEFT_ACTIVE = {State.TRANSITION_STATE_DEACTIVATING: "deactivated by a peer",
+               State.TRANSITION_STATE_SHUTTINGDOWN: "shut down by a peer",
+               State.TRANSITION_STATE_ERRORPROCESSING: "an error in the node"}
+#: ``<node>/transition_event``: rcl_lifecycle publishes with rcl's default profile (reliable, volatile).
+EVENT_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 
 
 class BringUpError(RuntimeError):
@@ -118,15 +148,20 @@ class ModeManager(Node):
         self.previous = self.state.mode
         self.last = None            # last Measurements
         self.b_prev = None          # last magnetometer sample (the frozen-sensor guard's |b_k - b_(k-1)|)
-        self.beats: dict[str, float] = {}      # node -> steady time [s] of its last heartbeat
+        self.beats: dict[str, float] = {}      # node -> steady time [s] its silence counts from (stalled)
         self.errors: dict[str, str] = {}       # node -> its ERROR status message (failed configure)
-        self.lost: set[str] = set()
+        self.silent: set[str] = set()          # nodes whose heartbeat is missing
+        self.left: dict[str, str] = {}         # node -> why it left active (its transition event)
+        self.why: dict[str, str] = {}          # node -> why it is lost (the ERROR status)
+        self.lost: set[str] = set()            # silent or left: SAFE holds while not empty (step)
         self.monitoring = False
+        self.checked = time.monotonic()        # steady time of the last liveness check
         # stamps must increase; no age limit: a manager behind the world (it is outside the lockstep)
         # still steps the logic on every sample, in stamp order, so its decisions do not depend on its lag
         self.gate = StampGate(self, None, n=2)
         self.diag = Diagnostics(self, ["samples", "transitions", "requests", "rejected_nonfinite",
-                                         "rejected_malformed", "rejected_stamp", "stale", "heartbeat_lost"],
+                                         "rejected_malformed", "rejected_stamp", "stale", "heartbeat_lost",
+                                         "left_active", "self_stalls"],
                                   now_ns=lambda: max(0, *self.gate.last_ns))
         self.sync = PairSync(2)  # magnetometer, attitude (with the gyro) of t_k
         self.lagging = None  # (slot, its last stamp, newest stamp, steady time) of a lag not yet confirmed
@@ -137,7 +172,9 @@ class ModeManager(Node):
         self.create_service(SetMode, SERVICE_SET_MODE, self.on_set_mode)
         self.change = {n: self.create_client(ChangeState, f"{n}/change_state") for n in self.nodes}
         self.get_state = {n: self.create_client(GetState, f"{n}/get_state") for n in self.nodes}
-        self.create_timer(0.25, self.check_heartbeats, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        for n in self.nodes:  # matched long before bring-up ends; events count only while monitoring
+            self.create_subscription(TransitionEvent, f"{n}/transition_event", partial(self.on_transition, n), EVENT_QOS)
+        self.create_timer(CHECK_PERIOD, self.check_heartbeats, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.publish_mode()
 
     # ---------------------------------------------------------------- lifecycle of the managed nodes
@@ -212,34 +249,85 @@ class ModeManager(Node):
             ns = next((kv.value for kv in st.values if kv.key == "namespace"), None)
             if ns is not None and ns != self.get_namespace():
                 continue
-            self.beats[node] = now
+            self.beats[node] = max(now, self.beats.get(node, now))  # not before a listening period's end
             if st.level == DiagnosticStatus.ERROR:
                 self.errors[node] = printable(st.message, 500)  # a peer's string, printed on a failed bring-up
-            if node in self.lost:
-                self.lost.discard(node)
-                self.get_logger().warning(f"heartbeat of {node} back")
-                if not self.lost:
-                    self.diag.status = None
+            if node in self.silent:
+                self.silent.discard(node)
+                self.regained(node, f"heartbeat of {node} back")
+
+    def on_transition(self, node: str, msg: TransitionEvent):
+        """``<node>/transition_event``: while monitoring, a node leaving active is lost (the cause from the state it
+        goes to: LEFT_ACTIVE, else that state's label as one bounded line); entering active again, it is back."""
+        if not self.monitoring:
+            return
+        active = State.PRIMARY_STATE_ACTIVE
+        if msg.start_state.id == active and msg.goal_state.id != active and node not in self.left:
+            self.left[node] = LEFT_ACTIVE.get(msg.goal_state.id, f"now {printable(msg.goal_state.label, 64)}")
+            self.lose(node, f"{node} left active ({self.left[node]})", "left_active")
+        elif msg.goal_state.id == active and node in self.left:
+            del self.left[node]
+            self.regained(node, f"{node} active again")
 
     def check_heartbeats(self):
-        """Liveness on steady time: a managed node silent for heartbeat_timeout s -> SAFE, named;
-        and a sensor stream's lag waiting for its confirmation (check_stale)."""
+        """Liveness on steady time, counting the manager's own running time only (``stalled``): a managed node
+        silent for heartbeat_timeout s -> SAFE, named; and a sensor stream's lag waiting for its confirmation
+        (check_stale)."""
+        now = time.monotonic()
+        gap, self.checked = now - self.checked, now
+        if gap > SELF_STALL:
+            self.stalled(now, gap)
         if self.lagging is not None:
             self.check_stale()
         if not self.monitoring:
             return
-        now = time.monotonic()
         for n in self.nodes:
             age = now - self.beats.get(n, now)
-            if age > self.heartbeat_timeout and n not in self.lost:
-                self.lost.add(n)
-                reason = f"heartbeat of {n} missed for {age:.1f} s (heartbeat_timeout {self.heartbeat_timeout:g} s)"
-                self.diag.count("heartbeat_lost", reason)
-                self.diag.status = (DiagnosticStatus.ERROR, reason)
-                self.diag.extra["lost"] = ",".join(sorted(self.lost))
-                if self.state.mode != SAFE:
-                    self.apply(*self.logic.request(self.state, SAFE, self.now_s(), reason, hold=False))
-                self.diag.publish()
+            if age > self.heartbeat_timeout and n not in self.silent:
+                self.silent.add(n)
+                self.lose(n, f"heartbeat of {n} missed for {age:.1f} s (heartbeat_timeout {self.heartbeat_timeout:g} s)",
+                          "heartbeat_lost")
+
+    def stalled(self, now: float, gap: float):
+        """The manager itself did not run for ``gap`` steady seconds (this check came late). It first listens for
+        heartbeat_timeout, taking in what the stall held back (DDS repairs a reliable stream's gap within a writer's
+        heartbeat period: the controller's heartbeats came back 2.4 s after a 5-s stop), and every heartbeat age
+        counts from the end of that; a stream lag's confirmation time leaves the stall out."""
+        listen = now + self.heartbeat_timeout
+        self.beats = {n: max(t, listen) for n, t in self.beats.items()}
+        if self.lagging is not None and self.lagging[3] is not None:
+            self.lagging = (*self.lagging[:3], min(now, self.lagging[3] + gap - CHECK_PERIOD))
+        if self.monitoring:  # rare and telling: every one is logged
+            self.diag.count("self_stalls")
+            self.get_logger().warning(f"the manager did not run for {gap:.1f} s (liveness check gap): heartbeat ages "
+                                      f"count from {self.heartbeat_timeout:g} s from now")
+
+    def lose(self, node: str, reason: str, counter: str):
+        """``node`` is lost (silent, or out of active): counted, ERROR on /diagnostics naming it, and SAFE with
+        ``reason`` (hold=False: it recovers by itself once every node is back and the data fresh), stamped with the
+        manager's sim time now (now_s: the newest sample stamp it holds)."""
+        self.lost.add(node)
+        self.why[node] = reason
+        self.diag.count(counter, reason)
+        self.show_lost()
+        if self.state.mode != SAFE:
+            self.apply(*self.logic.request(self.state, SAFE, self.now_s(), reason, hold=False))
+        self.diag.publish()
+
+    def regained(self, node: str, what: str):
+        """One cause of ``node``'s loss is gone (logged ``what``); it is back once neither is left."""
+        self.get_logger().warning(what)
+        if node in self.silent or node in self.left:
+            return
+        self.lost.discard(node)
+        self.why.pop(node, None)
+        self.show_lost()
+
+    def show_lost(self):
+        """The lost nodes on /diagnostics: key ``lost`` and an ERROR status with the reason of each (None: none lost)."""
+        self.diag.extra["lost"] = ",".join(sorted(self.lost))
+        self.diag.status = (DiagnosticStatus.ERROR, "; ".join(self.why[n] for n in sorted(self.lost))) \
+            if self.lost else None
 
     def check_stale(self):
         """Staleness on sim time, from the stamps: a sensor stream whose last stamp lags the newest
@@ -266,6 +354,19 @@ class ModeManager(Node):
         self.diag.count("stale", f"{STREAMS[slot]} {lag * 1e-9:.1f} s behind the other sensor stream")
         self.step(replace(self.last or Measurements(rate=math.nan), stale=True), at * 1e-9)
 
+    def proven_silence(self, slot: int, ns: int):
+        """A lag still waiting for STALE_CONFIRM is proven when the lagging stream delivers again past the stamp where
+        the lag was seen, its last sample still the one the lag was seen against: a reliable stream is delivered in
+        order, so the samples between were never sent (or lost to the manager's full history). The logic then steps
+        ``stale`` at the stamp where the lag was seen, as check_stale does once confirmed. A run whose controller
+        answers a missing field at once can end a dropout in less than STALE_CONFIRM of wall time."""
+        lg = self.lagging
+        if lg is None or lg[3] is None or lg[0] != slot or self.gate.last_ns[slot] != lg[1] or ns <= lg[2]:
+            return
+        self.lagging = None
+        self.diag.count("stale", f"{STREAMS[slot]} silent from {lg[1] * 1e-9:.1f} s to {ns * 1e-9:.1f} s")
+        self.step(replace(self.last or Measurements(rate=math.nan), stale=True), lg[2] * 1e-9)
+
     # ---------------------------------------------------------------- mode logic
     def on_mag(self, data: bytes):
         """sensors/magnetic_field (raw): rejects and counts a malformed or non-finite sample; else stamp-gated and paired with the attitude."""
@@ -286,6 +387,7 @@ class ModeManager(Node):
         self._input(1, f[0], f[1:])
 
     def _input(self, slot: int, ns: int, values):
+        self.proven_silence(slot, ns)
         bad = self.gate.check(slot, ns)
         if bad:
             return self.diag.count(*bad)
