@@ -304,10 +304,11 @@ class MekfStream:
         ----------
         w_prev : array_like (3,) or None
             Gyro sample of sample k-1 [rad/s], body axes (None at k = 0).
-        mag : array_like (3,)
-            Magnetometer sample [T], body axes.
-        b_ref : array_like (3,)
-            Reference field [T], reference axes (:meth:`OnboardModels.field`).
+        mag : array_like (3,) or None
+            Magnetometer sample [T], body axes (None: a dropout, no magnetometer update; the filter
+            propagates on the gyro and takes the sun update alone).
+        b_ref : array_like (3,) or None
+            Reference field [T], reference axes (:meth:`OnboardModels.field`; not read without ``mag``).
         sun : array_like (3,), optional
             Unit Sun vector, body axes (None: no valid sun measurement).
         s_ref : array_like (3,), optional
@@ -319,10 +320,12 @@ class MekfStream:
             The state (None before the coarse fix), NIS and gate decision of each update.
         """
         self.k += 1
-        mag, b_ref = np.asarray(mag, dtype=float), np.asarray(b_ref, dtype=float)
         started = False
         if self.state is None:
-            start = self._fix(w_prev, mag, b_ref, sun, s_ref)
+            if mag is None:  # the gyro carries the first field of the magnetometer-only fix (no field yet: not counted)
+                self._carry_first(w_prev)
+                return StepOutput(None)
+            start = self._fix(w_prev, np.asarray(mag, dtype=float), np.asarray(b_ref, dtype=float), sun, s_ref)
             if start is None:
                 return StepOutput(None)
             self.state, started = start, True
@@ -330,25 +333,39 @@ class MekfStream:
             return self._step_compiled(w_prev, mag, b_ref, sun, s_ref)
         else:
             self.state = propagate(self.state, w_prev, self.ts, self.params)
-        self.state, _, nis_m, ok_m = update(self.state, mag, b_ref, self.R_mag, self.gate_mag, biased=True)
+        nis_m, ok_m = math.nan, None
+        if mag is not None:
+            self.state, _, nis_m, ok_m = update(self.state, mag, b_ref, self.R_mag, self.gate_mag, biased=True)
         nis_s, ok_s = math.nan, None
         if sun is not None:
             self.state, _, nis_s, ok_s = update(self.state, sun, s_ref, self.R_sun, self.gate_sun)
         return StepOutput(self.state, nis_m, nis_s, ok_m, ok_s, started)
+
+    def _carry_first(self, w_prev) -> None:
+        """A sample without a field before the fix: the gyro turns the first field on (before any field: the
+        sample does not count)."""
+        if self._first is None:
+            self.k -= 1
+        else:
+            self._carry = quat_mul(self._carry, rotvec_quat(np.asarray(w_prev, dtype=float) * self.ts))
 
     def _step_compiled(self, w_prev, mag, b_ref, sun, s_ref) -> StepOutput:
         """:meth:`step` after the fix with :mod:`mekf_kernel`'s propagate and update (in place, on copies)."""
         k, st = self._kernel, self.state
         q, b, m, P = st.q.copy(), st.b.copy(), st.m.copy(), st.P.copy()
         k.propagate(q, b, P, np.asarray(w_prev, dtype=float), self.ts, self._sv2, self._su2, self._sm2, k.GL_X, k.GL_W)
-        nis_m, ok_m = k.update(q, b, m, P, np.asarray(mag, dtype=float), np.asarray(b_ref, dtype=float), self._R_mag,
-                               self.gate_mag, True)
+        nis_m, ok_m = math.nan, None
+        if mag is not None:
+            nis_m, ok_m = k.update(q, b, m, P, np.asarray(mag, dtype=float), np.asarray(b_ref, dtype=float), self._R_mag,
+                                   self.gate_mag, True)
+            ok_m = bool(ok_m)
         nis_s, ok_s = math.nan, None
         if sun is not None:
             nis_s, ok_s = k.update(q, b, m, P, np.asarray(sun, dtype=float), np.asarray(s_ref, dtype=float),
                                    self._R_sun, self.gate_sun, False)
+            ok_s = bool(ok_s)
         self.state = MekfState(q, b, P, m)
-        return StepOutput(self.state, nis_m, nis_s, bool(ok_m), ok_s if ok_s is None else bool(ok_s), False)
+        return StepOutput(self.state, nis_m, nis_s, ok_m, ok_s, False)
 
     def _fix(self, w_prev, mag, b_ref, sun, s_ref) -> MekfState | None:
         """The coarse fix of this sample, or None while waiting for the field to turn."""

@@ -105,24 +105,39 @@ def test_compiled_filter_equals_python_filter(eclipse_start, mag_bias_std):
     assert km.counts[0, 0] + km.counts[0, 1] == n + 1 - started
 
 
+#: Magnetometer gaps (dropouts: MekfStream.step with mag None): a few samples before the fix with
+#: eclipse_start (the magnetometer-only fix waits for the field to turn), 60 s in sunlight, 60 s in eclipse.
+GAPS = (range(3, 8), range(700, 760), range(1200, 1260))
+
+
 @pytest.mark.parametrize("eclipse_start", [False, True])
 def test_compiled_stream_equals_python_stream(eclipse_start):
     """MekfStream(compiled=True) (the attitude_estimator node's: the kernel's propagate and update
     after the Python coarse fix) against MekfStream on the run above (9 states, the default prior, the
-    200 nT magnetometer bias): the same fix sample, NIS to 1e-9 relative, attitude and biases within
-    1e-10 (rad, of the priors), P within 1e-10 relative."""
+    200 nT magnetometer bias), with the magnetometer gaps of GAPS: the same fix sample, NIS to 1e-9
+    relative, attitude and biases within 1e-10 (rad, of the priors), P within 1e-10 relative. Through a gap
+    no magnetometer update is made (NIS nan, no decision) and the attitude error at its end stays within
+    the propagated covariance (NEES)."""
     n = 3000
     truth, suite, (mag, w_m, s_m, s_ok) = _run(n, eclipse_start)
     ref, fast = MekfStream(suite), MekfStream(suite, compiled=True)
     worst, accepted = np.zeros(4), [0, 0]
+    gap = {k for g in GAPS for k in g}
     for k in range(n + 1):
-        args = (w_m[k - 1] if k else None, mag[k], truth.b_ref[k],
+        args = (w_m[k - 1] if k else None, None if k in gap else mag[k], truth.b_ref[k],
                 *((s_m[k], truth.sun_ref[k]) if s_ok[k] else (None, None)))
         a, b = ref.step(*args), fast.step(*args)
         assert (a.state is None) == (b.state is None) and a.started == b.started, k
         if a.state is None:
             continue
         assert (a.mag_accepted, a.sun_accepted) == (b.mag_accepted, b.sun_accepted), k
+        if k in gap:
+            assert a.mag_accepted is None and math.isnan(a.nis_mag) and math.isnan(b.nis_mag), k
+            if k + 1 not in gap:  # the gap's end: the gyro carried the attitude within its covariance (NEES
+                # below chi2(3)'s 0.9999 quantile, 21.1: a consistent filter fails it once in 10^4 gap ends)
+                err = E.attitude_error(truth.q[k], a.state.q)
+                assert err @ np.linalg.solve(a.state.P[:3, :3], err) < 21.1, (k, err)
+            continue
         accepted[0] += a.mag_accepted
         accepted[1] += bool(a.sun_accepted)
         assert math.isclose(a.nis_mag, b.nis_mag, rel_tol=1e-9), (k, a.nis_mag, b.nis_mag)
@@ -133,4 +148,4 @@ def test_compiled_stream_equals_python_stream(eclipse_start):
                                    np.max(np.abs(a.state.m - b.state.m)) / 3e-7])
     assert np.all(worst < 1e-10), worst
     print(f"worst differences (attitude rad, bias, P rel, mag bias): {worst}")
-    assert accepted[0] > 2500 and accepted[1] > 1500, accepted
+    assert accepted[0] > 2400 and accepted[1] > 1400, accepted

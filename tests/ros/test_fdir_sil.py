@@ -11,17 +11,25 @@ pytestmark = [pytest.mark.ros, pytest.mark.fault]
 UNITS = ("torquer x", "torquer y", "torquer z", "magnetometer", "gyro", "sun sensor")
 
 
-def test_sun_sensor_loss_named_at_detection_and_back(tmp_path):
+def test_sun_sensor_loss_named_at_detection_and_back_and_a_field_gap_estimated_on_the_gyro(tmp_path):
     """sun_loss from 100 s for 200 s in sunlight (the default orbit is lit until ~1720 s): WARN 'sun sensor' in
     an array stamped 109 s (the 10th predicted-lit sample without a sun sample, sun_loss_samples' default),
     OK 'sun sensor' stamped 300 s (its first sample back); no other status names a unit; the steps after the
-    detection do not wait sun_wait (at most the 10 detection samples count as sun_missing)."""
+    detection do not wait sun_wait (at most the 10 detection samples count as sun_missing).
+    mag_dropout from 320 s for 20 s: the estimator estimates each of the 20 samples on the gyro and the sun
+    (mag_missing = 20, an estimate of every stamp with its covariance), so the lockstep misses no step."""
     bag = tmp_path / "bag"
     run = sil.run_sil("config/gains/sigma_120.yaml", steps=400, environment="full", attitude="estimator",
-                      faults=("sun_loss@100:200",), log_dir=tmp_path / "logs", bag=bag, timeout=300)
+                      faults=("sun_loss@100:200", "mag_dropout@320:20"), log_dir=tmp_path / "logs", bag=bag,
+                      timeout=300)
     dec, seen, counters = Decoder(), [], {}
-    for m in baglib.iter_messages(bag, topics=["/diagnostics"]):
+    gap = {}
+    for m in baglib.iter_messages(bag, topics=["/diagnostics", "/estimate/attitude"]):
         arr = dec.decode(m.data, m.type)
+        if m.topic == "/estimate/attitude":
+            if 315 <= stamp_ns(arr) * 1e-9 < 345:
+                gap[round(stamp_ns(arr) * 1e-9)] = arr.orientation_covariance[0]
+            continue
         for st in arr.status:
             if st.name == "magtune/attitude_estimator":
                 counters = {kv.key: kv.value for kv in st.values}
@@ -35,3 +43,6 @@ def test_sun_sensor_loss_named_at_detection_and_back(tmp_path):
     assert first[0][0] == pytest.approx(300.0) and first[0][1] == "sun sensor: samples again", seen
     assert all(msg.startswith("sun sensor") for _, _, msg in seen)
     assert int(counters["sun_missing"]) <= 10 and run.counters.get("missed_steps", 0) == 0, counters
+    assert int(counters["mag_missing"]) == 20 and int(counters["mag_late"]) == 0, counters
+    # every stamp of the gap estimated, with a covariance (valid: > 0): the gyro carries the attitude over 20 s
+    assert sorted(gap) == list(range(315, 345)) and min(gap.values()) > 0, gap

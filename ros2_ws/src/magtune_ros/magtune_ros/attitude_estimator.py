@@ -21,12 +21,18 @@ Publishes:
                           [rad^2, body axes]; angular_velocity = gyro minus estimated bias [rad/s] with
                           covariance (sigma_v^2 / ts + bias variance); linear_acceleration_covariance[0] = -1
   /diagnostics            counters: samples, estimates, mag_accepted, mag_rejected, sun_accepted,
-                          sun_rejected, sun_missing, sun_late, rejected_nonfinite, rejected_stamp,
-                          stale_inputs; values nis_mag, nis_sun (last), state, fixed_at
+                          sun_rejected, sun_missing, sun_late, mag_missing, mag_late, reinitialised,
+                          rejected_nonfinite, rejected_malformed, rejected_stamp, stale_inputs; values nis_mag, nis_sun (last), state, fixed_at
 A sample t_k is processed when its gyro, magnetometer (and, full environment, position fix)
 messages are in: with its sun message if that arrived, without one if the on-board model puts the
 satellite in the Earth's shadow, else after waiting ``sun_wait`` wall seconds (sun_missing); a sun
-message of an already processed stamp is dropped (sun_late). Sun sensor loss (onboard.fdir.SunSensorWatch,
+message of an already processed stamp is dropped (sun_late). A sample whose gyro sample came without its
+magnetometer sample (a dropout, or a field rejected as non-finite) is estimated at once on the gyro alone
+(and the sun when it comes; mag_missing): attitude_sensors publishes a step's field before its gyro sample,
+so once the gyro sample of t_k is in, the field of t_k is not coming (the controller's no_field rule, which
+holds after a first complete sample); a field of an already estimated stamp is dropped (mag_late). So the
+estimate goes on through a magnetometer gap, the lockstep misses no step, and the mode manager sees the
+magnetometer stream lag the estimate's (its staleness rule). Sun sensor loss (onboard.fdir.SunSensorWatch,
 ``sun_loss_samples`` predicted-lit samples in a row without one): WARN "sun sensor" on /diagnostics at
 that sample, and steps no longer wait for it until a sun sample comes again (OK "sun sensor"). Before the coarse fix each sample's message has
 orientation_covariance[0] = -1 (unknown; the controller commands zero dipole outside DETUMBLE). With
@@ -82,7 +88,8 @@ class AttitudeEstimator(ManagedNode):
 
     def __init__(self):
         super().__init__(self.NODE_NAME, ["samples", "estimates", "mag_accepted", "mag_rejected", "sun_accepted",
-                                          "sun_rejected", "sun_missing", "sun_late", "reinitialised", "rejected_nonfinite",
+                                          "sun_rejected", "sun_missing", "sun_late", "mag_missing", "mag_late",
+                                          "reinitialised", "rejected_nonfinite",
                                           "rejected_malformed", "rejected_stamp", "stale_inputs"])
         self.pending = None
         self.create_timer(0.05, self.check_pending, clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -115,7 +122,7 @@ class AttitudeEstimator(ManagedNode):
         self.sync = PairSync(3 if self.full else 2)  # imu, mag (, position): same stamp t_k
         self.suns: dict = {}
         self.sun_watch = SunSensorWatch(int(v["sun_loss_samples"]))
-        self.last_ns, self.w_prev, self.pending = -1, None, None
+        self.last_ns, self.w_prev, self.pending, self.paired = -1, None, None, False
         self.pub = self.data_publisher(Imu, TOPIC_ESTIMATE, LOCKSTEP_QOS)
         self.data_subscription(Imu, TOPIC_IMU, self.on_imu, LOCKSTEP_QOS, raw=True)
         self.data_subscription(MagneticField, TOPIC_MAG, self.on_mag, LOCKSTEP_QOS, raw=True)
@@ -178,9 +185,17 @@ class AttitudeEstimator(ManagedNode):
         bad = self.gate.check(slot, ns)
         if bad:
             return self.diag.count(*bad)
+        if slot == 1 and ns <= self.last_ns:
+            return self.diag.count("mag_late", f"field of t={ns * 1e-9:.3f} s came after its step was estimated "
+                                               "without it: dropped")
         group = self.sync.add(slot, ns, value)
+        if group is None and slot != 1 and self.paired and ns in self.sync.slots[0]:
+            group = self.sync.take(ns, missing=1)  # the gyro sample came and its field did not: a dropout
+            if group is not None:
+                self.diag.count("mag_missing", f"no magnetometer sample of t={ns * 1e-9:.3f} s: gyro propagation only")
         if group is None:
             return
+        self.paired = self.paired or group[1] is not None
         if self.pending is not None:  # a newer sample is complete: the pending one goes on without its sun
             self.diag.count("sun_missing", "no sun sample for a step predicted lit")
             self._process(*self.pending[:2])
@@ -211,7 +226,7 @@ class AttitudeEstimator(ManagedNode):
         s_ref = self.models.sun(t, r) if sun is not None else None
         if self.full:
             self.watch_sun(ns, t, r, sun is not None)
-        out = self.stream.step(self.w_prev, b, self.models.field(t, r), sun, s_ref)
+        out = self.stream.step(self.w_prev, b, None if b is None else self.models.field(t, r), sun, s_ref)
         self.w_prev = np.array(w)
         self.diag.count("samples")
         if out.state is None:  # before the coarse fix: "no orientation" (the controller commands zero)
@@ -220,7 +235,7 @@ class AttitudeEstimator(ManagedNode):
             self.diag.extra["fixed_at"] = f"{t:.3f}"
         if out.mag_accepted:
             self.diag.count("mag_accepted")
-        else:
+        elif out.mag_accepted is not None:
             self.diag.count("mag_rejected", f"magnetometer innovation gated (NIS {out.nis_mag:.3g})")
         self.diag.extra["nis_mag"] = f"{out.nis_mag:.4g}"
         if out.sun_accepted is not None:

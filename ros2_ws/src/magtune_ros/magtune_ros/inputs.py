@@ -54,13 +54,18 @@ class PairSync:
         mine[ns] = msg
         if len(mine) > self.depth:
             del mine[next(iter(mine))]
-        if all(ns in x for x in self.slots):
-            out = tuple(x[ns] for x in self.slots)
-            for x in self.slots:
-                for k in [k for k in x if k <= ns]:
-                    del x[k]
-            return out
-        return None
+        return self.take(ns) if all(ns in x for x in self.slots) else None
+
+    def take(self, ns: int, missing: int | None = None):
+        """Return stamp ``ns``'s set (None in slot ``missing``) if every other slot holds it, else None; a returned
+        set drops itself and everything older in every slot."""
+        if not all(ns in x for i, x in enumerate(self.slots) if i != missing):
+            return None
+        out = tuple(x.get(ns) for x in self.slots)
+        for x in self.slots:
+            for k in [k for k in x if k <= ns]:
+                del x[k]
+        return out
 
 
 class StampGate:
