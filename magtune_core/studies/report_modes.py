@@ -49,14 +49,41 @@ def mode_topic(bag_name: str, run_name: str) -> str:
     return f"{ns}/{TOPIC_MODE}" if ns else MODE
 
 
+def load_notices(path, topic: str = MODE) -> list[ModeChange]:
+    """The mode manager's fault notices of a bag: the mode republished unchanged with a unit's fault as its reason.
+
+    Returns
+    -------
+    list of ModeChange
+        In stamp order; ``mode`` the mode in force (unchanged), ``reason`` the unit's message.
+    """
+    out, last = [], None
+    for c in _mode_messages(path, topic):
+        if last is not None and c.mode == last.mode and c.reason != last.reason and c.t != last.t:
+            out.append(c)
+        last = c
+    return out
+
+
 def load_modes(path, topic: str = MODE) -> list[ModeChange]:
-    """The mode messages of a bag in stamp order (repeats of the same mode dropped), [] without the topic.
+    """The mode changes of a bag in stamp order (repeats of the same mode dropped: a transient-local copy, a fault
+    notice), [] without the topic.
 
     Returns
     -------
     list of ModeChange
         The initial mode first (its reason "start"), then one entry per transition.
     """
+    kept = []
+    for c in _mode_messages(path, topic):  # a repeat of the mode (a late-joining subscriber's transient-local
+        # copy, or the manager's notice of a unit's fault, which republishes the mode with the fault as its reason)
+        if not kept or c.mode != kept[-1].mode:
+            kept.append(c)
+    return kept
+
+
+def _mode_messages(path, topic: str) -> list[ModeChange]:
+    """Every message of the mode topic, in stamp order (the bag's time origin subtracted)."""
     path = Path(path)
     if topic not in baglib.topics_of(path):
         return []
@@ -74,11 +101,7 @@ def load_modes(path, topic: str = MODE) -> list[ModeChange]:
         out.append(ModeChange(((msg.log_time if s is None else s) - origin) * 1e-9, str(o.label),
                               _label(o.previous), str(o.reason)))
     out.sort(key=lambda c: c.t)
-    kept = []
-    for c in out:  # a late-joining subscriber may receive the current mode twice (transient-local)
-        if not kept or (c.mode, c.t) != (kept[-1].mode, kept[-1].t):
-            kept.append(c)
-    return kept
+    return out
 
 
 def _label(i: int) -> str:

@@ -5,7 +5,9 @@ import pytest
 
 from magtune_core import bags as baglib
 from magtune_core.bags.decode import Decoder, stamp_ns
+from magtune_core.onboard.modes import POINTING
 from magtune_core.ros import sil
+from magtune_core.studies.report_modes import load_notices
 
 pytestmark = [pytest.mark.ros, pytest.mark.fault]
 UNITS = ("torquer x", "torquer y", "torquer z", "magnetometer", "gyro", "sun sensor")
@@ -16,12 +18,14 @@ def test_sun_sensor_loss_named_at_detection_and_back_and_a_field_gap_estimated_o
     an array stamped 109 s (the 10th predicted-lit sample without a sun sample, sun_loss_samples' default),
     OK 'sun sensor' stamped 300 s (its first sample back); no other status names a unit; the steps after the
     detection do not wait sun_wait (at most the 10 detection samples count as sun_missing).
+    The full stack (modes, the estimator managed and gated): the mode manager republishes the mode with the
+    unit's message as its reason at each (a notice stamped 109 s and 300 s, not a change of mode).
     mag_dropout from 320 s for 20 s: the estimator estimates each of the 20 samples on the gyro and the sun
-    (mag_missing = 20, an estimate of every stamp with its covariance), so the lockstep misses no step."""
+    (mag_missing = 20, an estimate of every stamp, valid), so the lockstep misses no step."""
     bag = tmp_path / "bag"
     run = sil.run_sil("config/gains/sigma_120.yaml", steps=400, environment="full", attitude="estimator",
-                      faults=("sun_loss@100:200", "mag_dropout@320:20"), log_dir=tmp_path / "logs", bag=bag,
-                      timeout=300)
+                      modes=True, initial_mode=POINTING, faults=("sun_loss@100:200", "mag_dropout@320:20"),
+                      log_dir=tmp_path / "logs", bag=bag, timeout=300)
     dec, seen, counters = Decoder(), [], {}
     gap = {}
     for m in baglib.iter_messages(bag, topics=["/diagnostics", "/estimate/attitude"]):
@@ -44,5 +48,7 @@ def test_sun_sensor_loss_named_at_detection_and_back_and_a_field_gap_estimated_o
     assert all(msg.startswith("sun sensor") for _, _, msg in seen)
     assert int(counters["sun_missing"]) <= 10 and run.counters.get("missed_steps", 0) == 0, counters
     assert int(counters["mag_missing"]) == 20 and int(counters["mag_late"]) == 0, counters
+    notices = [(n.t, n.reason) for n in load_notices(bag) if "sun sensor" in n.reason]
+    assert [(round(t), r.split(":")[1].strip()) for t, r in notices] == [(109, "lost"), (300, "samples again")], notices
     # every stamp of the gap estimated, with a covariance (valid: > 0): the gyro carries the attitude over 20 s
     assert sorted(gap) == list(range(315, 345)) and min(gap.values()) > 0, gap

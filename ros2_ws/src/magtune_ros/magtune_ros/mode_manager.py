@@ -39,6 +39,10 @@ Health, two clocks:
              reason ``controller left active (deactivated by a peer)`` on mode and /diagnostics
              (ERROR, counter left_active); its heartbeat goes on in every state, so only the event
              tells. Active again: back, as a heartbeat that comes back.
+  faults     each managed node's unit fault statuses (``magtune/<node>/fdir`` on /diagnostics, the unit in
+             hardware_id: the estimator's sun sensor watch, ...): a new WARN/ERROR, or the unit's OK after one,
+             republishes the mode unchanged with the status' message (which names the unit) as its reason,
+             stamped at the detection: the mode topic names the unit (a notice, not a transition).
   staleness  sim time, from the stamps only: at every sensor message, a stream whose last stamp
              lags the newest of the other by more than ``stale_timeout`` -> the logic steps with
              ``stale`` at the newest stamp -> SAFE, once the lagging stream stayed silent for
@@ -88,7 +92,7 @@ from magtune_core.onboard.modes import MODES, SAFE, Measurements, ModeLogic, Mod
 from magtune_core.onboard.params import BDOT_FIELDS, MANAGER_FIELDS, MODE_FIELDS
 
 from .diagnostics import Diagnostics
-from .inputs import PairSync, StampGate, finite, ns_to_stamp, sec_to_ns
+from .inputs import PairSync, StampGate, finite, ns_to_stamp, sec_to_ns, stamp_to_ns
 from .main import run
 from .params import declare_fields, declare_overrides, param_error, parse_fields
 from .qos import DIAG_QOS, LOCKSTEP_QOS, MODE_QOS
@@ -100,6 +104,8 @@ STREAMS = ("sensors/magnetic_field", "sensors/attitude")
 #: world may drain one subscription in a burst before the other (a one-off SAFE in CI at 3 s of lag), while
 #: a dropped stream stays silent; the stale step keeps the stamp where the lag was seen.
 STALE_CONFIRM = 0.5
+#: Name suffix of a managed node's fault statuses (diagnostics.Diagnostics.unit_fault: ``magtune/<node>/fdir``).
+FDIR_SUFFIX = "/fdir"
 #: Period of the liveness check [steady s].
 CHECK_PERIOD = 0.25
 #: A gap between two liveness checks above this [steady s] (4 periods) means the manager itself did not run
@@ -154,6 +160,7 @@ class ModeManager(Node):
         self.left: dict[str, str] = {}         # node -> why it left active (its transition event)
         self.why: dict[str, str] = {}          # node -> why it is lost (the ERROR status)
         self.lost: set[str] = set()            # silent or left: SAFE holds while not empty (step)
+        self.unit_faults: dict[str, str] = {}  # unit -> the message of its active fault status (fault_notice)
         self.monitoring = False
         self.checked = time.monotonic()        # steady time of the last liveness check
         # stamps must increase; no age limit: a manager behind the world (it is outside the lockstep)
@@ -240,10 +247,13 @@ class ModeManager(Node):
 
     # ---------------------------------------------------------------- health
     def on_diagnostics(self, msg: DiagnosticArray):
-        """Heartbeats: a status ``magtune/<node>`` of this namespace's managed node (steady receive time)."""
+        """Heartbeats: a status ``magtune/<node>`` of this namespace's managed node (steady receive time); a unit's
+        fault status ``magtune/<node>/fdir`` (fault_notice)."""
         now = time.monotonic()
         for st in msg.status:
             node = st.name.removeprefix("magtune/")
+            if node.endswith(FDIR_SUFFIX) and node.removesuffix(FDIR_SUFFIX) in self.change:
+                self.fault_notice(st, stamp_to_ns(msg.header.stamp))
             if node not in self.change:
                 continue
             ns = next((kv.value for kv in st.values if kv.key == "namespace"), None)
@@ -255,6 +265,20 @@ class ModeManager(Node):
             if node in self.silent:
                 self.silent.discard(node)
                 self.regained(node, f"heartbeat of {node} back")
+
+    def fault_notice(self, st: DiagnosticStatus, ns: int):
+        """A managed node's fault status naming a unit (its ``hardware_id``): a new or changed WARN/ERROR, or the unit's
+        OK after one, republishes the mode unchanged with the status' message as its reason, stamped at the detection
+        (the status array's sim time), so the mode topic names the unit too (docs/modes.md); repeats are ignored."""
+        unit, text = printable(st.hardware_id, 64), printable(st.message, 300)
+        if st.level in (DiagnosticStatus.WARN, DiagnosticStatus.ERROR):
+            if self.unit_faults.get(unit) == text:
+                return
+            self.unit_faults[unit] = text
+        elif self.unit_faults.pop(unit, None) is None:
+            return
+        self.get_logger().warning(f"t={ns * 1e-9:.1f} s: {text}")
+        self.publish_mode(text, ns)
 
     def on_transition(self, node: str, msg: TransitionEvent):
         """``<node>/transition_event``: while monitoring, a node leaving active is lost (the cause from the state it
@@ -429,11 +453,13 @@ class ModeManager(Node):
             self.get_logger().info(f"t={tr.t:.1f} s: {tr.source} -> {tr.target}: {tr.reason}")
             self.publish_mode()
 
-    def publish_mode(self):
-        """Publish the mode, the previous one and the reason on mode (MODE_QOS: transient-local), stamped with the mode's ``since``."""
+    def publish_mode(self, notice: str | None = None, notice_ns: int = 0):
+        """Publish the mode, the previous one and the reason on mode (MODE_QOS: transient-local), stamped with the mode's
+        ``since``; a ``notice`` (a unit's fault) republishes it with the notice as its reason, stamped ``notice_ns``."""
         st = self.state
-        msg = Mode(mode=MODES.index(st.mode), label=st.mode, previous=MODES.index(self.previous), reason=st.reason)
-        msg.header.stamp = ns_to_stamp(max(0, sec_to_ns(st.since)))
+        msg = Mode(mode=MODES.index(st.mode), label=st.mode, previous=MODES.index(self.previous),
+                   reason=st.reason if notice is None else notice)
+        msg.header.stamp = ns_to_stamp(max(0, sec_to_ns(st.since)) if notice is None else notice_ns)
         self.diag.extra["mode"] = st.mode
         self.pub_mode.publish(msg)
 
