@@ -75,6 +75,7 @@ from .batch_kernels import (
     igrf_arrays,
     orbit_rhs,
 )
+from .fault_kernels import kernel_faults
 from .fullenv import FullEnvironmentOptions, _environment, environment_table, nominal_orbit_period
 from .metrics import pointing_error_deg
 from .substeps import Substeps
@@ -511,7 +512,7 @@ def _aux_blocks(sensors: SensorNoise):
 def simulate_batch(runs: BatchRuns, *, ts: float = TS_DEFAULT, steps: int, substeps: int = 2, max_substeps: int = 0,
                    record_every: int = 1, orbit_periods=None, full_series: bool = False,
                    modes: BatchModes | None = None, estimator: BatchEstimator | None = None,
-                   torquers: Torquers = NO_TORQUERS) -> BatchResult:
+                   torquers: Torquers = NO_TORQUERS, faults=()) -> BatchResult:
     """Closed loop of B runs of the nonlinear model with the sample-and-hold projection controller.
 
     Same loop as :func:`magtune_core.sim.simulate.simulate` (``steps`` controller periods of
@@ -526,6 +527,8 @@ def simulate_batch(runs: BatchRuns, *, ts: float = TS_DEFAULT, steps: int, subst
     :func:`magtune_core.sim.modes_loop.simulate_modes` does for one run; None: eq. 17 throughout (bit
     for bit the loop without modes). ``torquers`` (onboard.torquers.Torquers): as the SIL's nodes, every run.
     ``max_substeps`` > ``substeps``: each run's sub-steps re-chosen every step from its rate (sim.substeps.Substeps).
+    ``faults``: injected faults (design.faults: Fault objects or spec strings), the same for every run
+    (sim.fault_kernels: the kinds the batch flies).
 
     Returns
     -------
@@ -533,6 +536,7 @@ def simulate_batch(runs: BatchRuns, *, ts: float = TS_DEFAULT, steps: int, subst
         Histories (B, n_rec, .) at t = k Ts for k = 0, record_every, ..., and always the last step.
     """
     torquers.check(ts, "simulate_batch")
+    fk = kernel_faults(faults, ts)
     rule = Substeps.ladder(ts, int(substeps), max(int(substeps), int(max_substeps)), torquers)  # switch-off on the grid
     B, n, S, per = runs.size, int(steps), rule.most, 2 * rule.most  # per: grid points per period (finest h / 2)
     tables = _EnvTables(runs, ts / per, per, duration=n * ts)
@@ -602,7 +606,7 @@ def simulate_batch(runs: BatchRuns, *, ts: float = TS_DEFAULT, steps: int, subst
             noise, gyro_avg = block()
             sens = sens._replace(noise=noise, gyro_avg=gyro_avg, noise_k0=kc)
         eio = _estimator_chunk(est, eio, tables, kc, k1, ts, aux_block)
-        closed_loop(y, Chunk(table, index, kc, kc, k1, n, per, *levels), plant, ctrl, sens, out, mstate, est, eio)
+        closed_loop(y, Chunk(table, index, kc, kc, k1, n, per, *levels), plant, ctrl, sens, out, mstate, est, eio, fk)
     res = BatchResult(np.asarray(rec, dtype=float) * ts, Q, W, X, M, Bb, T, sat, weak, diverged, n,
                       dict(ts=ts, substeps=S, substep_levels=rule.levels, environment=runs.environment, record_every=int(record_every)),
                       pointing_error_deg(ang_all) if full_series else None, mn_all if full_series else None,

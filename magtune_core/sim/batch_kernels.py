@@ -40,6 +40,7 @@ from ..env.igrf import IGRF_RADIUS, NT
 from ..env.sun import AU, OBLIQUITY_J2000, SOLAR_PRESSURE_1AU
 from ..onboard.mekf_kernel import matrix_quat, rotation, stream_step, valid_step
 from ..onboard.modes_kernel import MODE_CODE, KernelModeParams, bdot_dipole, filter_step, mode_step
+from .fault_kernels import sensor_faults, torquer_faults
 
 #: heights, rho_min, rho_max, scale heights of rho_min and rho_max per interval (atmosphere.harris_priester_bounds)
 _HP = np.ascontiguousarray(np.vstack([HP_HEIGHT_KM, HP_RHO_MIN, HP_RHO_MAX] + [
@@ -551,20 +552,22 @@ class EstimatorIO(NamedTuple):
 
 
 @njit(cache=True, error_model="numpy")
-def _estimate(est, eio, u, b, r, k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1, fo2, bm0, bm1, bm2, wm0, wm1, wm2, full):
+def _estimate(est, eio, u, b, r, k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1, fo2, bm0, bm1, bm2, wm0, wm1, wm2, full,
+              sun_lost):
     """The estimator of run ``b`` (environment rows ``u``) at step ``k`` (the attitude_estimator node's sample): the sun sensor on the
     true attitude (a0..a3, body w.r.t. orbital), the MEKF step (onboard.mekf_kernel.stream_step) on the
     measured field and the previous gyro sample against the reference vectors in ECI (the field of the
     table rotated back with R_oi^T, the Sun of date), the estimate in orbital axes. Returns (have, q_bo (4,),
     rate (3,)): the controller's attitude and rate (gyro minus the estimated bias); ``have`` False before the fix
-    and while :func:`~magtune_core.onboard.mekf_kernel.valid_step` says not valid."""
+    and while :func:`~magtune_core.onboard.mekf_kernel.valid_step` says not valid. ``sun_lost``: an injected sun
+    sensor loss (no sun sample, as in eclipse)."""
     ec = eio.cols[u, k - kc]
     Roi = ec[:9].reshape(3, 3)
     bref = np.empty(3)
     for i in range(3):
         bref[i] = Roi[0, i] * fo0 + Roi[1, i] * fo1 + Roi[2, i] * fo2
     mag = np.array([bm0, bm1, bm2])
-    lit = ec[12] > 0.5
+    lit = ec[12] > 0.5 and not sun_lost
     sref = ec[9:12].copy()
     sm = np.zeros(3)
     if lit:
@@ -631,7 +634,7 @@ def _estimate(est, eio, u, b, r, k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1, fo2,
 
 
 @njit(cache=True, error_model="numpy")
-def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio):
+def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio, fk):
     """Controller steps ``chunk.ka .. chunk.kb-1`` (<= n) of every run (the loop of ``batch.simulate_batch``).
 
     Parameters
@@ -654,6 +657,9 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio):
         the coarse fix) instead of the truth plus attitude noise.
     eio : EstimatorIO
         The estimator's reference rows, auxiliary normals and outputs.
+    fk : sim.fault_kernels.KernelFaults
+        Injected faults (none: F = 0): the sensor kinds on the measurements, the torquer kinds on the applied
+        dipole (the commanded one is recorded and counted).
     """
     table, idx, kc, ka, kb, n, per, levels, thr, hs = chunk
     I, J, hw, mres, gg, drag, srp, A, cp, cd, es, ed = plant
@@ -721,10 +727,15 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio):
                 wm0 = ys[4] + ga[0] + gyro_white[b] * nz[6]
                 wm1 = ys[5] + ga[1] + gyro_white[b] * nz[7]
                 wm2 = ys[6] + ga[2] + gyro_white[b] * nz[8]
+            sun_lost = False
+            if fk.kind.size:  # injected sensor faults (design.faults.measure)
+                fb, fw = np.array([bm0, bm1, bm2]), np.array([wm0, wm1, wm2])
+                sun_lost = sensor_faults(fk, k * fk.ts, fb, fw)
+                bm0, bm1, bm2, wm0, wm1, wm2 = fb[0], fb[1], fb[2], fw[0], fw[1], fw[2]
             have = True
             if est.on:  # the controller flies the estimate (attitude_estimator node), not the truth plus noise
                 have, qe, re = _estimate(est, eio, idx[b], b, rec_slot[k], k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1,
-                                         fo2, bm0, bm1, bm2, wm0, wm1, wm2, full)
+                                         fo2, bm0, bm1, bm2, wm0, wm1, wm2, full, sun_lost)
                 qm0, qm1, qm2, qm3 = qe[0], qe[1], qe[2], qe[3]
                 wm0, wm1, wm2 = re[0], re[1], re[2]
             sg = -1.0 if qm0 < 0.0 else 1.0
@@ -787,7 +798,12 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio):
                 s0 = s1 = s2 = 0.0
             if cscale != 1.0:  # the duty cycle's compensation: drive m / c (onboard.torquers.Torquers.drive)
                 s0, s1, s2 = s0 / cscale, s1 / cscale, s2 / cscale
-            m_last[0, b], m_last[1, b], m_last[2, b] = s0, s1, s2
+            p0, p1, p2 = s0, s1, s2  # the dipole the body gets (injected torquer faults: design.faults.actuate)
+            if fk.kind.size:
+                fm = np.array([s0, s1, s2])
+                torquer_faults(fk, k * fk.ts, fm, m_last[:, b].copy(), k == 0)
+                p0, p1, p2 = fm[0], fm[1], fm[2]
+            m_last[0, b], m_last[1, b], m_last[2, b] = p0, p1, p2
             if full:
                 ang_all[b, k] = math.sqrt(a1 * a1 + a2 * a2 + a3 * a3)
                 mn_all[b, k] = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
@@ -815,7 +831,7 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio):
                 j0 = base + 2 * r * i
                 Ea, Eb, Ec = tab[j0], tab[j0 + r], tab[j0 + 2 * r]
                 wi = wts[lv, i]  # the duty cycle: the driven dipole's share of this RK4 step (1: always on)
-                e0, e1, e2 = s0 * wi, s1 * wi, s2 * wi
+                e0, e1, e2 = p0 * wi, p1 * wi, p2 * wi
                 _rhs(Ea, ys, e0, e1, e2, Ib, Jb, hw, mr, gg, drag, srp, A, cp, cd, es, ed, k1)
                 for j in range(7):
                     yt[j] = ys[j] + hh * k1[j]

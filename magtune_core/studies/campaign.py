@@ -33,7 +33,9 @@ Dispersions (all optional; zero spread = nominal):
 Optional sections: ``modes`` (deployment campaigns: the mode machine and B-dot, with ``campaign.modes``),
 ``estimator`` (the MEKF in the loop, with ``campaign.attitude: estimator``) and ``torquers`` (the torquers'
 field at the magnetometer and their duty cycle, every run: the simulator/sensors/controller nodes' schema
-TORQUER_FIELDS, docs/torquers.md).
+TORQUER_FIELDS, docs/torquers.md). ``faults``: a list of injected faults flown by every run (the scenario
+file's schema, design.faults.FAULT_FIELDS, or spec strings ``KIND@T[:DURATION][,axis=A][,value=V]``; the
+kinds of sim.fault_kernels.FAULT_CODE), e.g. to measure what a detector sees across dispersed runs.
 
 Figures of merit per run, from the true attitude at every controller instant (pointing error
 = rotation angle between body and orbital axes, ``2 asin(|q_vec|)`` [deg],
@@ -69,12 +71,14 @@ from ..base.atomic import atomic_output, atomic_write
 from ..base.errors import ConfigError
 from ..base.paramfile import load_user_yaml
 from ..base.schema import Field, parse
+from ..design import faults as fl
 from ..design.gains import load_gains
 from ..design.params import SpacecraftParams, load_spacecraft
 from ..onboard.modes import MODES, POINTING, ModeParams
 from ..onboard.params import BDOT_FIELDS, ESTIMATOR_FIELDS, MODE_FIELDS, TORQUER_FIELDS, check_modes
 from ..onboard.torquers import Torquers
 from ..sim.batch import BatchEstimator, BatchModes, BatchRuns, SensorNoise, simulate_batch
+from ..sim.fault_kernels import FAULT_CODE, NOT_BATCHED
 from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions, nominal_orbit_period, substeps_for
 from ..sim.metrics import settling_time
 from ..sim.simulate import DW0
@@ -200,6 +204,7 @@ class CampaignSpec:
     modes: dict = field(default_factory=dict)  #: section ``modes`` (parsed; used with ``campaign.modes``)
     estimator: dict = field(default_factory=dict)  #: section ``estimator`` (parsed; with ``campaign.attitude: estimator``)
     torquers: dict = field(default_factory=dict)  #: section ``torquers`` (parsed: coupling, duty cycle; every run)
+    faults: tuple = ()  #: section ``faults`` (design.faults.Fault, every run)
 
     @property
     def seed(self) -> int:
@@ -292,8 +297,8 @@ def load_spec(path) -> CampaignSpec:
     if not isinstance(raw, dict):
         raise ConfigError(path, None, f"expected a mapping with sections {', '.join(SECTIONS)}")
     for key in raw:
-        if key not in SECTIONS:
-            raise ConfigError(path, key, f"unknown section; expected {', '.join(SECTIONS)}")
+        if key not in SECTIONS and key != "faults":
+            raise ConfigError(path, key, f"unknown section; expected {', '.join(SECTIONS)} or faults")
     values = {}
     for name, fields in SECTIONS.items():
         sec = raw.get(name) or {}
@@ -350,6 +355,7 @@ def load_spec(path) -> CampaignSpec:
     if raw.get("estimator") and c["attitude"] != "estimator":
         raise ConfigError(path, "estimator", "an estimator section needs campaign.attitude: estimator")
     Torquers.from_values(values["torquers"]).check(c["ts"], f"{path}: torquers")
+    faults = _faults(raw.get("faults"), path, c["orbits"] * p.orbit_period)
     Ks, files = [], []
     for g in c["gains"]:
         gp = _resolve(g, path)
@@ -358,7 +364,19 @@ def load_spec(path) -> CampaignSpec:
         Ks.append(load_gains(gp).K)
         files.append(str(g))
     return CampaignSpec(str(path), c, d, values["criteria"], files, np.array(Ks), p, e0, e1, raw, values["modes"],
-                        values["estimator"], values["torquers"])
+                        values["estimator"], values["torquers"], faults)
+
+
+def _faults(items, path, end: float) -> tuple:
+    """Section ``faults`` (a list; None: none): each entry validated, of a kind the batch flies, starting before the
+    run's end (its nominal orbits)."""
+    faults = fl.from_list(items, f"{path}: faults")
+    for i, f in enumerate(faults):
+        if f.kind in NOT_BATCHED:
+            raise ConfigError(path, f"faults[{i}].kind", f"{f.kind} is flown by magtune sil and the offline mode loop, "
+                                                         f"not by campaigns; use one of {', '.join(FAULT_CODE)}")
+    fl.check_times(faults, end, f"{path}: faults")
+    return faults
 
 
 # --- per-run parameters ------------------------------------------------------------------------
@@ -519,7 +537,7 @@ def _simulate_rows(spec: CampaignSpec, jobs: list, steps: int, record_every: int
     rule = spec.substeps
     res = simulate_batch(runs, ts=spec.campaign["ts"], steps=steps, substeps=rule.fewest, max_substeps=rule.most,
                          record_every=record_every, full_series=True, modes=spec.batch_modes(),
-                         estimator=spec.batch_estimator(), torquers=spec.batch_torquers())
+                         estimator=spec.batch_estimator(), torquers=spec.batch_torquers(), faults=spec.faults)
     t_all = np.arange(steps + 1) * spec.campaign["ts"]
     rows = []
     for b, ((g, i), r) in enumerate(zip(jobs, draws)):
@@ -732,7 +750,8 @@ def write_results(spec: CampaignSpec, runs: int, out: Path, results: list, batch
                 counts={s: status.count(s) for s in STATUSES}, passed=int(sum(bool(r["passed"]) for r in rows)),
                 campaign=_plain(spec.campaign), dispersions=_plain(spec.dispersions), criteria=_plain(spec.criteria),
                 **(dict(modes=_plain(spec.modes)) if spec.campaign["modes"] else {}),
-                **(dict(torquers=_plain(spec.torquers)) if spec.raw.get("torquers") else {}), **info)
+                **(dict(torquers=_plain(spec.torquers)) if spec.raw.get("torquers") else {}),
+                **(dict(faults=[f.spec for f in spec.faults]) if spec.faults else {}), **info)
     meta["failed_runs"] = [dict(run=int(r["run"]), gains=r["gains"], error=r.get("error", "")) for r in rows
                            if r["status"] == "failed"]
     meta["runs_per_second"] = len(rows) / info["wall"] if info.get("wall") else math.nan

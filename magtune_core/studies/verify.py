@@ -48,9 +48,11 @@ class Row:
 
 
 def criteria_of(req: Requirements) -> dict:
-    """The campaign criteria of the design spec's pointing requirements (the limits verify applies)."""
+    """The campaign criteria of the design spec's pointing requirements (the limits verify applies). A campaign
+    that flies the modes (the full stack) must also be settled in POINTING within the spec's settling time."""
     p = req.pointing
     return dict(settle_threshold_deg=p["settle_threshold_deg"], max_settling_orbits=p["max_settling_orbits"],
+                max_deployment_orbits=p["max_settling_orbits"],
                 max_pointing_deg=p["max_pointing_deg"], max_rms_pointing_deg=p["max_rms_pointing_deg"],
                 max_steady_saturation_fraction=p["max_saturation_fraction"],
                 max_saturation_fraction=p["max_total_saturation_fraction"], max_peak_dipole=None)
