@@ -9,6 +9,10 @@ guard holds for a persistence time before it fires, and each entry threshold lie
 matching exit threshold (hysteresis), as in flight mode managers (e.g. the C2A AOBC mode manager's
 transition conditions). Thresholds and timers: ``params.MODE_FIELDS`` (SI units).
 
+SAFE recovers once the sensors have been fresh for ``safe_recovery_time``: to ACQUISITION (POINTING without
+it) when the body is calm (|w| below ``detumble_exit_rate``) and the attitude valid at that instant, since a
+short outage leaves nothing to detumble, else to DETUMBLE.
+
 A magnetometer that repeats its sample bit for bit (``Measurements.field_step == 0``) for
 ``frozen_time`` is frozen: SAFE, as a stale stream (a working magnetometer's noise, or the field's
 motion along the orbit, changes every sample). A SAFE commanded by :meth:`ModeLogic.request` is
@@ -163,6 +167,10 @@ class ModeLogic:
         if mode == SAFE:
             if held:
                 return []
+            if m.rate < p.detumble_exit_rate and m.attitude_known:  # nothing to detumble: straight to the capture
+                return [("fresh", not (m.stale or frozen), p.safe_recovery_time, ACQUISITION if p.acquisition else POINTING,
+                         f"sensors fresh for {p.safe_recovery_time:g} s, |w| < {p.detumble_exit_rate:g} rad/s and the "
+                         "attitude valid")]
             return [("fresh", not (m.stale or frozen), p.safe_recovery_time, DETUMBLE,
                      f"sensors fresh for {p.safe_recovery_time:g} s")]
         out = [("stale", m.stale, 0.0, SAFE, "sensor data stale"),

@@ -99,7 +99,8 @@ def mode_step(mode, pending, rate, bdot, err, stale, t, P, fstep=math.nan, held=
     frozen = fstep == 0.0
     if mode == _SAFE:
         if not held and _hold(not (stale or frozen), _FRESH, P.safe_recovery_time, t, pending, newp):
-            target = _DET
+            calm = rate < P.detumble_exit_rate and known  # nothing to detumble: straight to the capture
+            target = (_ACQ if P.acquisition else _PNT) if calm else _DET
     elif _hold(stale, _STALE, 0.0, t, pending, newp):
         target = _SAFE
     elif _hold(frozen, _FROZEN, P.frozen_time, t, pending, newp):

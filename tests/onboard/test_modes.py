@@ -1,6 +1,7 @@
 """The mode machine (magtune_core.onboard.modes) on scripted measurement sequences: persistence,
 hysteresis, SAFE on stale sensors and its recovery, the reasons, and the one schema's errors."""
 import math
+from dataclasses import replace
 
 import pytest
 
@@ -85,16 +86,25 @@ def test_without_acquisition_detumble_goes_to_pointing():
     assert [tr.target for tr in trs] == [POINTING] and state.mode == POINTING  # no fall-back without acquisition
 
 
-def test_stale_sensors_go_safe_at_once_and_recover_to_detumble():
+@pytest.mark.parametrize("rate, known, target", [(1e-3, True, ACQUISITION), (1e-2, True, DETUMBLE),
+                                                  (1e-3, False, DETUMBLE)])
+def test_stale_sensors_go_safe_at_once_and_recover(rate, known, target):
+    """SAFE at once on stale data; fresh for safe_recovery_time -> ACQUISITION when the body is calm (|w| below
+    detumble_exit_rate) and the attitude valid at that instant (a short outage: nothing to detumble), else
+    DETUMBLE."""
     logic = ModeLogic(P)
-    good = Measurements(rate=1e-3, pointing_error=0.01)
+    good = Measurements(rate=rate, pointing_error=0.01, attitude_known=known)
     state, trs, t = fly(logic, ModeState(POINTING, 0.0, "test"),
-                        [good] * 5 + [Measurements(rate=math.nan, stale=True)] * 30)
+                        [Measurements(rate=1e-3, pointing_error=0.01)] * 5 + [Measurements(rate=math.nan, stale=True)] * 30)
     assert [(tr.target, tr.t, tr.reason) for tr in trs] == [(SAFE, 5.0, "sensor data stale")]
     # fresh again, but a stale blip at 5 s restarts the recovery timer
     state, trs, t2 = fly(logic, state, [good] * 5 + [Measurements(rate=1e-3, stale=True)] + [good] * 11, t0=t)
-    assert [(tr.source, tr.target, tr.t - t) for tr in trs] == [(SAFE, DETUMBLE, 16.0)]
-    assert "fresh for 10 s" in trs[0].reason
+    assert [(tr.source, tr.target, tr.t - t) for tr in trs] == [(SAFE, target, 16.0)]
+    assert "fresh for 10 s" in trs[0].reason and (("attitude valid" in trs[0].reason) == (target == ACQUISITION))
+    no_acq = ModeLogic(replace(P, acquisition=False))  # without ACQUISITION a calm recovery goes to POINTING
+    state, _ = no_acq.request(ModeState(POINTING, 0.0, "test"), SAFE, 0.0, "stale", hold=False)
+    _, trs, _ = fly(no_acq, state, [good] * 11, t0=1.0)
+    assert [tr.target for tr in trs] == [POINTING if target == ACQUISITION else DETUMBLE]
 
 
 def test_request_and_bad_values():
@@ -126,7 +136,7 @@ def test_commanded_safe_is_sticky_and_a_lost_heartbeat_is_not():
     assert not state.held and tr.source == SAFE
     state, _ = logic.request(ModeState(POINTING, 0.0, "test"), SAFE, 5.0, "heartbeat lost", hold=False)
     _, trs, _ = fly(logic, state, [good] * 11, t0=6.0)
-    assert [(tr.target, tr.t) for tr in trs] == [(DETUMBLE, 16.0)]
+    assert [(tr.target, tr.t) for tr in trs] == [(ACQUISITION, 16.0)]  # calm and the attitude valid
 
 
 def test_frozen_magnetometer_goes_safe_after_its_persistence():

@@ -1,6 +1,6 @@
 """Injected faults under the mode manager, over real DDS (issue 30): the sensors node killed during
 POINTING puts the manager in SAFE within its heartbeat_timeout, naming the node, and leaves no process
-behind; a magnetometer dropout goes SAFE on stale data and recovers to DETUMBLE, with the offline loop's
+behind; a magnetometer dropout goes SAFE on stale data and recovers (to ACQUISITION: calm, attitude known), with the offline loop's
 dipoles and no missed step (the controller answers a sample without a field at once). Each run starts in
 POINTING (aligned, the paper's dw(0)), in its own ROS domain (magtune_core.ros.sil: process groups,
 localhost discovery, every process stopped in a finally). Lockstep timeout 0.25 s where a node is
@@ -19,7 +19,7 @@ from magtune_core.bags.decode import Decoder
 from magtune_core.design.gains import load_gains
 from magtune_core.design.node_params import INITIAL_RATE_ERROR
 from magtune_core.design.params import SpacecraftParams
-from magtune_core.onboard.modes import DETUMBLE, POINTING, SAFE
+from magtune_core.onboard.modes import ACQUISITION, POINTING, SAFE
 from magtune_core.ros import sil
 from magtune_core.sim.modes_loop import simulate_modes
 from magtune_core.studies.report_modes import load_modes
@@ -93,7 +93,7 @@ def test_mag_dropout_at_full_speed_runs_to_the_end(tmp_path):
     ends in seconds (before, each of the 30 steps waited the 2-s timeout out and counted as missed). The
     world crosses the dropout in a fraction of a wall second, less than the manager's 0.5-s
     stale confirmation: the manager sees the silence proven by the field's return (its next sample, 130 s)
-    and still stamps SAFE where the lag was seen (103 s), DETUMBLE at 140 s, as offline (within one sample:
+    and still stamps SAFE where the lag was seen (103 s), ACQUISITION at 140 s (calm, attitude known), as offline (within one sample:
     a manager behind the world may see the lag one sample late). The controller applies SAFE from its first
     sample after the message, which can be a few samples after the field returned."""
     run = sil.run_sil(GAINS, steps=160, ts=1.0, modes=True, initial_mode=POINTING, faults=["mag_dropout@100:30"],
@@ -102,7 +102,7 @@ def test_mag_dropout_at_full_speed_runs_to_the_end(tmp_path):
     ctl = _diag(tmp_path / "bag", "controller")[-1][2]
     assert int(ctl["no_field"]) == 30 and int(ctl["late_field"]) == 0, ctl
     modes = _modes(tmp_path / "bag")
-    assert [m[1] for m in modes] == [POINTING, SAFE, DETUMBLE], modes
+    assert [m[1] for m in modes] == [POINTING, SAFE, ACQUISITION], modes
     assert abs(modes[1][0] - 103.0) <= 1.0 and modes[1][2] == "sensor data stale"
     assert abs(modes[2][0] - 140.0) <= 1.0 and "fresh for 10 s" in modes[2][2]
     off = _offline_dropout(160)
@@ -110,21 +110,22 @@ def test_mag_dropout_at_full_speed_runs_to_the_end(tmp_path):
     assert np.array_equal(run.result.m[:130], off.m[:130]) and np.array_equal(run.result.q[:131], off.q[:131])
 
 
-def test_mag_dropout_goes_safe_then_detumble(tmp_path, monkeypatch):
+def test_mag_dropout_goes_safe_then_acquisition(tmp_path, monkeypatch):
     """No magnetometer message for 30 s from t = 100 s, paced at 20x real time: SAFE at 103 s (the last field is
     stamped 99 s and lags the other streams by more than stale_timeout = 3 s from 103 s, as offline:
-    tests/sim/test_faults_loop.py), DETUMBLE at 140 s (fresh from 130 s for safe_recovery_time = 10 s): the
+    tests/sim/test_faults_loop.py), ACQUISITION at 140 s (fresh from 130 s for safe_recovery_time = 10 s, the
+    body calm and the attitude known): the
     stamps of the samples the logic stepped on, within one sample of the offline times (a manager behind the
     world may see the lag one sample late; measured 103 s and 140 s). At 20x the 30-s dropout lasts 1.5 s of
     wall time, so the manager's SAFE (its 0.5-s confirmation) reaches the controller long before the field
     returns: no step missed, and the dipoles and the attitude are the offline loop's bit for bit until the
-    controller applies DETUMBLE (from its first sample after the manager's message; offline at 140 s).
+    controller applies ACQUISITION (from its first sample after the manager's message; offline at 140 s).
     ``magtune report`` on the bag draws the three mode bands on the pointing-error plot and lists the
     transitions in summary.md."""
     run = sil.run_sil(GAINS, steps=160, ts=1.0, modes=True, initial_mode=POINTING, faults=["mag_dropout@100:30"],
                       real_time_factor=20.0, bag=tmp_path / "bag", log_dir=tmp_path / "logs", timeout=120)
     modes = _modes(tmp_path / "bag")
-    assert [m[1] for m in modes] == [POINTING, SAFE, DETUMBLE], modes
+    assert [m[1] for m in modes] == [POINTING, SAFE, ACQUISITION], modes
     assert abs(modes[1][0] - 103.0) <= 1.0 and modes[1][2] == "sensor data stale"
     assert abs(modes[2][0] - 140.0) <= 1.0 and "fresh for 10 s" in modes[2][2]
     counters = _diag(tmp_path / "bag", "attitude_sensors")[-1][2]
@@ -143,10 +144,10 @@ def test_mag_dropout_goes_safe_then_detumble(tmp_path, monkeypatch):
     summary = report.make_report([tmp_path / "bag"], tmp_path / "report")
     T = report.SpacecraftParams().orbit_period  # the report's default orbit period (x axis in orbits)
     bands = drawn[0]  # Fig. 2: the whole 160-s run (shorter than an orbit)
-    assert [b[2] for b in bands] == [POINTING, SAFE, DETUMBLE]
+    assert [b[2] for b in bands] == [POINTING, SAFE, ACQUISITION]
     assert [round(b[0] * T, 6) for b in bands] == [0.0, modes[1][0], modes[2][0]] and round(bands[-1][1] * T, 6) == 160.0
-    assert [b[3] for b in bands] == [report_modes.MODE_COLORS[m] for m in (POINTING, SAFE, DETUMBLE)]
+    assert [b[3] for b in bands] == [report_modes.MODE_COLORS[m] for m in (POINTING, SAFE, ACQUISITION)]
     md = (tmp_path / "report" / "summary.md").read_text()
     assert "## Flight modes" in md and "| POINTING | SAFE | sensor data stale |" in md
-    assert "| SAFE | DETUMBLE | sensors fresh for 10 s |" in md
+    assert "| SAFE | ACQUISITION | sensors fresh for 10 s, |w| < 0.0045 rad/s and the attitude valid |" in md
     assert summary["bag"]["modes"]["spans"][1][2] == SAFE

@@ -21,7 +21,7 @@ import pytest
 
 from magtune_core import bags as bag
 from magtune_core.bags.decode import Decoder
-from magtune_core.onboard.modes import DETUMBLE, POINTING, SAFE
+from magtune_core.onboard.modes import ACQUISITION, POINTING, SAFE
 from magtune_core.ros import process, sil
 from magtune_core.studies.report_modes import load_modes
 
@@ -118,7 +118,7 @@ def test_peer_deactivating_the_controller_goes_safe_and_back(tmp_path, peer_env)
     step behind) and one step after the peer's /clock when the node answered, ERROR naming the node on
     /diagnostics. The peer then activates
     it: the node is back, the manager's status leaves ERROR, and SAFE recovers by itself after
-    safe_recovery_time (10 s of fresh samples) to DETUMBLE; the run ends."""
+    safe_recovery_time (10 s of fresh samples) to ACQUISITION (the body calm, the attitude known); the run ends."""
     from lifecycle_msgs.msg import Transition
 
     seen = {}
@@ -141,11 +141,11 @@ def test_peer_deactivating_the_controller_goes_safe_and_back(tmp_path, peer_env)
                       real_time_factor=RTF, bag=tmp_path / "bag", log_dir=tmp_path / "logs", timeout=150,
                       on_start=on_start)
     modes = _modes(tmp_path / "bag")
-    assert [m[1] for m in modes] == [POINTING, SAFE, DETUMBLE], modes
+    assert [m[1] for m in modes] == [POINTING, SAFE, ACQUISITION], modes
     t_safe, _, reason = modes[1]
     assert reason == "controller left active (deactivated by a peer)"
     assert seen["t_ask"] - 2.0 <= t_safe <= seen["t_done"] + 1.0, (t_safe, seen)
-    # DETUMBLE 10 s of fresh samples after the controller is back (its reactivation and the recovery of the
+    # ACQUISITION 10 s of fresh samples after the controller is back (its reactivation and the recovery of the
     # lockstep take a few unanswered steps: up to 5 s more)
     t_detumble, _, why = modes[2]
     assert "fresh for 10 s" in why and seen["t_back"] + 10.0 <= t_detumble <= seen["t_back"] + 15.0, (modes, seen)

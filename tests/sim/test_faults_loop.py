@@ -37,17 +37,16 @@ def test_nominal_stays_pointing(nominal):
 
 def test_mag_dropout_longer_than_stale_timeout_goes_safe_and_recovers():
     """30 s without magnetometer: the last sample is t = 999 s, the stream is stale once it lags by more than
-    3 s (t = 1003 s); fresh again at 1030 s, SAFE holds for safe_recovery_time (DETUMBLE at 1040 s), then
-    DETUMBLE -> ACQUISITION after detumble_exit_time (600 s from the sample after 1040 s) and the hand-over
-    (measured 2579 s with the shipped sigma = 60 gains). The controller holds its dipole 2 Ts after the last field, zero from 1002 s."""
+    3 s (t = 1003 s); fresh again at 1030 s, SAFE holds for safe_recovery_time; the body calm and the attitude
+    known, it recovers to ACQUISITION at 1040 s (nothing to detumble), then POINTING after the hand-over's 600 s
+    (1641 s). The controller holds its dipole 2 Ts after the last field, zero from 1002 s."""
     r = fly(["mag_dropout@1000:30"], 2600.0)
-    assert table(r) == [(1003.0, POINTING, SAFE), (1040.0, SAFE, DETUMBLE), (1641.0, DETUMBLE, ACQUISITION),
-                        (2579.0, ACQUISITION, POINTING)]
+    assert table(r) == [(1003.0, POINTING, SAFE), (1040.0, SAFE, ACQUISITION), (1641.0, ACQUISITION, POINTING)]
     assert r.transitions[0].reason == "sensor data stale"
     assert np.all(r.m[(r.t >= 1002.0) & (r.t < 1040.0)] == 0.0)
-    # the 600 s of B-dot after the outage leave the pointing law a 24 deg error to capture (measured 23.8 deg);
-    # handed over below handover_angle (5 deg; measured 2.06 deg, settling: 0.47 deg one orbit later)
-    assert r.pointing_deg.max() < 30.0 and r.pointing_deg[r.t > 2579.0].max() < 5.0
+    # 38 s of zero dipole cost almost nothing (measured peak 0.42 deg against the nominal 0.39 deg); recovering
+    # through DETUMBLE instead, 600 s of B-dot left eq. 17 a 24 deg error to capture and POINTING came at 2579 s
+    assert r.pointing_deg.max() < 1.0
 
 
 def test_short_mag_dropout_is_ridden_through(nominal):
@@ -60,10 +59,10 @@ def test_short_mag_dropout_is_ridden_through(nominal):
 
 def test_stuck_magnetometer_detected_by_the_frozen_guard():
     """A stuck magnetometer repeats its sample: SAFE after frozen_time (30 s from the first repeated sample,
-    t = 1000 s); back to DETUMBLE 10 s after it moves again (1110 s) for a 100 s fault; a permanent one
+    t = 1000 s); back (to ACQUISITION: calm, attitude known) 10 s after it moves again (1110 s) for a 100 s fault; a permanent one
     keeps SAFE to the end (zero dipole: the satellite drifts, measured 11.7 deg at 1500 s, 54 deg at 2000 s)."""
     r = fly(["mag_stuck@1000:100"], 1200.0)
-    assert table(r) == [(1030.0, POINTING, SAFE), (1110.0, SAFE, DETUMBLE)]
+    assert table(r) == [(1030.0, POINTING, SAFE), (1110.0, SAFE, ACQUISITION)]  # calm, attitude known
     assert r.transitions[0].reason == "magnetometer frozen (sample repeated) for 30 s"
     r = fly(["mag_stuck@1000"], 1500.0)
     assert table(r) == [(1030.0, POINTING, SAFE)] and r.mode[-1] == SAFE
