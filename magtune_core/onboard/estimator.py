@@ -287,6 +287,34 @@ class MekfStream:
         self.state, self.k, self._first = None, -1, None
         self._carry = np.array([1.0, 0.0, 0.0, 0.0])
 
+    def reopen(self, unit: str, std: float, attitude_std: float = 0.0) -> None:
+        """Re-estimate a bias: its covariance block widened to std^2 I, its cross-covariances zeroed (the sensor
+        watch's recovery, :mod:`magtune_core.onboard.sensor_watch`). The updates that the jump gated pass again
+        (the innovation's covariance now holds the bias' uncertainty) and move the bias, not the attitude.
+
+        Parameters
+        ----------
+        unit : str
+            ``"gyro"`` (the gyro-bias block, states 3-5) or ``"magnetometer"`` (the magnetometer-bias block,
+            states 6-8).
+        std : float
+            The new 1-sigma per axis [rad/s or T] (0: nothing changes).
+        attitude_std : float
+            With ``"gyro"``: the attitude block widened too, to this 1-sigma [rad] (the step drifted the attitude
+            before it was named; 0: the attitude block unchanged).
+        """
+        if self.state is None or std <= 0.0:
+            return
+        P = self.state.P.copy()
+        blocks = [(3, std)] if unit == "gyro" else [(6, std)]
+        if unit == "gyro" and attitude_std > 0.0:
+            blocks.append((0, attitude_std))
+        for i, sd in blocks:
+            P[i:i + 3, :] = 0.0
+            P[:, i:i + 3] = 0.0
+            P[i:i + 3, i:i + 3] = sd * sd * np.eye(3)
+        self.state = MekfState(self.state.q, self.state.b, P, self.state.m)
+
     def _warm_up(self) -> None:
         """One call of each compiled function on a throw-away state (loads numba's cache, or compiles
         once, here rather than at the first sample of a lockstep run)."""

@@ -50,7 +50,7 @@ class ModeParams:
     acquisition_entry_time: float = 120.0
     safe_recovery_time: float = 10.0
     frozen_time: float = 30.0
-    attitude_loss_time: float = 60.0
+    attitude_loss_time: float = 180.0
 
     @classmethod
     def from_mapping(cls, params: dict, where="mode parameters") -> "ModeParams":

@@ -88,8 +88,9 @@ MODE_FIELDS = (
     Field("frozen_time", "float", "a magnetometer sample repeated bit for bit this long [s] is a frozen sensor "
           "-> SAFE", 30.0, positive=True, bounds=(1e-3, 1e6), unit="s"),
     Field("attitude_loss_time", "float", "ACQUISITION and POINTING fall back to DETUMBLE (a law that needs no "
-          "attitude) when the attitude estimate stays not valid this long [s]; DETUMBLE ends only on a valid one",
-          60.0, nonnegative=True, bounds=(0.0, 1e6), unit="s"),
+          "attitude) when the attitude estimate stays not valid this long [s]; DETUMBLE ends only on a valid one "
+          "(default: above the sensor watch's 120-s confirmation of a magnetometer fault, during which the estimate "
+          "is not valid)", 180.0, nonnegative=True, bounds=(0.0, 1e6), unit="s"),
 )
 
 #: The detumble (B-dot) law's options (onboard/bdot.py).
@@ -148,6 +149,22 @@ VALIDITY_FIELDS = (
           "0: never)", 300.0, nonnegative=True, bounds=(0.0, 1e6), unit="s"),
 )
 
+#: The sensor watch (onboard/sensor_watch.py, run by the estimator): detection thresholds are derived from the
+#: filter's own statistics at a false-alarm probability (docs/modes.md); these fields say what to do on a
+#: verdict: re-estimate the failed unit's bias from the other sensors (0: detect and report only).
+WATCH_FIELDS = (
+    Field("sensor_watch", "bool", "watch the magnetometer and gyro from the filter's innovations and bias "
+          "estimate (WARN 'magnetometer' / 'gyro' on /diagnostics at detection)", True),
+    Field("recover_mag_bias_std", "float", "on a magnetometer verdict the magnetometer-bias covariance is "
+          "reopened to this 1-sigma per axis [T], so the filter re-estimates the bias (0: report only)", 1e-5,
+          nonnegative=True, bounds=(0.0, 1e-3), unit="T"),
+    Field("recover_gyro_bias_std", "float", "on a gyro verdict the gyro-bias covariance is reopened to this "
+          "1-sigma per axis [rad/s] (0: report only)", 2e-3, nonnegative=True, bounds=(0.0, 1.0), unit="rad/s"),
+    Field("recover_attitude_std", "float", "... and the attitude covariance to this 1-sigma per axis [rad] (the "
+          "step drifted the attitude before it was named; below valid_sigma, so the estimate stays valid)", 0.02,
+          nonnegative=True, bounds=(0.0, 1.0), unit="rad"),
+)
+
 #: attitude_estimator: the filter's model of the sensors (defaults: the filter matched to design.sensors.default_suite,
 #: which ``magtune sil --attitude estimator`` also gives the sensors node), its on-board models and
 #: its tuning (docs/estimation.md).
@@ -182,7 +199,7 @@ ESTIMATOR_FIELDS = (
     Field("sun_loss_samples", "int", "the sun sensor is lost after this many samples predicted lit without a sun "
           "sample in a row (WARN 'sun sensor' on /diagnostics; the steps then go on without waiting sun_wait; "
           "0: never)", 10, nonnegative=True, bounds=(0, 1000000)),
-) + VALIDITY_FIELDS
+) + VALIDITY_FIELDS + WATCH_FIELDS
 
 #: Managed (lifecycle) nodes (controller, attitude_sensors): who drives the transitions.
 AUTOSTART = Field("autostart", "bool", "configure and activate at start (false: wait for the mode manager's "

@@ -90,6 +90,12 @@ class ValidityMonitor:
         """Back to the state before a fix (the filter restarts)."""
         self.average, self.invalid = math.nan, 0
 
+    def forgive(self) -> None:
+        """Restart the NIS average at its mean (the sensor watch named the unit whose innovations raised it and the
+        filter re-estimates that unit's bias: the evidence is spent)."""
+        if not math.isnan(self.average):
+            self.average = float(NIS_DOF)
+
     @classmethod
     def from_values(cls, v: dict, ts: float, cap: float) -> "ValidityMonitor":
         """The monitor of parsed ``VALIDITY_FIELDS`` values.

@@ -60,6 +60,7 @@ from magtune_core.design.params import SpacecraftParams
 from magtune_core.onboard.estimator import FilterModel, MekfStream, OnboardModels
 from magtune_core.onboard.fdir import BACK, LOST, SunSensorWatch
 from magtune_core.onboard.params import ESTIMATOR_FIELDS
+from magtune_core.onboard.sensor_watch import FAILED, GYRO, SensorWatch, SensorWatchParams
 from magtune_core.onboard.validity import ValidityMonitor
 
 from .inputs import PairSync, StampGate, finite, now_wall, ns_to_stamp, sec_to_ns
@@ -122,6 +123,7 @@ class AttitudeEstimator(ManagedNode):
         self.sync = PairSync(3 if self.full else 2)  # imu, mag (, position): same stamp t_k
         self.suns: dict = {}
         self.sun_watch = SunSensorWatch(int(v["sun_loss_samples"]))
+        self.sensor_watch = SensorWatch(SensorWatchParams.of_stream(self.stream)) if v["sensor_watch"] else None
         self.last_ns, self.w_prev, self.pending, self.paired = -1, None, None, False
         self.pub = self.data_publisher(Imu, TOPIC_ESTIMATE, LOCKSTEP_QOS)
         self.data_subscription(Imu, TOPIC_IMU, self.on_imu, LOCKSTEP_QOS, raw=True)
@@ -254,7 +256,28 @@ class AttitudeEstimator(ManagedNode):
                 self.diag.count("reinitialised")
                 self.get_logger().info(f"t={t:.1f} s: estimate not valid for {self.values['reinit_time']:g} s: "
                                        "restarting from a coarse fix")
+        if self.sensor_watch is not None:
+            self.watch_sensors(ns, out, valid)
         self.publish(ns, t, out.state, r, v, valid)
+
+    def watch_sensors(self, ns, out, valid: bool):
+        """The magnetometer and gyro watch (onboard.sensor_watch.SensorWatch) on this sample: at a verdict WARN naming the
+        unit, stamped with the sample, and its recovery: the unit's bias re-estimated (MekfStream.reopen) and the
+        validity's NIS average restarted; OK naming it when it is back."""
+        st = out.state
+        verdict = self.sensor_watch.step(out.nis_mag, out.nis_sun, out.sun_accepted, st.b, st.P[3:6, 3:6], valid,
+                                         out.started)
+        if verdict is None:
+            return
+        text = verdict.message.removeprefix(f"{verdict.unit}: ")
+        if verdict.status != FAILED:
+            return self.diag.unit_back(verdict.unit, text, ns)
+        v = self.values
+        std = v["recover_gyro_bias_std"] if verdict.unit == GYRO else v["recover_mag_bias_std"]
+        self.stream.reopen(verdict.unit, std, v["recover_attitude_std"])
+        if self.validity is not None and std > 0:
+            self.validity.forgive()
+        self.diag.unit_fault(verdict.unit, text + ("; re-estimating its bias" if std > 0 else ""), ns)
 
     def watch_sun(self, ns, t, r, have_sun: bool):
         """The sun sensor's watch (onboard.fdir.SunSensorWatch) on this sample: WARN 'sun sensor' at the sample
