@@ -155,6 +155,10 @@ VALIDITY_FIELDS = (
 WATCH_FIELDS = (
     Field("sensor_watch", "bool", "watch the magnetometer and gyro from the filter's innovations and bias "
           "estimate (WARN 'magnetometer' / 'gyro' on /diagnostics at detection)", True),
+    Field("watch_arm_rate", "float", "the watch arms only after the estimate has been valid with |w| (gyro minus "
+          "the estimated bias) below this for its arm time [rad/s] (a tumbling filter's 1-s propagation is its "
+          "weakest: inhibited through DETUMBLE; default: the mode logic's detumble_exit_rate)", 4.5e-3,
+          positive=True, bounds=(1e-5, 10.0), unit="rad/s"),
     Field("recover_mag_bias_std", "float", "on a magnetometer verdict the magnetometer-bias covariance is "
           "reopened to this 1-sigma per axis [T], so the filter re-estimates the bias (0: report only)", 1e-5,
           nonnegative=True, bounds=(0.0, 1e-3), unit="T"),
