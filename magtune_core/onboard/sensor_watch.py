@@ -53,6 +53,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .validity import nis_limit
+
 MAGNETOMETER, GYRO = "magnetometer", "gyro"
 FAILED, BACK = "failed", "back"
 
@@ -74,12 +76,8 @@ _SYM = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
 
 def average_limit(tau: float, ts: float, dof: int, probability: float) -> float:
-    """Upper quantile of the exponentially averaged NIS of a consistent filter, ``dof`` degrees of freedom.
-
-    The average y_k = a y_(k-1) + (1 - a) nis_k, a = exp(-ts/tau), of independent chi-square(dof)
-    samples has mean dof and variance 2 dof (1 - a)/(1 + a); it is taken as c chi-square(nu) with the
-    same two moments (Welch-Satterthwaite): nu = dof (1 + a)/(1 - a), c = dof/nu. For dof = 3 this is
-    :func:`magtune_core.onboard.validity.nis_limit`.
+    """Upper quantile of the exponentially averaged NIS of a consistent filter, ``dof`` degrees of freedom
+    (:func:`magtune_core.onboard.validity.nis_limit`: the two-moment chi-square fit of the average).
 
     Parameters
     ----------
@@ -97,11 +95,7 @@ def average_limit(tau: float, ts: float, dof: int, probability: float) -> float:
     float
         The limit on the average.
     """
-    from scipy.stats import chi2
-
-    a = math.exp(-ts / tau)
-    nu = dof * (1.0 + a) / (1.0 - a)
-    return float(dof / nu * chi2.isf(probability, nu))
+    return nis_limit(tau, ts, probability, dof)
 
 
 @dataclass(frozen=True)

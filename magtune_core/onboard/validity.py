@@ -28,12 +28,12 @@ import numpy as np
 NIS_DOF = 3
 
 
-def nis_limit(tau: float, ts: float, probability: float) -> float:
+def nis_limit(tau: float, ts: float, probability: float, dof: int = NIS_DOF) -> float:
     """Upper quantile of the exponentially averaged NIS of a consistent filter.
 
-    The average y_k = a y_(k-1) + (1 - a) nis_k, a = exp(-ts/tau), of independent chi-square(3)
-    samples has mean 3 and variance 6 (1 - a)/(1 + a); it is approximated by c chi-square(nu) with
-    the same two moments (Welch-Satterthwaite): nu = 3 (1 + a)/(1 - a), c = 3/nu.
+    The average y_k = a y_(k-1) + (1 - a) nis_k, a = exp(-ts/tau), of independent chi-square(dof)
+    samples has mean dof and variance 2 dof (1 - a)/(1 + a); it is approximated by c chi-square(nu)
+    with the same two moments (Welch-Satterthwaite): nu = dof (1 + a)/(1 - a), c = dof/nu.
 
     Parameters
     ----------
@@ -43,6 +43,8 @@ def nis_limit(tau: float, ts: float, probability: float) -> float:
         Sample period [s].
     probability : float
         Probability that a consistent filter's average exceeds the limit at a given sample.
+    dof : int
+        Degrees of freedom of one NIS (3: the magnetometer, 2: the sun sensor).
 
     Returns
     -------
@@ -52,8 +54,8 @@ def nis_limit(tau: float, ts: float, probability: float) -> float:
     from scipy.stats import chi2
 
     a = math.exp(-ts / tau)
-    nu = NIS_DOF * (1.0 + a) / (1.0 - a)
-    return float(NIS_DOF / nu * chi2.isf(probability, nu))
+    nu = dof * (1.0 + a) / (1.0 - a)
+    return float(dof / nu * chi2.isf(probability, nu))
 
 
 @dataclass
