@@ -56,7 +56,7 @@ WINDOW = 600  #: samples after the onset in which a verdict counts as a detectio
 SETTLE = 300  #: samples armed before the earliest onset
 CHECK_P = (1e-2, 1e-3, 1e-4, 1e-5, 1e-6)  #: lower probabilities whose exceedance fractions check the derivation
 
-watch_step = SW.compiled_step(njit)  # not cached: run_batch would keep a stale watch
+watch_step = SW.watch_step  # compiled (cached) in the module; the functions here are compiled per run (not cached)
 
 
 def truth_arrays(n: int) -> tuple:

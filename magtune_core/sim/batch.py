@@ -59,7 +59,9 @@ from ..onboard.mekf import MAG_BIAS_STD
 from ..onboard.mekf_kernel import kernel_state, with_validity
 from ..onboard.modes import DETUMBLE, MODES, ModeParams
 from ..onboard.modes_kernel import GUARDS, MODE_CODE, kernel_params
-from ..onboard.params import TS_DEFAULT, VALIDITY_FIELDS
+from ..onboard.params import TS_DEFAULT, VALIDITY_FIELDS, WATCH_FIELDS
+from ..onboard.sensor_watch import SensorWatchParams
+from ..onboard.sensor_watch import new_state as new_watch_state
 from ..onboard.torquers import NONE as NO_TORQUERS
 from ..onboard.torquers import Torquers
 from .batch_kernels import (
@@ -87,6 +89,7 @@ NOISE_CHUNK = 1024
 #: (2 substeps x CHUNK + 1) per run).
 ENV_CHUNK = 512
 _VALIDITY = {f.name: f.default for f in VALIDITY_FIELDS}
+_WATCH = {f.name: f.default for f in WATCH_FIELDS}
 assert NOISE_CHUNK % ENV_CHUNK == 0
 #: A run whose body rate exceeds this [rad/s] (or turns non-finite) is marked diverged.
 DIVERGED_RATE = 1.0
@@ -182,6 +185,12 @@ class BatchEstimator:
     valid_nis_tau: float = _VALIDITY["valid_nis_tau"]
     valid_nis_limit: float = _VALIDITY["valid_nis_limit"]
     reinit_time: float = _VALIDITY["reinit_time"]
+    #: the sensor watch and its recovery (onboard.sensor_watch; WATCH_FIELDS' defaults), as the node runs them
+    sensor_watch: bool = _WATCH["sensor_watch"]
+    watch_arm_rate: float = _WATCH["watch_arm_rate"]
+    recover_mag_bias_std: float = _WATCH["recover_mag_bias_std"]
+    recover_gyro_bias_std: float = _WATCH["recover_gyro_bias_std"]
+    recover_attitude_std: float = _WATCH["recover_attitude_std"]
 
 
 @dataclass
@@ -269,6 +278,13 @@ class BatchResult:
     est_bias: np.ndarray | None = None
     est_P: np.ndarray | None = None
     est_mag_bias: np.ndarray | None = None
+    #: the sensor watch (with an estimator): ``fdir_code`` (B,) the first verdict (0 none, onboard.sensor_watch
+    #: MAG_FAULT, GYRO_FAULT, MAG_AMBIGUOUS), ``fdir_time`` (B,) its time [s] (nan: none), ``fdir_count`` (B,)
+    #: verdicts, ``fdir_back`` (B,) units reported back
+    fdir_code: np.ndarray | None = None
+    fdir_time: np.ndarray | None = None
+    fdir_count: np.ndarray | None = None
+    fdir_back: np.ndarray | None = None
 
 
 def _as3x3(I: np.ndarray, n: int) -> np.ndarray:
@@ -643,7 +659,8 @@ def _estimator_state(estimator: BatchEstimator | None, sensors: SensorNoise, B: 
         est = kernel_state(1, ts, arw=1.0, rrw=1.0, mag_cov=np.eye(3), sun_std=1.0, on=False)
         return est, EstimatorIO(z1, z3, np.zeros(1), np.zeros((1, 1, 3), np.float32), np.zeros((1, 1, 3), np.float32),
                                 np.zeros((1, 1), np.float32), np.zeros(1, np.int64), np.zeros((1, 1, 4)),
-                                np.zeros((1, 1, 3)), np.zeros((1, 1, 9, 9)), np.zeros((1, 1, 3))), None
+                                np.zeros((1, 1, 3)), np.zeros((1, 1, 9, 9)), np.zeros((1, 1, 3)),
+                                *_watch_arrays(None, None, 1)), None
     est = kernel_state(B, ts, arw=e.gyro_arw, rrw=e.gyro_rrw, mag_cov=e.mag_noise_std**2 * np.eye(3),
                        sun_std=e.sun_noise_std, gate_probability=e.gate_probability, bias_std=e.initial_bias_std,
                        init_angle=e.init_angle, mag_bias_std=e.initial_mag_bias_std, mag_bias_rw=e.mag_bias_rw)
@@ -653,8 +670,19 @@ def _estimator_state(estimator: BatchEstimator | None, sensors: SensorNoise, B: 
     eio = EstimatorIO(np.zeros((1, 1, 13)), np.zeros((B, 1, 9)), np.full(B, float(e.sun_sensor_std)),
                       np.full(shape + (3,), np.nan, np.float32), np.full(shape + (3,), np.nan, np.float32),
                       np.full(shape, np.nan, np.float32), np.zeros(B, np.int64), np.full((B, R, 4), np.nan),
-                      np.full((B, R, 3), np.nan), np.full((B, R, 9, 9), np.nan), np.full((B, R, 3), np.nan))
+                      np.full((B, R, 3), np.nan), np.full((B, R, 9, 9), np.nan), np.full((B, R, 3), np.nan),
+                      *_watch_arrays(e, est, B))
     return est, eio, _aux_blocks(sensors)
+
+
+def _watch_arrays(e: BatchEstimator | None, est, B: int) -> tuple:
+    """EstimatorIO's sensor-watch fields: the watch of the node (SensorWatchParams.of_stream: the filter's ts, sigma_u
+    and gates) for every run, or an empty parameter array (no watch)."""
+    on = e is not None and e.sensor_watch
+    wp = SensorWatchParams(est.ts, e.gyro_rrw, est.gate_mag, est.gate_sun).array() if on else np.zeros(0)
+    rec = np.array([e.recover_mag_bias_std, e.recover_gyro_bias_std, e.recover_attitude_std]) if on else np.zeros(3)
+    return (np.tile(new_watch_state(), (B, 1)), wp, float(e.watch_arm_rate) if on else 0.0, rec,
+            np.zeros(B, np.int64), np.full(B, np.nan), np.zeros(B, np.int64), np.zeros(B, np.int64))
 
 
 def _estimator_chunk(est, eio: EstimatorIO, tables: _EnvTables, kc: int, k1: int, ts: float, aux_block) -> EstimatorIO:
@@ -675,6 +703,8 @@ def _with_estimator(res: BatchResult, est, eio: EstimatorIO, full: bool) -> Batc
         res.est_error, res.est_sigma, res.est_nees = eio.err, eio.sig, eio.nees
     res.est_k0, res.no_attitude_steps, res.est_counts = est.k0.copy(), eio.no_att.copy(), est.counts.copy()
     res.est_q, res.est_bias, res.est_P, res.est_mag_bias = eio.Qe, eio.be, eio.Pe, eio.me
+    if eio.wp.size:
+        res.fdir_code, res.fdir_time, res.fdir_count, res.fdir_back = eio.fdir_code, eio.fdir_t, eio.fdir_n, eio.fdir_back
     return res
 
 

@@ -40,6 +40,8 @@ from ..env.igrf import IGRF_RADIUS, NT
 from ..env.sun import AU, OBLIQUITY_J2000, SOLAR_PRESSURE_1AU
 from ..onboard.mekf_kernel import matrix_quat, rotation, stream_step, valid_step
 from ..onboard.modes_kernel import MODE_CODE, KernelModeParams, bdot_dipole, filter_step, mode_step
+from ..onboard.sensor_watch import ARMED, BACK_CODE, GYRO_FAULT, watch_step
+from ..onboard.sensor_watch import NONE as WATCH_NONE
 from .fault_kernels import sensor_faults, torquer_faults
 
 #: heights, rho_min, rho_max, scale heights of rho_min and rho_max per interval (atmosphere.harris_priester_bounds)
@@ -549,6 +551,56 @@ class EstimatorIO(NamedTuple):
     be: np.ndarray  #: (B, R, 3) recorded bias estimate [rad/s]
     Pe: np.ndarray  #: (B, R, 9, 9) recorded covariance
     me: np.ndarray  #: (B, R, 3) recorded magnetometer-bias estimate [T]
+    #: the sensor watch (onboard.sensor_watch, the estimator node's watch_sensors): per-run state (B, NS), the
+    #: parameter array (NP,; empty: no watch), its arming rate [rad/s] and the recovery's 1-sigmas (magnetometer
+    #: bias [T], gyro bias [rad/s], attitude [rad])
+    ws: np.ndarray
+    wp: np.ndarray
+    arm_rate: float
+    recover: np.ndarray  #: (3,)
+    fdir_code: np.ndarray  #: (B,) int64 the first verdict's code (0: none; sensor_watch.MAG_FAULT, GYRO_FAULT, MAG_AMBIGUOUS)
+    fdir_t: np.ndarray  #: (B,) its time [s] (nan: none)
+    fdir_n: np.ndarray  #: (B,) int64 verdicts (failed)
+    fdir_back: np.ndarray  #: (B,) int64 units reported back
+
+
+@njit(cache=True, error_model="numpy")
+def _reopen(P, i, std):
+    """MekfStream.reopen on one block: rows and columns i..i+2 zeroed, std^2 on its diagonal."""
+    for r in range(3):
+        for c in range(P.shape[0]):
+            P[i + r, c] = 0.0
+            P[c, i + r] = 0.0
+        P[i + r, i + r] = std * std
+
+
+@njit(cache=True, error_model="numpy")
+def _watch(est, eio, b, k, nis_m, nis_s, started, valid, w0, w1, w2):
+    """The estimator node's ``watch_sensors`` for run ``b`` at step ``k``: the sensor watch armed by a valid estimate of a
+    calm body; at a verdict the recovery (the unit's bias block reopened, the gyro's with the attitude; the validity's
+    NIS average restarted) and the run's record (first verdict, counts)."""
+    ws = eio.ws[b]
+    calm = math.sqrt((w0 - est.b[b, 0]) ** 2 + (w1 - est.b[b, 1]) ** 2 + (w2 - est.b[b, 2]) ** 2) < eio.arm_rate
+    sun_ok = nis_s <= est.gate_sun  # False for nan (no sun update)
+    code = watch_step(ws, eio.wp, nis_m, nis_s, sun_ok, est.b[b], est.P[b, 3:6, 3:6],
+                      valid and (calm or ws[ARMED] != 0.0), started)
+    if code == WATCH_NONE:
+        return
+    if code == BACK_CODE:
+        eio.fdir_back[b] += 1
+        return
+    eio.fdir_n[b] += 1
+    if eio.fdir_code[b] == 0:
+        eio.fdir_code[b], eio.fdir_t[b] = code, k * est.ts
+    if not est.started[b]:  # restarted at this sample: nothing to reopen (MekfStream.reopen of no state)
+        return
+    std = eio.recover[1] if code == GYRO_FAULT else eio.recover[0]
+    if std > 0.0:
+        _reopen(est.P[b], 3 if code == GYRO_FAULT else 6, std)
+        if code == GYRO_FAULT and eio.recover[2] > 0.0:
+            _reopen(est.P[b], 0, eio.recover[2])
+        if not math.isnan(est.nis_avg[b]):  # ValidityMonitor.forgive
+            est.nis_avg[b] = 3.0
 
 
 @njit(cache=True, error_model="numpy")
@@ -594,7 +646,8 @@ def _estimate(est, eio, u, b, r, k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1, fo2,
             nr = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
             s0, s1, s2 = r0 / nr, r1 / nr, r2 / nr
         sm[0], sm[1], sm[2] = s0, s1, s2
-    nis_m, _ = stream_step(est, b, mag, bref, lit, sm, sref)
+    was_started = est.started[b]
+    nis_m, nis_s = stream_step(est, b, mag, bref, lit, sm, sref)
     est.w_prev[b, 0], est.w_prev[b, 1], est.w_prev[b, 2] = wm0, wm1, wm2
     qe = np.zeros(4)
     rate = np.zeros(3)
@@ -602,6 +655,8 @@ def _estimate(est, eio, u, b, r, k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1, fo2,
         eio.no_att[b] += 1
         return False, qe, rate
     valid = valid_step(est, b, nis_m)  # not valid (validity gate): flown as no estimate, recorded as one
+    if eio.wp.size:
+        _watch(est, eio, b, k, nis_m, nis_s, not was_started, valid, wm0, wm1, wm2)
     if not valid:
         eio.no_att[b] += 1
     qe = matrix_quat(Roi @ rotation(est.q[b]))

@@ -76,6 +76,7 @@ from ..design.gains import load_gains
 from ..design.params import SpacecraftParams, load_spacecraft
 from ..onboard.modes import MODES, POINTING, ModeParams
 from ..onboard.params import BDOT_FIELDS, ESTIMATOR_FIELDS, MODE_FIELDS, TORQUER_FIELDS, check_modes
+from ..onboard.sensor_watch import GYRO_FAULT, MAG_AMBIGUOUS, MAG_FAULT
 from ..onboard.torquers import Torquers
 from ..sim.batch import BatchEstimator, BatchModes, BatchRuns, SensorNoise, simulate_batch
 from ..sim.fault_kernels import FAULT_CODE, NOT_BATCHED
@@ -182,6 +183,9 @@ MODE_FIGURES = (("detumble_time", "s"), ("pointing_time", "s"), ("settled_time",
 #: Figures of a campaign with the estimator in the loop (``campaign.attitude: estimator``), over the steady-state
 #: window: RMS estimation error per body axis, the fraction of samples inside 3 sigma per axis, mean NEES (3 for
 #: a consistent filter), the coarse fix's time.
+#: The sensor watch's verdicts (onboard.sensor_watch codes) as the unit a campaign row names (``fdir_unit``; with
+#: ``fdir_time`` [s] of the first verdict and ``fdir_verdicts``, the run's count).
+FDIR_UNITS = {MAG_FAULT: "magnetometer", MAG_AMBIGUOUS: "magnetometer (no sun)", GYRO_FAULT: "gyro"}
 ESTIMATION_FIGURES = tuple((f"est_rms_{a}_deg", "deg") for a in "xyz") + tuple(
     (f"est_inside_3sigma_{a}", "-") for a in "xyz") + (("est_nees_mean", "-"), ("est_fix_time", "s"))
 
@@ -555,6 +559,9 @@ def _simulate_rows(spec: CampaignSpec, jobs: list, steps: int, record_every: int
             row.update(estimation_figures(t_all, res.est_error[b], res.est_sigma[b], res.est_nees[b], res.orbit_period[b],
                                           spec.criteria), est_fix_time=float(t_all[res.est_k0[b]]) if res.est_k0[b] >= 0
                        else math.nan, est_mag_rejected=int(res.est_counts[b, 1]), est_sun_rejected=int(res.est_counts[b, 3]))
+        if res.fdir_code is not None:  # the sensor watch: the first unit named, when, how many verdicts
+            row.update(fdir_unit=FDIR_UNITS.get(int(res.fdir_code[b]), ""), fdir_time=float(res.fdir_time[b]),
+                       fdir_verdicts=int(res.fdir_count[b]))
         rows.append(row)
     hist = dict(t=res.t.astype(np.float32), pointing_deg=res.pointing_deg[:, res.record_index].astype(np.float32),
                 dipole=np.linalg.norm(res.m, axis=2).astype(np.float32),

@@ -262,8 +262,8 @@ class AttitudeEstimator(ManagedNode):
 
     def watch_sensors(self, ns, out, valid: bool):
         """The magnetometer and gyro watch (onboard.sensor_watch.SensorWatch) on this sample (armed by a valid estimate of a
-        calm body, watch_arm_rate): at a verdict WARN naming the unit, stamped with the sample, and its recovery: the unit's bias re-estimated (MekfStream.reopen) and the
-        validity's NIS average restarted; OK naming it when it is back."""
+        calm body, watch_arm_rate): at a verdict WARN naming the unit, stamped with the sample, and its recovery: the
+        unit's bias re-estimated (MekfStream.reopen) and the validity's NIS average restarted; OK naming it when back."""
         st, w = out.state, self.w_prev
         calm = math.dist(w, st.b) < self.values["watch_arm_rate"]  # arming needs a calm body (inhibited in a tumble)
         verdict = self.sensor_watch.step(out.nis_mag, out.nis_sun, out.sun_accepted, st.b, st.P[3:6, 3:6],
