@@ -575,15 +575,16 @@ def _reopen(P, i, std):
 
 
 @njit(cache=True, error_model="numpy")
-def _watch(est, eio, b, k, nis_m, nis_s, started, valid, w0, w1, w2):
+def _watch(est, eio, b, k, nis_m, nis_s, started, valid, w0, w1, w2, held):
     """The estimator node's ``watch_sensors`` for run ``b`` at step ``k``: the sensor watch armed by a valid estimate of a
     calm body; at a verdict the recovery (the unit's bias block reopened, the gyro's with the attitude; the validity's
-    NIS average restarted) and the run's record (first verdict, counts)."""
+    NIS average restarted) and the run's record (first verdict, counts). ``held``: a mode other than POINTING (the
+    node's mode topic): disarmed as by a restart."""
     ws = eio.ws[b]
     calm = math.sqrt((w0 - est.b[b, 0]) ** 2 + (w1 - est.b[b, 1]) ** 2 + (w2 - est.b[b, 2]) ** 2) < eio.arm_rate
     sun_ok = nis_s <= est.gate_sun  # False for nan (no sun update)
     code = watch_step(ws, eio.wp, nis_m, nis_s, sun_ok, est.b[b], est.P[b, 3:6, 3:6],
-                      valid and (calm or ws[ARMED] != 0.0), started)
+                      valid and (calm or ws[ARMED] != 0.0), started or held)
     if code == WATCH_NONE:
         return
     if code == BACK_CODE:
@@ -605,14 +606,14 @@ def _watch(est, eio, b, k, nis_m, nis_s, started, valid, w0, w1, w2):
 
 @njit(cache=True, error_model="numpy")
 def _estimate(est, eio, u, b, r, k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1, fo2, bm0, bm1, bm2, wm0, wm1, wm2, full,
-              sun_lost):
+              sun_lost, held):
     """The estimator of run ``b`` (environment rows ``u``) at step ``k`` (the attitude_estimator node's sample): the sun sensor on the
     true attitude (a0..a3, body w.r.t. orbital), the MEKF step (onboard.mekf_kernel.stream_step) on the
     measured field and the previous gyro sample against the reference vectors in ECI (the field of the
     table rotated back with R_oi^T, the Sun of date), the estimate in orbital axes. Returns (have, q_bo (4,),
     rate (3,)): the controller's attitude and rate (gyro minus the estimated bias); ``have`` False before the fix
     and while :func:`~magtune_core.onboard.mekf_kernel.valid_step` says not valid. ``sun_lost``: an injected sun
-    sensor loss (no sun sample, as in eclipse)."""
+    sensor loss (no sun sample, as in eclipse); ``held``: the sensor watch held (a mode other than POINTING)."""
     ec = eio.cols[u, k - kc]
     Roi = ec[:9].reshape(3, 3)
     bref = np.empty(3)
@@ -656,7 +657,7 @@ def _estimate(est, eio, u, b, r, k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1, fo2,
         return False, qe, rate
     valid = valid_step(est, b, nis_m)  # not valid (validity gate): flown as no estimate, recorded as one
     if eio.wp.size:
-        _watch(est, eio, b, k, nis_m, nis_s, not was_started, valid, wm0, wm1, wm2)
+        _watch(est, eio, b, k, nis_m, nis_s, not was_started, valid, wm0, wm1, wm2, held)
     if not valid:
         eio.no_att[b] += 1
     qe = matrix_quat(Roi @ rotation(est.q[b]))
@@ -790,7 +791,8 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio, fk):
             have = True
             if est.on:  # the controller flies the estimate (attitude_estimator node), not the truth plus noise
                 have, qe, re = _estimate(est, eio, idx[b], b, rec_slot[k], k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1,
-                                         fo2, bm0, bm1, bm2, wm0, wm1, wm2, full, sun_lost)
+                                         fo2, bm0, bm1, bm2, wm0, wm1, wm2, full, sun_lost,
+                                         mon and modes.mode[b] != _PNT)
                 qm0, qm1, qm2, qm3 = qe[0], qe[1], qe[2], qe[3]
                 wm0, wm1, wm2 = re[0], re[1], re[2]
             sg = -1.0 if qm0 < 0.0 else 1.0

@@ -13,6 +13,7 @@ Subscribes (LOCKSTEP_QOS):
   sensors/sun             geometry_msgs/Vector3Stamped measured unit Sun vector (only when valid)
   sensors/position        nav_msgs/Odometry          position fix r [m], v [m/s], ECI (environment 'full')
                           (each taken raw: the serialized bytes, the fields read in place)
+  mode                    magtune_interfaces/Mode    the mode manager's (MODE_QOS): the sensor watch runs in POINTING
   /clock                  rosgraph_msgs/Clock        (use_sim_time)
 Publishes:
   estimate/attitude       sensor_msgs/Imu, frame 'body', stamp = the sample's: orientation = estimated
@@ -51,14 +52,16 @@ import math
 
 import numpy as np
 from geometry_msgs.msg import Vector3Stamped
+from magtune_interfaces.msg import Mode
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import Imu, MagneticField
 
-from magtune_core.base.topics import FRAME_BODY, TOPIC_ESTIMATE, TOPIC_IMU, TOPIC_MAG, TOPIC_POSITION, TOPIC_SUN
+from magtune_core.base.topics import FRAME_BODY, TOPIC_ESTIMATE, TOPIC_IMU, TOPIC_MAG, TOPIC_MODE, TOPIC_POSITION, TOPIC_SUN
 from magtune_core.design.params import SpacecraftParams
 from magtune_core.onboard.estimator import FilterModel, MekfStream, OnboardModels
 from magtune_core.onboard.fdir import BACK, LOST, SunSensorWatch
+from magtune_core.onboard.modes import MODES, POINTING
 from magtune_core.onboard.params import ESTIMATOR_FIELDS
 from magtune_core.onboard.sensor_watch import FAILED, GYRO, SensorWatch, SensorWatchParams
 from magtune_core.onboard.validity import ValidityMonitor
@@ -67,7 +70,7 @@ from .inputs import PairSync, StampGate, finite, now_wall, ns_to_stamp, sec_to_n
 from .lifecycle import ManagedNode
 from .main import run
 from .params import check_ts, declare_overrides, from_schema, parse_fields
-from .qos import LOCKSTEP_QOS
+from .qos import LOCKSTEP_QOS, MODE_QOS
 from .raw import raw_imu, raw_magnetic_field, raw_odometry, raw_vector3_stamped
 
 #: The estimate's topic (relative): ``magtune sil --attitude estimator`` remaps the controller's
@@ -125,6 +128,8 @@ class AttitudeEstimator(ManagedNode):
         self.sun_watch = SunSensorWatch(int(v["sun_loss_samples"]))
         self.sensor_watch = SensorWatch(SensorWatchParams.of_stream(self.stream)) if v["sensor_watch"] else None
         self.last_ns, self.w_prev, self.pending, self.paired = -1, None, None, False
+        self.mode = None  # the mode manager's mode (None: no manager; the sensor watch then runs in every state)
+        self.data_subscription(Mode, TOPIC_MODE, self.on_mode, MODE_QOS)
         self.pub = self.data_publisher(Imu, TOPIC_ESTIMATE, LOCKSTEP_QOS)
         self.data_subscription(Imu, TOPIC_IMU, self.on_imu, LOCKSTEP_QOS, raw=True)
         self.data_subscription(MagneticField, TOPIC_MAG, self.on_mag, LOCKSTEP_QOS, raw=True)
@@ -133,6 +138,11 @@ class AttitudeEstimator(ManagedNode):
             self.data_subscription(Odometry, TOPIC_POSITION, self.on_position, LOCKSTEP_QOS, raw=True)
 
     # ---------------------------------------------------------------- inputs (serialized messages)
+    def on_mode(self, msg: Mode):
+        """The mode manager's mode: the sensor watch watches in POINTING only (unknown ids ignored)."""
+        if msg.mode < len(MODES):
+            self.mode = MODES[msg.mode]
+
     def on_imu(self, data: bytes):
         """sensors/imu (raw bytes): rejects and counts a malformed message or a non-finite gyro rate; else stamp-gated and paired by stamp."""
         f = raw_imu(data)
@@ -261,13 +271,15 @@ class AttitudeEstimator(ManagedNode):
         self.publish(ns, t, out.state, r, v, valid)
 
     def watch_sensors(self, ns, out, valid: bool):
-        """The magnetometer and gyro watch (onboard.sensor_watch.SensorWatch) on this sample (armed by a valid estimate of a
-        calm body, watch_arm_rate): at a verdict WARN naming the unit, stamped with the sample, and its recovery: the
-        unit's bias re-estimated (MekfStream.reopen) and the validity's NIS average restarted; OK naming it when back."""
+        """The magnetometer and gyro watch (onboard.sensor_watch.SensorWatch) on this sample (in POINTING, or without a
+        mode manager; armed by a valid estimate of a calm body, watch_arm_rate): at a verdict WARN naming the unit,
+        stamped with the sample, and its recovery: the unit's bias re-estimated (MekfStream.reopen) and the validity's
+        NIS average restarted; OK naming it when back."""
         st, w = out.state, self.w_prev
         calm = math.dist(w, st.b) < self.values["watch_arm_rate"]  # arming needs a calm body (inhibited in a tumble)
+        held = self.mode not in (None, POINTING)  # DETUMBLE, ACQUISITION's capture, SAFE: disarmed as by a restart
         verdict = self.sensor_watch.step(out.nis_mag, out.nis_sun, out.sun_accepted, st.b, st.P[3:6, 3:6],
-                                         valid and (calm or self.sensor_watch.armed), out.started)
+                                         valid and (calm or self.sensor_watch.armed), out.started or held)
         if verdict is None:
             return
         text = verdict.message.removeprefix(f"{verdict.unit}: ")
