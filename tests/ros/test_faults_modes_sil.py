@@ -13,36 +13,20 @@ import re
 import numpy as np
 import psutil
 import pytest
+from sil_records import modes as recorded_modes  # tests/support
+from sil_records import statuses
 
-from magtune_core import bags as bag
-from magtune_core.bags.decode import Decoder
 from magtune_core.design.gains import load_gains
 from magtune_core.design.node_params import INITIAL_RATE_ERROR
 from magtune_core.design.params import SpacecraftParams
 from magtune_core.onboard.modes import ACQUISITION, POINTING, SAFE
 from magtune_core.ros import sil
 from magtune_core.sim.modes_loop import simulate_modes
-from magtune_core.studies.report_modes import load_modes
 
 pytestmark = [pytest.mark.ros, pytest.mark.fault]
 
 GAINS = "config/gains/sigma_60.yaml"
 HEARTBEAT_TIMEOUT = 3.0  # MANAGER_FIELDS' default [steady s]
-
-
-def _modes(bag_dir) -> list[tuple[float, str, str]]:
-    return [(c.t, c.mode, c.reason) for c in load_modes(bag_dir)]
-
-
-def _diag(bag_dir, node: str) -> list[tuple[int, str, dict]]:
-    """Every /diagnostics status of ``magtune/<node>`` in the bag: (level, message, values)."""
-    d = Decoder()
-    out = []
-    for m in bag.iter_messages(bag_dir, topics=["/diagnostics"]):
-        for st in d.decode(m.data, m.type).status:
-            if st.name == f"magtune/{node}":
-                out.append((st.level, st.message, {kv.key: kv.value for kv in st.values}))
-    return out
 
 
 def test_sensors_killed_in_pointing_goes_safe_within_the_heartbeat_timeout(tmp_path):
@@ -62,7 +46,7 @@ def test_sensors_killed_in_pointing_goes_safe_within_the_heartbeat_timeout(tmp_p
             os.killpg(pid, 0)
     [(kind, t_kill, wall_kill)] = run.faults_injected
     assert kind == "sensors_killed" and t_kill == 200.0
-    modes = _modes(tmp_path / "bag")
+    modes = recorded_modes(tmp_path / "bag")
     assert [m[1] for m in modes] == [POINTING, SAFE], modes
     reason = modes[-1][2]
     age = float(re.search(r"heartbeat of attitude_sensors missed for ([0-9.]+) s", reason).group(1))
@@ -72,7 +56,7 @@ def test_sensors_killed_in_pointing_goes_safe_within_the_heartbeat_timeout(tmp_p
     wall_safe = float(re.search(r"\[(\d+\.\d+)\]", line).group(1))
     assert 1.5 <= wall_safe - wall_kill <= HEARTBEAT_TIMEOUT + 0.5, (wall_safe - wall_kill, line)
     # the manager's /diagnostics turned ERROR naming the node
-    errors = [s for s in _diag(tmp_path / "bag", "mode_manager") if s[0] == 2]
+    errors = [s for s in statuses(tmp_path / "bag", "mode_manager") if s[0] == 2]
     assert errors and "attitude_sensors" in errors[-1][1] and errors[-1][2].get("lost") == "attitude_sensors"
     # the controller, without input, zeroed the held dipole (its stale_data rule: 2 Ts of sim time)
     m = run.result.m
@@ -99,9 +83,9 @@ def test_mag_dropout_at_full_speed_runs_to_the_end(tmp_path):
     run = sil.run_sil(GAINS, steps=160, ts=1.0, modes=True, initial_mode=POINTING, faults=["mag_dropout@100:30"],
                       bag=tmp_path / "bag", log_dir=tmp_path / "logs", timeout=120)
     assert run.counters["missed_steps"] == 0, run.counters
-    ctl = _diag(tmp_path / "bag", "controller")[-1][2]
+    ctl = statuses(tmp_path / "bag", "controller")[-1][2]
     assert int(ctl["no_field"]) == 30 and int(ctl["late_field"]) == 0, ctl
-    modes = _modes(tmp_path / "bag")
+    modes = recorded_modes(tmp_path / "bag")
     assert [m[1] for m in modes] == [POINTING, SAFE, ACQUISITION], modes
     assert abs(modes[1][0] - 103.0) <= 1.0 and modes[1][2] == "sensor data stale"
     assert abs(modes[2][0] - 140.0) <= 1.0 and "fresh for 10 s" in modes[2][2]
@@ -124,11 +108,11 @@ def test_mag_dropout_goes_safe_then_acquisition(tmp_path, monkeypatch):
     transitions in summary.md."""
     run = sil.run_sil(GAINS, steps=160, ts=1.0, modes=True, initial_mode=POINTING, faults=["mag_dropout@100:30"],
                       real_time_factor=20.0, bag=tmp_path / "bag", log_dir=tmp_path / "logs", timeout=120)
-    modes = _modes(tmp_path / "bag")
+    modes = recorded_modes(tmp_path / "bag")
     assert [m[1] for m in modes] == [POINTING, SAFE, ACQUISITION], modes
     assert abs(modes[1][0] - 103.0) <= 1.0 and modes[1][2] == "sensor data stale"
     assert abs(modes[2][0] - 140.0) <= 1.0 and "fresh for 10 s" in modes[2][2]
-    counters = _diag(tmp_path / "bag", "attitude_sensors")[-1][2]
+    counters = statuses(tmp_path / "bag", "attitude_sensors")[-1][2]
     assert int(counters["mag_dropped"]) == 30
     assert run.counters["missed_steps"] == 0, run.counters
     off = _offline_dropout(160)

@@ -18,12 +18,11 @@ import signal
 import time
 
 import pytest
+from sil_records import modes as recorded_modes  # tests/support
+from sil_records import statuses
 
-from magtune_core import bags as bag
-from magtune_core.bags.decode import Decoder
 from magtune_core.onboard.modes import ACQUISITION, POINTING, SAFE
 from magtune_core.ros import process, sil
-from magtune_core.studies.report_modes import load_modes
 
 pytestmark = pytest.mark.ros
 
@@ -95,21 +94,6 @@ class Peer:
         rclpy.shutdown(context=self.ctx)
 
 
-def _modes(bag_dir) -> list[tuple[float, str, str]]:
-    return [(c.t, c.mode, c.reason) for c in load_modes(bag_dir)]
-
-
-def _diag(bag_dir, node: str) -> list[tuple[int, str, dict]]:
-    """Every /diagnostics status of ``magtune/<node>`` in the bag: (level, message, values)."""
-    d = Decoder()
-    out = []
-    for m in bag.iter_messages(bag_dir, topics=["/diagnostics"]):
-        for st in d.decode(m.data, m.type).status:
-            if st.name == f"magtune/{node}":
-                out.append((st.level, st.message, {kv.key: kv.value for kv in st.values}))
-    return out
-
-
 def test_peer_deactivating_the_controller_goes_safe_and_back(tmp_path, peer_env):
     """At t ~ 40 s (POINTING) a peer deactivates the controller (a valid request, obeyed): the manager goes SAFE
     with the reason ``controller left active (deactivated by a peer)``, stamped with its sim time when the event
@@ -140,7 +124,7 @@ def test_peer_deactivating_the_controller_goes_safe_and_back(tmp_path, peer_env)
     run = sil.run_sil(GAINS, steps=200, ts=1.0, modes=True, initial_mode=POINTING, lockstep_timeout=0.25,
                       real_time_factor=RTF, bag=tmp_path / "bag", log_dir=tmp_path / "logs", timeout=150,
                       on_start=on_start)
-    modes = _modes(tmp_path / "bag")
+    modes = recorded_modes(tmp_path / "bag")
     assert [m[1] for m in modes] == [POINTING, SAFE, ACQUISITION], modes
     t_safe, _, reason = modes[1]
     assert reason == "controller left active (deactivated by a peer)"
@@ -149,7 +133,7 @@ def test_peer_deactivating_the_controller_goes_safe_and_back(tmp_path, peer_env)
     # lockstep take a few unanswered steps: up to 5 s more)
     t_detumble, _, why = modes[2]
     assert "fresh for 10 s" in why and seen["t_back"] + 10.0 <= t_detumble <= seen["t_back"] + 15.0, (modes, seen)
-    diag = _diag(tmp_path / "bag", "mode_manager")
+    diag = statuses(tmp_path / "bag", "mode_manager")
     errors = [s for s in diag if s[0] == 2]
     assert errors and "controller left active (deactivated by a peer)" in errors[0][1], errors[:1]
     assert errors[0][2]["lost"] == "controller" and errors[0][2]["left_active"] == "1"
@@ -187,8 +171,8 @@ def test_stalled_manager_blames_nobody(tmp_path):
     run = sil.run_sil(GAINS, steps=400, ts=1.0, modes=True, initial_mode=POINTING, real_time_factor=RTF,
                       bag=tmp_path / "bag", log_dir=tmp_path / "logs", timeout=150, on_start=on_start)
     assert seen, "the manager was never stopped"
-    assert [m[1] for m in _modes(tmp_path / "bag")] == [POINTING]
-    diag = _diag(tmp_path / "bag", "mode_manager")
+    assert [m[1] for m in recorded_modes(tmp_path / "bag")] == [POINTING]
+    diag = statuses(tmp_path / "bag", "mode_manager")
     assert diag and not [s for s in diag if s[0] == 2 or "missed" in s[1]], [s for s in diag if s[0] == 2][:2]
     # the stall as the manager measured it: the 5 s stop plus at most one 0.25-s period before it and the
     # scheduling of the first check after it (1 s allowed for a loaded machine); every stall is logged and
