@@ -43,9 +43,10 @@ from .layout import (
                      resolve_mcaps,
                      write_metadata,
 )
-from .reader import info, iter_messages, topics_of
+from .reader import info, iter_messages, ties_in_topic_order, topics_of
 from .writer import DEFAULT_CHUNK_SIZE, BagWriter
 
 __all__ = ["DEFAULT_CHUNK_SIZE", "BagMessage", "BagWriter", "TopicInfo", "build_metadata", "has_summary", "info",
-           "iter_messages", "mcap_file_name", "qos_dict", "qos_yaml", "read_metadata", "resolve_mcap", "resolve_mcaps", "topics_of",
+           "iter_messages", "mcap_file_name", "qos_dict", "qos_yaml", "read_metadata", "resolve_mcap", "resolve_mcaps", "ties_in_topic_order",
+           "topics_of",
            "write_metadata"]

@@ -59,6 +59,37 @@ def iter_messages(bag, topics=None, start_ns: int | None = None, report: dict | 
     yield from msgs
 
 
+def ties_in_topic_order(messages, topics, order: str = "log") -> Iterator[BagMessage]:
+    """``messages`` (time-ordered) with each run of equal times reordered by the rank of its topic in
+    ``topics`` (stable otherwise). A recorder receives two topics of one sim instant in either order (separate
+    DDS readers), so a bag cannot say which was published first; a replay that must give a node its field
+    before its attitude sample, as the sensors node publishes them, names the topics in that order.
+
+    Parameters
+    ----------
+    messages : iterable of BagMessage
+        In ``order`` time (:func:`iter_messages`).
+    topics : sequence of str
+        The topics by rank (a topic not listed goes last).
+    order : {"log", "publish"}
+        Which time makes a tie.
+
+    Returns
+    -------
+    iterator of BagMessage
+    """
+    rank = {t: i for i, t in enumerate(topics)}
+    run, t_run = [], None
+    for m in messages:
+        t = m.log_time if order == "log" else m.publish_time
+        if run and t != t_run:
+            yield from sorted(run, key=lambda x: rank.get(x.topic, len(rank)))
+            run = []
+        run.append(m)
+        t_run = t
+    yield from sorted(run, key=lambda x: rank.get(x.topic, len(rank)))
+
+
 def _tolerant(path, topics, start_ns, report: dict) -> Iterator[BagMessage]:
     """The messages of one file of a split bag; a file that cannot be read at all is reported
     (:func:`.integrity.unreadable_report`) and the other files are still read."""

@@ -27,7 +27,7 @@ from ..base.errors import ConfigError, SilError
 from ..base.topics import topic_specs
 from ..design.faults import kill_time
 from ..sim.metrics import format_figures
-from ..sim.simulate import DIVERGED_EXIT, SimResult
+from ..sim.simulate import DIVERGED_EXIT, STARTUP_EXIT, SimResult
 from .process import PACKAGE, DomainLock, NodeProcess, StopSignals, child_env, package_prefix, resolve_executable, start_node, stop_nodes
 from .scenario import MODE_MANAGER, SilRequest, SilScenario, tag
 
@@ -257,7 +257,7 @@ def _wait(scenario: SilScenario, procs: list[NodeProcess], sims: dict, res_paths
             watches[ns].poll()
             if rc is not None:
                 rcs[ns] = rc
-                _check_simulator_exit(p, rc, res_paths[ns])
+                _check_simulator_exit(p, rc, res_paths[ns], [q for q in procs if q is not p])
         report()
         for w in kills.values():
             w.poll()
@@ -277,7 +277,12 @@ def _wait(scenario: SilScenario, procs: list[NodeProcess], sims: dict, res_paths
     report()
 
 
-def _check_simulator_exit(p: NodeProcess, rc: int, results: Path) -> None:
+def _check_simulator_exit(p: NodeProcess, rc: int, results: Path, peers: list[NodeProcess]) -> None:
+    """SilError for a simulator that did not finish its run; one that never started (its peers did not come up
+    within startup_timeout) shows each peer's last log lines too, so the error says which one did not."""
+    if rc == STARTUP_EXIT:
+        said = "".join(f"\n--- {q.name}:\n{q.tail(3) or '(nothing logged)'}" for q in peers)
+        raise SilError(f"simulator {p.name} exited with status {rc}:\n{p.tail()}\nits peers' last lines:{said}")
     if rc == DIVERGED_EXIT:
         line = next((ln for ln in reversed(p.tail(20).splitlines()) if "diverged" in ln), "")
         raise SilError(f"the simulation diverged and was stopped ({p.name}): "

@@ -70,6 +70,8 @@ class SimResult:
 DIVERGED_RATE = 100.0
 #: Exit status of the simulator node when the run diverged (the runner reports the step).
 DIVERGED_EXIT = 4
+#: Exit status of the simulator node when its peers did not come up within startup_timeout.
+STARTUP_EXIT = 3
 
 
 def divergence(y) -> str | None:

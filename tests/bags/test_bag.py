@@ -23,6 +23,7 @@ from magtune_core.bags import msgdefs
 from magtune_core.bags import recover as bag_recover
 from magtune_core.bags import scan as bag_scan
 from magtune_core.bags.decode import Decoder, stamp_ns
+from magtune_core.bags.layout import BagMessage
 
 TYPES = ["sensor_msgs/msg/Imu", "sensor_msgs/msg/MagneticField", "nav_msgs/msg/Odometry",
          "geometry_msgs/msg/Vector3Stamped", "rosgraph_msgs/msg/Clock",
@@ -200,3 +201,18 @@ def test_core_bag_modules_do_not_import_rclpy():
             "magtune_core.bags.decode, magtune_core.studies.report, magtune_core.ros.replay, "
             "magtune_core.base.topics, magtune_core.cli; assert 'rclpy' not in sys.modules, 'rclpy imported'")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_ties_in_topic_order_reorders_only_equal_times():
+    """A field and an attitude sample of one sim instant, recorded attitude first (separate DDS readers), come
+    out field first when the topics are named in that order; different times and unlisted topics keep their
+    place within their time (stable), and publish-time ties work the same."""
+    def msg(topic, t):
+        return BagMessage(topic, "", t, 10 * t, topic.encode())
+
+    msgs = [msg("/att", 1), msg("/mag", 1), msg("/other", 1), msg("/att", 2), msg("/mag", 3), msg("/att", 3)]
+    out = [(m.topic, m.log_time) for m in bag.ties_in_topic_order(iter(msgs), ["/mag", "/att"])]
+    assert out == [("/mag", 1), ("/att", 1), ("/other", 1), ("/att", 2), ("/mag", 3), ("/att", 3)]
+    assert [(m.topic, m.log_time) for m in bag.ties_in_topic_order(msgs, ["/att", "/mag"], "publish")] == \
+        [("/att", 1), ("/mag", 1), ("/other", 1), ("/att", 2), ("/att", 3), ("/mag", 3)]
+    assert list(bag.ties_in_topic_order([], ["/mag"])) == [] and list(bag.ties_in_topic_order(msgs, ())) == msgs

@@ -70,7 +70,7 @@ def test_replayed_sensors_reproduce_dipole_commands(tmp_path):
             str(gains), "-p", "use_sim_time:=true"])
         time.sleep(1.5)  # let the recorder discover the controller's publisher
         ply = procs.start("player", executable("player") + [
-            str(rec1), "--topics", MAG, ATTITUDE, "--rate", "25", "--wait-subscribers", "30"])
+            str(rec1), "--topics", MAG, ATTITUDE, "--rate", "25", "--wait-subscribers", "30"])  # field first at a tie
         assert ply.wait(90) == 0, procs.output(ply)
         time.sleep(1.0)
         rec.send_signal(2)

@@ -361,3 +361,14 @@ def test_spacecraft_schema_same_error_in_cli_and_node(tmp_path, gains60):
     assert cli.returncode == 2 and node.returncode == 2
     assert "field 'wheel_inertia': " + expected in cli.stderr
     assert node.stderr.strip().splitlines() == [f"controller: parameter 'wheel_inertia': {expected}"]
+
+
+def test_peer_that_never_comes_up_is_shown_with_the_startup_failure(tmp_path, gains60):
+    """A controller left unconfigured (autostart false, no mode manager) never offers its dipole topic: the
+    simulator gives up after startup_timeout (exit 3) naming what it waits for (the command's publisher), and the
+    runner's error adds each peer's last log lines, so the user sees which node did not come up."""
+    with pytest.raises(SilError, match=r"(?s)status 3:.*no subscriber/controller matched.*dipole_command: 0 of 1 "
+                                       r"publisher \(the controller\).*--- controller:") as err:
+        sil.run_sil(gains60, steps=10, ts=1.0, log_dir=tmp_path, timeout=60, startup_timeout=3.0,
+                    controller_params={"autostart": False})
+    assert "--- attitude_sensors:" in str(err.value), err.value

@@ -16,6 +16,9 @@ rate, a start past the end, an unknown topic, ... print one line and exit with s
 * ``/clock`` (rosgraph_msgs/Clock) is published whenever the log time advances, before the
   messages of that time, so nodes with ``use_sim_time`` follow the recording; if the bag has
   its own ``/clock`` and it is selected, that one is replayed instead;
+* ``--topics A B ...``: only these; messages of one log time (a recorder receives the topics of one sim
+  instant in either order) are played in the order of the list, e.g. the field before the attitude
+  sample, as the sensors node publishes them (a controller answers an attitude sample without its field);
 * ``--rate R``: R times the recorded speed (log time vs. wall time); ``--rate 0``: as fast as
   DDS accepts (reliable KEEP_ALL publishers: nothing a subscriber has not acknowledged is
   dropped). Before exiting the player waits for all acks;
@@ -62,7 +65,7 @@ def parse_args(argv):
     p = argparse.ArgumentParser(prog="player", description=__doc__.split("\n\n")[0])
     p.add_argument("bag", help="bag directory (or .mcap file)")
     p.add_argument("--rate", type=float, default=1.0, help="speed factor > 0; 0 = as fast as acked")
-    p.add_argument("--topics", nargs="*", default=None, help="only these topics")
+    p.add_argument("--topics", nargs="*", default=None, help="only these topics; messages of one time in this order")
     p.add_argument("--exclude", default=None, metavar="REGEX", help="leave out topics matching REGEX")
     p.add_argument("--start", type=float, default=0.0, help="skip the first S seconds")
     p.add_argument("--playback-duration", type=float, default=0.0, help="play S bag seconds (0: to the end)")
@@ -297,8 +300,8 @@ class Player(Node):
             anchor_wall, anchor_bag = time.monotonic(), None
             since_ack = 0
             seeked = False
-            for m in baglib.iter_messages(a.bag, topics=list(self.pubs), start_ns=start_ns,
-                                          report=report, order=a.order):
+            msgs = baglib.iter_messages(a.bag, topics=list(self.pubs), start_ns=start_ns, report=report, order=a.order)
+            for m in baglib.ties_in_topic_order(msgs, a.topics or (), a.order):
                 t = m.log_time if a.order == "log" else m.publish_time
                 if t > sel.end_ns:
                     break

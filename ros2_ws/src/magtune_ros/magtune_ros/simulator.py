@@ -97,7 +97,7 @@ from magtune_core.onboard.law import linear_state, saturate
 from magtune_core.onboard.params import TORQUER_FIELDS
 from magtune_core.onboard.torquers import Torquers
 from magtune_core.sim.fullenv import FullEnvironmentOptions, make_dynamics
-from magtune_core.sim.simulate import DIVERGED_EXIT, SimResult, divergence, initial_state
+from magtune_core.sim.simulate import DIVERGED_EXIT, STARTUP_EXIT, SimResult, divergence, initial_state
 from magtune_core.sim.substeps import Substeps
 
 from .diagnostics import Diagnostics
@@ -257,10 +257,15 @@ class Simulator(Node):
     def peers_ready(self) -> bool:
         """True once the lockstep peers are matched (truth, rate and field have subscribers, the command a publisher) or
         ``wait_for_peers`` is off."""
-        return (not self.wait_peers) or (
-            self.pub_truth.get_subscription_count() >= self.min_subs and self.pub_field.get_subscription_count() > 0
-            and self.pub_rate.get_subscription_count() > 0
-            and self.sub_cmd.get_publisher_count() > 0)
+        return (not self.wait_peers) or not self.peers_missing()
+
+    def peers_missing(self) -> list[str]:
+        """What the start still waits for, one phrase per topic (the startup error names it)."""
+        need = [(self.pub_truth, self.pub_truth.get_subscription_count(), self.min_subs, "subscribers"),
+                (self.pub_field, self.pub_field.get_subscription_count(), 1, "subscriber"),
+                (self.pub_rate, self.pub_rate.get_subscription_count(), 1, "subscriber"),
+                (self.sub_cmd, self.sub_cmd.get_publisher_count(), 1, "publisher (the controller)")]
+        return [f"{e.topic_name}: {n} of {want} {what}" for e, n, want, what in need if n < want]
 
     def on_timer(self):
         """Steady-time timer: starts the run once the peers are ready (exit 3 after startup_timeout); free-running, steps; in lockstep,
@@ -285,8 +290,9 @@ class Simulator(Node):
                 self.wall0 = self.t_progress = self.pace0 = time.perf_counter()
                 self.publish_state()
             elif now - self.wall0 > self.startup_timeout:
-                self.get_logger().error("no subscriber/controller matched within startup_timeout; giving up")
-                self.finish_run(code=3)
+                self.get_logger().error("no subscriber/controller matched within startup_timeout; giving up (waiting for "
+                                        + "; ".join(self.peers_missing()) + ")")
+                self.finish_run(code=STARTUP_EXIT)
             return
         if not self.lockstep:  # free-running: latest command, after a first answer to step 0
             if self.k == 0:
