@@ -167,6 +167,9 @@ WATCH_FIELDS = (
     Field("recover_attitude_std", "float", "... and the attitude covariance to this 1-sigma per axis [rad] (the "
           "step drifted the attitude before it was named; below valid_sigma, so the estimate stays valid)", 0.02,
           nonnegative=True, bounds=(0.0, 1.0), unit="rad"),
+    Field("torquer_watch", "bool", "watch the torquers from the momentum residual of the commanded dipole, the "
+          "field and the estimated rate (onboard/torquer_watch.py; ERROR 'torquer x|y|z' on /diagnostics at "
+          "detection, reported only: the law has no reconfiguration)", True),
 )
 
 #: attitude_estimator: the filter's model of the sensors (defaults: the filter matched to design.sensors.default_suite,

@@ -13,7 +13,9 @@ Subscribes (LOCKSTEP_QOS):
   sensors/sun             geometry_msgs/Vector3Stamped measured unit Sun vector (only when valid)
   sensors/position        nav_msgs/Odometry          position fix r [m], v [m/s], ECI (environment 'full')
                           (each taken raw: the serialized bytes, the fields read in place)
-  mode                    magtune_interfaces/Mode    the mode manager's (MODE_QOS): the sensor watch runs in POINTING
+  mode                    magtune_interfaces/Mode    the mode manager's (MODE_QOS): the sensor watch runs in POINTING,
+                                                     the torquer watch in ACQUISITION and POINTING
+  controller/dipole_command geometry_msgs/Vector3Stamped the commanded dipole [A m^2] (raw; the torquer watch's input)
   /clock                  rosgraph_msgs/Clock        (use_sim_time)
 Publishes:
   estimate/attitude       sensor_msgs/Imu, frame 'body', stamp = the sample's: orientation = estimated
@@ -22,7 +24,7 @@ Publishes:
                           [rad^2, body axes]; angular_velocity = gyro minus estimated bias [rad/s] with
                           covariance (sigma_v^2 / ts + bias variance); linear_acceleration_covariance[0] = -1
   /diagnostics            counters: samples, estimates, mag_accepted, mag_rejected, sun_accepted,
-                          sun_rejected, sun_missing, sun_late, mag_missing, mag_late, reinitialised,
+                          sun_rejected, sun_missing, sun_late, mag_missing, mag_late, reinitialised, dipole_missing,
                           rejected_nonfinite, rejected_malformed, rejected_stamp, stale_inputs; values nis_mag, nis_sun (last), state, fixed_at
 A sample t_k is processed when its gyro, magnetometer (and, full environment, position fix)
 messages are in: with its sun message if that arrived, without one if the on-board model puts the
@@ -35,7 +37,10 @@ holds after a first complete sample); a field of an already estimated stamp is d
 estimate goes on through a magnetometer gap, the lockstep misses no step, and the mode manager sees the
 magnetometer stream lag the estimate's (its staleness rule). Sun sensor loss (onboard.fdir.SunSensorWatch,
 ``sun_loss_samples`` predicted-lit samples in a row without one): WARN "sun sensor" on /diagnostics at
-that sample, and steps no longer wait for it until a sun sample comes again (OK "sun sensor"). Before the coarse fix each sample's message has
+that sample, and steps no longer wait for it until a sun sample comes again (OK "sun sensor"). The sensor
+watch (magnetometer, gyro) and the torquer watch (``torquer_watch``: each sample with the dipole commanded one
+period before it, inputs.CommandLag; ERROR "torquer x|y|z", report only) run on the estimate (docs/modes.md).
+Before the coarse fix each sample's message has
 orientation_covariance[0] = -1 (unknown; the controller commands zero dipole outside DETUMBLE). With
 ``validity_gate`` (the full stack, ``magtune sil --modes --attitude estimator``) so does every estimate
 that magtune_core.onboard.validity.ValidityMonitor does not call valid (diagnostics values valid,
@@ -51,22 +56,33 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import Vector3Stamped
 from magtune_interfaces.msg import Mode
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import Imu, MagneticField
 
-from magtune_core.base.topics import FRAME_BODY, TOPIC_ESTIMATE, TOPIC_IMU, TOPIC_MAG, TOPIC_MODE, TOPIC_POSITION, TOPIC_SUN
+from magtune_core.base.topics import (
+    FRAME_BODY,
+    TOPIC_DIPOLE,
+    TOPIC_ESTIMATE,
+    TOPIC_IMU,
+    TOPIC_MAG,
+    TOPIC_MODE,
+    TOPIC_POSITION,
+    TOPIC_SUN,
+)
 from magtune_core.design.params import SpacecraftParams
 from magtune_core.onboard.estimator import FilterModel, MekfStream, OnboardModels
 from magtune_core.onboard.fdir import BACK, LOST, SunSensorWatch
-from magtune_core.onboard.modes import MODES, POINTING
+from magtune_core.onboard.modes import ACQUISITION, MODES, POINTING
 from magtune_core.onboard.params import ESTIMATOR_FIELDS
 from magtune_core.onboard.sensor_watch import FAILED, GYRO, SensorWatch, SensorWatchParams
+from magtune_core.onboard.torquer_watch import AXES, TorquerWatch, TorquerWatchParams
 from magtune_core.onboard.validity import ValidityMonitor
 
-from .inputs import PairSync, StampGate, finite, now_wall, ns_to_stamp, sec_to_ns
+from .inputs import CommandLag, PairSync, StampGate, finite, now_wall, ns_to_stamp, sec_to_ns
 from .lifecycle import ManagedNode
 from .main import run
 from .params import check_ts, declare_overrides, from_schema, parse_fields
@@ -93,7 +109,7 @@ class AttitudeEstimator(ManagedNode):
     def __init__(self):
         super().__init__(self.NODE_NAME, ["samples", "estimates", "mag_accepted", "mag_rejected", "sun_accepted",
                                           "sun_rejected", "sun_missing", "sun_late", "mag_missing", "mag_late",
-                                          "reinitialised", "rejected_nonfinite",
+                                          "reinitialised", "dipole_missing", "rejected_nonfinite",
                                           "rejected_malformed", "rejected_stamp", "stale_inputs"])
         self.pending = None
         self.create_timer(0.05, self.check_pending, clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -107,6 +123,7 @@ class AttitudeEstimator(ManagedNode):
         declare_overrides(self)
         self.values, self.full = v, v["environment"] == "full"
         self.model, self.models = FilterModel.from_values(v), models_from(v, p)
+        self.torquer_params = TorquerWatchParams.of_filter(self.model, p.inertia, p.wheel_momentum, p.orbit_rate)
         self.msg = Imu()
         self.msg.header.frame_id = FRAME_BODY
         self.msg.linear_acceleration_covariance[0] = -1.0
@@ -127,9 +144,13 @@ class AttitudeEstimator(ManagedNode):
         self.suns: dict = {}
         self.sun_watch = SunSensorWatch(int(v["sun_loss_samples"]))
         self.sensor_watch = SensorWatch(SensorWatchParams.of_stream(self.stream)) if v["sensor_watch"] else None
+        self.torquer_watch = TorquerWatch(self.torquer_params) if v["torquer_watch"] else None
+        self.commands = CommandLag(self.ts_ns)  # each sample with the dipole commanded one period before
         self.last_ns, self.w_prev, self.pending, self.paired = -1, None, None, False
         self.mode = None  # the mode manager's mode (None: no manager; the sensor watch then runs in every state)
         self.data_subscription(Mode, TOPIC_MODE, self.on_mode, MODE_QOS)
+        if self.torquer_watch is not None:
+            self.data_subscription(Vector3Stamped, TOPIC_DIPOLE, self.on_dipole, LOCKSTEP_QOS, raw=True)
         self.pub = self.data_publisher(Imu, TOPIC_ESTIMATE, LOCKSTEP_QOS)
         self.data_subscription(Imu, TOPIC_IMU, self.on_imu, LOCKSTEP_QOS, raw=True)
         self.data_subscription(MagneticField, TOPIC_MAG, self.on_mag, LOCKSTEP_QOS, raw=True)
@@ -142,6 +163,15 @@ class AttitudeEstimator(ManagedNode):
         """The mode manager's mode: the sensor watch watches in POINTING only (unknown ids ignored)."""
         if msg.mode < len(MODES):
             self.mode = MODES[msg.mode]
+
+    def on_dipole(self, data: bytes):
+        """controller/dipole_command (raw): kept by stamp for the torquer watch (malformed or non-finite: counted)."""
+        f = raw_vector3_stamped(data)
+        if f is None:
+            return self.diag.count("rejected_malformed", "malformed controller/dipole_command message")
+        if not finite(*f[1]):
+            return self.diag.count("rejected_nonfinite", "non-finite dipole command")
+        self.watch_torquers(self.commands.command(f[0], np.array(f[1])))
 
     def on_imu(self, data: bytes):
         """sensors/imu (raw bytes): rejects and counts a malformed message or a non-finite gyro rate; else stamp-gated and paired by stamp."""
@@ -268,7 +298,11 @@ class AttitudeEstimator(ManagedNode):
                                        "restarting from a coarse fix")
         if self.sensor_watch is not None:
             self.watch_sensors(ns, out, valid)
-        self.publish(ns, t, out.state, r, v, valid)
+        q = self.models.to_orbital(out.state.q, t, r, v)
+        if self.torquer_watch is not None:
+            active = valid and self.mode in (None, ACQUISITION, POINTING) and b is not None
+            self.watch_torquers(self.commands.sample(ns, (self.w_prev - out.state.b, b, q, active)))
+        self.publish(ns, out.state, q, valid)
 
     def watch_sensors(self, ns, out, valid: bool):
         """The magnetometer and gyro watch (onboard.sensor_watch.SensorWatch) on this sample (in POINTING, or without a
@@ -292,6 +326,22 @@ class AttitudeEstimator(ManagedNode):
             self.validity.forgive()
         self.diag.unit_fault(verdict.unit, text + ("; re-estimating its bias" if std > 0 else ""), ns)
 
+    def watch_torquers(self, ready: list):
+        """The torquer watch (onboard.torquer_watch.TorquerWatch) on each ready sample (inputs.CommandLag: its
+        gyro minus the estimated bias, measured field and attitude w.r.t. the orbital axes, with the dipole
+        commanded for the period that ended at it; no command: the window restarts, counted). Active on a valid
+        estimate in ACQUISITION and POINTING (or without a mode manager), not in DETUMBLE or SAFE: a stuck torquer
+        can take POINTING to ACQUISITION before its window isolates it (the field must turn to tell x from y).
+        A verdict: ERROR naming the torquer, stamped with its sample; reported only
+        (docs/modes.md#torquer-fault-detection)."""
+        for ns, (w, b, q, active), m in ready:
+            if m is None and active and self.commands.missed(ns):
+                self.diag.count("dipole_missing", f"no dipole command for t={ns * 1e-9:.3f} s: the torquer watch restarts")
+            verdict = self.torquer_watch.step(w, b, m if m is not None else np.zeros(3), q, active and m is not None)
+            if verdict is not None:
+                unit = f"torquer {AXES[verdict.axis]}"
+                self.diag.unit_fault(unit, verdict.detail.removeprefix(f"{unit}: "), ns, level=DiagnosticStatus.ERROR)
+
     def watch_sun(self, ns, t, r, have_sun: bool):
         """The sun sensor's watch (onboard.fdir.SunSensorWatch) on this sample: WARN 'sun sensor' at the sample
         its loss is detected, OK when it is back (both stamped with the sample)."""
@@ -302,12 +352,11 @@ class AttitudeEstimator(ManagedNode):
         elif verdict == BACK:
             self.diag.unit_back("sun sensor", "samples again", ns)
 
-    def publish(self, ns, t, state, r, v, valid=True):
-        """Publish estimate/attitude of sample ``ns``: the attitude w.r.t. the orbital axes with the MEKF's covariance (not
-        ``valid``: the estimate with orientation_covariance[0] = -1), gyro rate minus the estimated bias."""
+    def publish(self, ns, state, q, valid=True):
+        """Publish estimate/attitude of sample ``ns``: the attitude ``q`` w.r.t. the orbital axes with the MEKF's covariance
+        (not ``valid``: the estimate with orientation_covariance[0] = -1), gyro rate minus the estimated bias."""
         m = self.msg
         m.header.stamp = ns_to_stamp(ns)
-        q = self.models.to_orbital(state.q, t, r, v)
         o = m.orientation
         o.w, o.x, o.y, o.z = float(q[0]), float(q[1]), float(q[2]), float(q[3])
         P = state.P

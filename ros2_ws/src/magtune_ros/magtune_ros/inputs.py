@@ -68,6 +68,48 @@ class PairSync:
         return out
 
 
+class CommandLag:
+    """Pairs each sample with the command stamped one period before it (the dipole applied until the sample),
+    whichever of the two arrives first: the command reaches this node in one hop, the next sample through the
+    simulator and the sensors, yet a loaded executor may take the sample first (measured: 4-11 of 1400 samples).
+    Samples leave in stamp order; one whose command has not come after ``depth`` newer samples leaves without
+    it (None)."""
+
+    def __init__(self, lag_ns: int, depth: int = 4):
+        self.lag_ns, self.depth = lag_ns, depth
+        self.commands: dict = {}  # stamp -> command, the newest 16
+        self.samples: list = []  # (stamp, inputs) waiting for their command, in stamp order
+        self.first: int | None = None  # stamp of the first command (samples before it have none to miss)
+
+    def command(self, ns: int, cmd) -> list:
+        """Store the command of stamp ``ns``; the samples now ready, as (stamp, inputs, command) in order."""
+        self.commands[ns] = cmd
+        self.first = ns if self.first is None else self.first
+        while len(self.commands) > 16:
+            del self.commands[next(iter(self.commands))]
+        return self._ready()
+
+    def sample(self, ns: int, inputs) -> list:
+        """Queue sample ``ns``; the samples now ready, as (stamp, inputs, command or None) in order."""
+        self.samples.append((ns, inputs))
+        return self._ready()
+
+    def missed(self, ns: int) -> bool:
+        """True if sample ``ns`` should have had a command (one came at or before its period's start)."""
+        return self.first is not None and ns - self.lag_ns >= self.first
+
+    def _ready(self) -> list:
+        out = []
+        while self.samples:
+            ns, inputs = self.samples[0]
+            cmd = self.commands.get(ns - self.lag_ns)
+            if cmd is None and len(self.samples) <= self.depth:
+                break
+            out.append((ns, inputs, cmd))
+            self.samples.pop(0)
+        return out
+
+
 class StampGate:
     """Rejects inputs whose stamps are not newer than the last accepted one, older than
     ``max_age`` relative to the node's (simulated) clock, or more than ``max_age`` ahead of it
