@@ -191,6 +191,10 @@ class BatchEstimator:
     recover_mag_bias_std: float = _WATCH["recover_mag_bias_std"]
     recover_gyro_bias_std: float = _WATCH["recover_gyro_bias_std"]
     recover_attitude_std: float = _WATCH["recover_attitude_std"]
+    #: record the torquer watch's inputs at every step (BatchResult.torquer_inputs, the node's watch_torquers; replayed
+    #: after the run by sim.batch_torquer, the watch having no feedback). Off unless asked, unlike the node's field:
+    #: ~105 B per run-step and the replay's CPU
+    torquer_watch: bool = False
 
 
 @dataclass
@@ -221,6 +225,34 @@ class BatchRuns:
     def size(self) -> int:
         """Number of runs B (the rows of ``q0``)."""
         return int(np.asarray(self.q0).shape[0])
+
+
+@dataclass
+class TorquerInputs:
+    """What the torquer watch (:class:`magtune_core.onboard.torquer_watch.TorquerWatch`) reads at every controller
+    instant t_k = k ``ts`` of every run, as the attitude_estimator node feeds it (``watch_torquers``): arrays
+    (B, N + 1, .) float64 and ``active`` (B, N + 1) bool. Recorded by :func:`simulate_batch` with
+    ``BatchEstimator(torquer_watch=True)``; replayed by :func:`magtune_core.sim.batch_torquer.replay`."""
+
+    w: np.ndarray  #: (B, N + 1, 3) gyro sample of t_k minus the estimator's bias estimate at k [rad/s] (nan: no state)
+    b: np.ndarray  #: (B, N + 1, 3) measured field at t_k [T] (the magnetometer sample the filter took)
+    m_prev: np.ndarray  #: (B, N + 1, 3) dipole commanded at t_(k-1), as published (after saturation) [A m^2] (nan at k = 0)
+    q: np.ndarray  #: (B, N + 1, 4) the estimate w.r.t. the orbital axes, scalar first (nan: no state)
+    #: (B, N + 1) a valid estimate, mode ACQUISITION or POINTING (the manager's last, the decision of k - 1; or no
+    #: modes), a command at k - 1: the node's rule (POINTING only: ``active[:, 1:]`` and ``BatchResult.mode[:, :-1]`` POINTING)
+    active: np.ndarray
+    ts: float  #: controller period [s]
+
+    @property
+    def shape(self) -> tuple:
+        """(B, N + 1): runs and instants."""
+        return tuple(self.active.shape)
+
+    @property
+    def stepped(self) -> np.ndarray:
+        """(B, N + 1) bool: the filter had a state (after its coarse fix, not between a restart and the next fix):
+        the instants at which the node steps its watch (it skips the others)."""
+        return np.isfinite(self.q[..., 0])
 
 
 @dataclass
@@ -285,6 +317,8 @@ class BatchResult:
     fdir_time: np.ndarray | None = None
     fdir_count: np.ndarray | None = None
     fdir_back: np.ndarray | None = None
+    #: with ``BatchEstimator(torquer_watch=True)``: the torquer watch's inputs at every instant (:class:`TorquerInputs`)
+    torquer_inputs: TorquerInputs | None = None
 
 
 def _as3x3(I: np.ndarray, n: int) -> np.ndarray:
@@ -660,7 +694,7 @@ def _estimator_state(estimator: BatchEstimator | None, sensors: SensorNoise, B: 
         return est, EstimatorIO(z1, z3, np.zeros(1), np.zeros((1, 1, 3), np.float32), np.zeros((1, 1, 3), np.float32),
                                 np.zeros((1, 1), np.float32), np.zeros(1, np.int64), np.zeros((1, 1, 4)),
                                 np.zeros((1, 1, 3)), np.zeros((1, 1, 9, 9)), np.zeros((1, 1, 3)),
-                                *_watch_arrays(None, None, 1)), None
+                                *_watch_arrays(None, None, 1), *_torquer_watch_arrays(False, 1, 0)), None
     est = kernel_state(B, ts, arw=e.gyro_arw, rrw=e.gyro_rrw, mag_cov=e.mag_noise_std**2 * np.eye(3),
                        sun_std=e.sun_noise_std, gate_probability=e.gate_probability, bias_std=e.initial_bias_std,
                        init_angle=e.init_angle, mag_bias_std=e.initial_mag_bias_std, mag_bias_rw=e.mag_bias_rw)
@@ -671,7 +705,7 @@ def _estimator_state(estimator: BatchEstimator | None, sensors: SensorNoise, B: 
                       np.full(shape + (3,), np.nan, np.float32), np.full(shape + (3,), np.nan, np.float32),
                       np.full(shape, np.nan, np.float32), np.zeros(B, np.int64), np.full((B, R, 4), np.nan),
                       np.full((B, R, 3), np.nan), np.full((B, R, 9, 9), np.nan), np.full((B, R, 3), np.nan),
-                      *_watch_arrays(e, est, B))
+                      *_watch_arrays(e, est, B), *_torquer_watch_arrays(e.torquer_watch, B, n))
     return est, eio, _aux_blocks(sensors)
 
 
@@ -683,6 +717,14 @@ def _watch_arrays(e: BatchEstimator | None, est, B: int) -> tuple:
     rec = np.array([e.recover_mag_bias_std, e.recover_gyro_bias_std, e.recover_attitude_std]) if on else np.zeros(3)
     return (np.tile(new_watch_state(), (B, 1)), wp, float(e.watch_arm_rate) if on else 0.0, rec,
             np.zeros(B, np.int64), np.full(B, np.nan), np.zeros(B, np.int64), np.zeros(B, np.int64))
+
+
+def _torquer_watch_arrays(on: bool, B: int, n: int) -> tuple:
+    """EstimatorIO's torquer-watch fields: (on, w, b, m_prev, q, active), (B, n + 1, .) nan and False when ``on``, else
+    (1, 1, .) placeholders the kernel does not write."""
+    B, N = (B, n + 1) if on else (1, 1)
+    return (bool(on), np.full((B, N, 3), np.nan), np.full((B, N, 3), np.nan), np.full((B, N, 3), np.nan),
+            np.full((B, N, 4), np.nan), np.zeros((B, N), dtype=np.bool_))
 
 
 def _estimator_chunk(est, eio: EstimatorIO, tables: _EnvTables, kc: int, k1: int, ts: float, aux_block) -> EstimatorIO:
@@ -705,6 +747,8 @@ def _with_estimator(res: BatchResult, est, eio: EstimatorIO, full: bool) -> Batc
     res.est_q, res.est_bias, res.est_P, res.est_mag_bias = eio.Qe, eio.be, eio.Pe, eio.me
     if eio.wp.size:
         res.fdir_code, res.fdir_time, res.fdir_count, res.fdir_back = eio.fdir_code, eio.fdir_t, eio.fdir_n, eio.fdir_back
+    if eio.tw_on:
+        res.torquer_inputs = TorquerInputs(eio.tw_w, eio.tw_b, eio.tw_m, eio.tw_q, eio.tw_act, float(est.ts))
     return res
 
 

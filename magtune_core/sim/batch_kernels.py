@@ -506,7 +506,7 @@ class Outputs(NamedTuple):
     sat_all: np.ndarray  #: (B, n + 1) bool: step k saturated an axis (with ``full``)
 
 
-_DET, _PNT, _SAFE = MODE_CODE["DETUMBLE"], MODE_CODE["POINTING"], MODE_CODE["SAFE"]
+_DET, _ACQ, _PNT, _SAFE = MODE_CODE["DETUMBLE"], MODE_CODE["ACQUISITION"], MODE_CODE["POINTING"], MODE_CODE["SAFE"]
 
 
 class Modes(NamedTuple):
@@ -562,6 +562,17 @@ class EstimatorIO(NamedTuple):
     fdir_t: np.ndarray  #: (B,) its time [s] (nan: none)
     fdir_n: np.ndarray  #: (B,) int64 verdicts (failed)
     fdir_back: np.ndarray  #: (B,) int64 units reported back
+    #: the torquer watch's inputs at every step (``tw_on``; the attitude_estimator node's ``watch_torquers``, replayed
+    #: after the run by sim.batch_torquer): gyro minus the estimated bias [rad/s] and the estimate w.r.t. the orbital
+    #: axes (nan: the filter has no state, the node does not step the watch), the measured field [T], the dipole
+    #: commanded (published) the step before [A m^2] (nan at step 0), and active (a valid estimate in ACQUISITION or
+    #: POINTING, or without modes, and a command); (B, n + 1, .) or (1, 1, .)
+    tw_on: bool
+    tw_w: np.ndarray
+    tw_b: np.ndarray
+    tw_m: np.ndarray
+    tw_q: np.ndarray
+    tw_act: np.ndarray
 
 
 @njit(cache=True, error_model="numpy")
@@ -602,6 +613,19 @@ def _watch(est, eio, b, k, nis_m, nis_s, started, valid, w0, w1, w2, held):
             _reopen(est.P[b], 0, eio.recover[2])
         if not math.isnan(est.nis_avg[b]):  # ValidityMonitor.forgive
             est.nis_avg[b] = 3.0
+
+
+@njit(cache=True, error_model="numpy")
+def _record_watch(eio, b, k, active, qe, re, bm0, bm1, bm2):
+    """The torquer watch's inputs of run ``b`` at step ``k`` (EstimatorIO.tw_*): the estimate's rate and attitude
+    (:func:`_estimate`'s; nan without an estimate: its zero quaternion), the measured field, ``active``."""
+    none = qe[0] == 0.0 and qe[1] == 0.0 and qe[2] == 0.0 and qe[3] == 0.0
+    for i in range(3):
+        eio.tw_w[b, k, i] = math.nan if none else re[i]
+    for i in range(4):
+        eio.tw_q[b, k, i] = math.nan if none else qe[i]
+    eio.tw_b[b, k, 0], eio.tw_b[b, k, 1], eio.tw_b[b, k, 2] = bm0, bm1, bm2
+    eio.tw_act[b, k] = active and not none
 
 
 @njit(cache=True, error_model="numpy")
@@ -793,6 +817,10 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio, fk):
                 have, qe, re = _estimate(est, eio, idx[b], b, rec_slot[k], k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1,
                                          fo2, bm0, bm1, bm2, wm0, wm1, wm2, full, sun_lost,
                                          mon and modes.mode[b] != _PNT)
+                if eio.tw_on:  # the node's watch_torquers: a valid estimate in ACQUISITION or POINTING (the mode before
+                    # this step's decision: the manager's last) or without modes, a command the step before
+                    _record_watch(eio, b, k, have and k > 0 and (not mon or modes.mode[b] == _PNT
+                                                                 or modes.mode[b] == _ACQ), qe, re, bm0, bm1, bm2)
                 qm0, qm1, qm2, qm3 = qe[0], qe[1], qe[2], qe[3]
                 wm0, wm1, wm2 = re[0], re[1], re[2]
             sg = -1.0 if qm0 < 0.0 else 1.0
@@ -855,6 +883,8 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio, fk):
                 s0 = s1 = s2 = 0.0
             if cscale != 1.0:  # the duty cycle's compensation: drive m / c (onboard.torquers.Torquers.drive)
                 s0, s1, s2 = s0 / cscale, s1 / cscale, s2 / cscale
+            if eio.tw_on and k < n:  # the command as published (the controller node's drive), the next step's m_prev
+                eio.tw_m[b, k + 1, 0], eio.tw_m[b, k + 1, 1], eio.tw_m[b, k + 1, 2] = s0, s1, s2
             p0, p1, p2 = s0, s1, s2  # the dipole the body gets (injected torquer faults: design.faults.actuate)
             if fk.kind.size:
                 fm = np.array([s0, s1, s2])

@@ -36,6 +36,8 @@ field at the magnetometer and their duty cycle, every run: the simulator/sensors
 TORQUER_FIELDS, docs/torquers.md). ``faults``: a list of injected faults flown by every run (the scenario
 file's schema, design.faults.FAULT_FIELDS, or spec strings ``KIND@T[:DURATION][,axis=A][,value=V]``; the
 kinds of sim.fault_kernels.FAULT_CODE), e.g. to measure what a detector sees across dispersed runs.
+``estimator.torquer_watch: true`` replays the estimator node's torquer watch over every run
+(sim/batch_torquer.py): columns :data:`TORQUER_COLUMNS`; off by default (its memory and CPU, docs/campaigns.md).
 
 Figures of merit per run, from the true attitude at every controller instant (pointing error
 = rotation angle between body and orbital axes, ``2 asin(|q_vec|)`` [deg],
@@ -77,8 +79,10 @@ from ..design.params import SpacecraftParams, load_spacecraft
 from ..onboard.modes import MODES, POINTING, ModeParams
 from ..onboard.params import BDOT_FIELDS, ESTIMATOR_FIELDS, MODE_FIELDS, TORQUER_FIELDS, check_modes
 from ..onboard.sensor_watch import GYRO_FAULT, MAG_AMBIGUOUS, MAG_FAULT
+from ..onboard.torquer_watch import AXES
 from ..onboard.torquers import Torquers
 from ..sim.batch import BatchEstimator, BatchModes, BatchRuns, SensorNoise, simulate_batch
+from ..sim.batch_torquer import replay, watch_params
 from ..sim.fault_kernels import FAULT_CODE, NOT_BATCHED
 from ..sim.fullenv import ENVIRONMENTS, FullEnvironmentOptions, nominal_orbit_period, substeps_for
 from ..sim.metrics import settling_time
@@ -165,9 +169,15 @@ CRITERIA_FIELDS = (
 #: Section ``modes`` (with ``campaign.modes``): the mode machine's and the B-dot law's schema, the one the
 #: mode manager node, the controller and the offline mode loop read (onboard/params.py).
 MODES_SECTION_FIELDS = MODE_FIELDS + BDOT_FIELDS
+#: ``estimator.torquer_watch``: the node's field (onboard/params.py, on in flight) with the campaign's default, off: the
+#: replay costs CPU and the recording ~105 B per run-step of memory (sim/batch_torquer.py, docs/campaigns.md).
+TORQUER_WATCH_FIELD = Field("torquer_watch", "bool", "replay the attitude_estimator's torquer watch over every run "
+                            "(sim/batch_torquer.py; rows torquer_unit, torquer_time, torquer_kind, torquer_verdicts)", False)
 #: Section ``estimator`` (with ``campaign.attitude: estimator``): the filter's fields of the attitude_estimator
-#: node's schema (onboard/params.py ESTIMATOR_FIELDS, the same Field objects: names, defaults, bounds).
-ESTIMATOR_SECTION_FIELDS = tuple(f for f in ESTIMATOR_FIELDS if f.name in BatchEstimator.__dataclass_fields__)
+#: node's schema (onboard/params.py ESTIMATOR_FIELDS, the same Field objects: names, defaults, bounds), but
+#: :data:`TORQUER_WATCH_FIELD`.
+ESTIMATOR_SECTION_FIELDS = tuple(f for f in ESTIMATOR_FIELDS if f.name in BatchEstimator.__dataclass_fields__
+                                 and f.name != TORQUER_WATCH_FIELD.name) + (TORQUER_WATCH_FIELD,)
 
 SECTIONS = {"campaign": CAMPAIGN_FIELDS, "dispersions": DISPERSION_FIELDS, "criteria": CRITERIA_FIELDS,
             "modes": MODES_SECTION_FIELDS, "estimator": ESTIMATOR_SECTION_FIELDS, "torquers": TORQUER_FIELDS}
@@ -186,6 +196,11 @@ MODE_FIGURES = (("detumble_time", "s"), ("pointing_time", "s"), ("settled_time",
 #: The sensor watch's verdicts (onboard.sensor_watch codes) as the unit a campaign row names (``fdir_unit``; with
 #: ``fdir_time`` [s] of the first verdict and ``fdir_verdicts``, the run's count).
 FDIR_UNITS = {MAG_FAULT: "magnetometer", MAG_AMBIGUOUS: "magnetometer (no sun)", GYRO_FAULT: "gyro"}
+#: The torquer watch's columns (``estimator.torquer_watch``): the first torquer named ("torquer x|y|z", "" none), its
+#: time [s] (nan: none), the kind the watch names it with at the run's end (onboard.torquer_watch.KINDS), verdicts in
+#: all; per axis its first declaration [s] and its kind at the end (a wrong first axis does not hide a later right one).
+TORQUER_COLUMNS = ("torquer_unit", "torquer_time", "torquer_kind", "torquer_verdicts") + tuple(
+    f"torquer_{c}_{a}" for c in ("time", "kind") for a in AXES)
 ESTIMATION_FIGURES = tuple((f"est_rms_{a}_deg", "deg") for a in "xyz") + tuple(
     (f"est_inside_3sigma_{a}", "-") for a in "xyz") + (("est_nees_mean", "-"), ("est_fix_time", "s"))
 
@@ -543,6 +558,10 @@ def _simulate_rows(spec: CampaignSpec, jobs: list, steps: int, record_every: int
                          record_every=record_every, full_series=True, modes=spec.batch_modes(),
                          estimator=spec.batch_estimator(), torquers=spec.batch_torquers(), faults=spec.faults)
     t_all = np.arange(steps + 1) * spec.campaign["ts"]
+    torquer = None
+    if res.torquer_inputs is not None:  # the torquer watch replayed over the recorded inputs, then the inputs dropped
+        torquer = replay(res.torquer_inputs, watch_params(spec.batch_estimator(), spec.p, spec.campaign["ts"]))
+        res.torquer_inputs = None
     rows = []
     for b, ((g, i), r) in enumerate(zip(jobs, draws)):
         row = dict(_param_columns(r), gains=spec.gains_files[g], gains_index=g, orbit_period=float(res.orbit_period[b]))
@@ -562,6 +581,10 @@ def _simulate_rows(spec: CampaignSpec, jobs: list, steps: int, record_every: int
         if res.fdir_code is not None:  # the sensor watch: the first unit named, when, how many verdicts
             row.update(fdir_unit=FDIR_UNITS.get(int(res.fdir_code[b]), ""), fdir_time=float(res.fdir_time[b]),
                        fdir_verdicts=int(res.fdir_count[b]))
+        if torquer is not None:
+            row.update(zip(TORQUER_COLUMNS, (torquer.unit(b), float(torquer.time[b]), str(torquer.kind[b]),
+                                             int(torquer.verdicts[b]), *torquer.axis_time[b].tolist(),
+                                             *(torquer.axis_kind(b, a) for a in range(3)))))
         rows.append(row)
     hist = dict(t=res.t.astype(np.float32), pointing_deg=res.pointing_deg[:, res.record_index].astype(np.float32),
                 dipole=np.linalg.norm(res.m, axis=2).astype(np.float32),
@@ -582,6 +605,8 @@ def _failed_row(spec: CampaignSpec, g: int, i: int, exc: BaseException) -> dict:
         row.update({k: math.nan for k, _ in MODE_FIGURES}, transitions=-1, final_mode="", reached_pointing=False)
     if spec.campaign["attitude"] == "estimator":
         row.update({k: math.nan for k, _ in ESTIMATION_FIGURES}, est_mag_rejected=-1, est_sun_rejected=-1)
+        if spec.estimator.get("torquer_watch"):
+            row.update(zip(TORQUER_COLUMNS, ("", math.nan, "", -1) + (math.nan,) * 3 + ("",) * 3))
     return row
 
 

@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from ..base.atomic import atomic_savefig, atomic_write
+from ..design import faults as fl
+from ..onboard.torquer_watch import AXES
 from .campaign import ESTIMATION_FIGURES, FIGURES, MODE_FIGURES, STATUSES, read_histories, read_runs
 
 PERCENTILES = (5.0, 50.0, 95.0)
@@ -69,6 +71,63 @@ def _deployment_lines(cols: dict) -> list:
     else:
         out.append("No deployment failure: every ok run ended settled in POINTING.")
     return out + [""]
+
+
+def torquer_outcomes(cols: dict, meta: dict) -> list:
+    """The torquer watch's verdicts (rows ``torquer_*``) against the spec's torquer faults, over the ok runs.
+
+    Per torquer fault of ``meta["faults"]`` a dict: ``fault`` (its spec string), ``runs`` (ok runs), ``detected``
+    (its axis declared at or after the onset, first or not), ``delays`` (then minus the onset [s]), ``wrong_first``
+    (another axis declared first, after the onset), ``early`` (a torquer declared before the onset) and ``kinds``
+    ({kind: runs}: what the detections name its axis at the end). Without a torquer fault one dict with ``fault`` None
+    and ``named``: the indices of the ok runs that declared a torquer (false detections). Empty when the campaign did
+    not run the watch.
+    """
+    if "torquer_unit" not in cols:
+        return []
+    ok = cols["status"].astype(str) == "ok"
+    unit, t = cols["torquer_unit"].astype(str)[ok], cols["torquer_time"].astype(float)[ok]
+    faults = [f for f in fl.from_list(list(meta.get("faults") or [])) if f.kind in fl.TORQUER_KINDS]
+    if not faults:
+        return [dict(fault=None, runs=int(ok.sum()), named=np.nonzero(ok)[0][unit != ""])]
+    out = []
+    for f in faults:
+        a = AXES[f.axis]
+        ta, kind = cols[f"torquer_time_{a}"].astype(float)[ok], cols[f"torquer_kind_{a}"].astype(str)[ok]
+        hit = ta >= f.t  # nan: never
+        out.append(dict(fault=f.spec, runs=int(ok.sum()), detected=int(hit.sum()), delays=ta[hit] - f.t,
+                        wrong_first=int(np.sum((unit != "") & (unit != f"torquer {a}") & (t >= f.t))),
+                        early=int(np.sum(t < f.t)), kinds={k: int(np.sum(hit & (kind == k))) for k in dict.fromkeys(kind[hit])}))
+    return out
+
+
+def _torquer_lines(cols: dict, meta: dict) -> list:
+    """summary.md section of a campaign with the torquer watch (``estimator.torquer_watch``)."""
+    outcomes = torquer_outcomes(cols, meta)
+    if not outcomes:
+        return []
+    lines = ["## Torquer watch", "", "The attitude estimator's torquer watch (onboard/torquer_watch.py), replayed over "
+             "every run (sim/batch_torquer.py): the first torquer a run declares, when, and each axis' first "
+             "declaration and kind at the end of the run.", ""]
+    if outcomes[0]["fault"] is None:
+        named = outcomes[0]["named"]
+        lines.append(f"No torquer fault injected: **{named.size} / {outcomes[0]['runs']}** ok runs named a torquer "
+                     "(false detections).")
+        if named.size:
+            lines += ["", "| run | gains | first unit | time [s] | kind |", "|---|---|---|---|---|"]
+            lines += [f"| {cols['run'][i]} | {cols['gains'][i]} | {cols['torquer_unit'][i]} | "
+                      f"{_fmt(cols['torquer_time'][i])} | {cols['torquer_kind'][i]} |" for i in named[:WORST]]
+        return lines + [""]
+    lines += ["| fault | detected (its axis declared at or after the onset) | time to detect p50 / p95 [s] | "
+              "another axis declared first | a torquer declared before the onset | its kind at the end |",
+              "|---|---|---|---|---|---|"]
+    for o in outcomes:
+        n, d = o["runs"], o["detected"]
+        ttd = " / ".join(f"{v:.4g}" for v in np.percentile(o["delays"], (50.0, 95.0))) if d else "n/a"
+        kinds = ", ".join(f"{k} {v}" for k, v in o["kinds"].items()) or "-"
+        lines.append(f"| {o['fault']} | {d} / {n} ({100.0 * d / max(n, 1):.1f} %) | {ttd} | {o['wrong_first']} | "
+                     f"{o['early']} | {kinds} |")
+    return lines + [""]
 
 
 def _fmt(v, unit="") -> str:
@@ -148,6 +207,7 @@ def write_report(out) -> str:
               f"steady-state window t >= {meta['criteria']['max_settling_orbits']:g} orbits (the settling limit), the "
               "same for every run. Pointing error: rotation angle between body and orbital axes (true attitude).", ""]
     lines += _deployment_lines(cols)
+    lines += _torquer_lines(cols, meta)
     bad = np.nonzero(~ok)[0]
     lines += ["## Failed and diverged runs", ""]
     if bad.size:
@@ -246,6 +306,14 @@ def summary_lines(meta: dict, cols: dict) -> list:
             p = np.percentile(f, PERCENTILES)
             out.append(f"  {key:18s} 5/50/95 %: {p[0]:.4g} / {p[1]:.4g} / {p[2]:.4g} {unit}"
                        + (f"  ({v.size - f.size} n/a)" if f.size < v.size else ""))
+    for o in torquer_outcomes(cols, meta):
+        if o["fault"] is None:
+            out.append(f"  torquer watch: {o['named'].size} of {o['runs']} ok runs named a torquer (no torquer fault: false)")
+        else:
+            ttd = np.percentile(o["delays"], (50.0, 95.0)) if o["detected"] else (math.nan, math.nan)
+            out.append(f"  torquer watch, {o['fault']}: detected {o['detected']} / {o['runs']}, time to detect p50/p95 "
+                       f"{ttd[0]:.4g} / {ttd[1]:.4g} s; another axis first {o['wrong_first']}, before the onset "
+                       f"{o['early']}")
     fails = deployment_failures(cols)
     if "settled_time" in cols:
         out.append(f"  deployment failures (never settled in POINTING): {fails.size}"

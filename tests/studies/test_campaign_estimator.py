@@ -38,11 +38,14 @@ def _spec(tmp_path, raw=None, name="spec.yaml"):
 
 
 def test_estimator_section_is_the_node_schema():
-    """The section's fields are the node's Field objects (names, defaults, bounds): one schema."""
+    """The section's fields are the node's Field objects (names, defaults, bounds): one schema; but torquer_watch, off
+    in a campaign unless asked (the replay's CPU, the recording's memory), on in flight."""
     node = {f.name: f for f in ESTIMATOR_FIELDS}
     assert {f.name for f in campaign.ESTIMATOR_SECTION_FIELDS} == set(BatchEstimator.__dataclass_fields__) - {
         "sun_sensor_std"}
-    assert all(f is node[f.name] for f in campaign.ESTIMATOR_SECTION_FIELDS)
+    assert all(f is node[f.name] for f in campaign.ESTIMATOR_SECTION_FIELDS if f.name != "torquer_watch")
+    assert campaign.TORQUER_WATCH_FIELD in campaign.ESTIMATOR_SECTION_FIELDS
+    assert campaign.TORQUER_WATCH_FIELD.default is False is BatchEstimator().torquer_watch
 
 
 @pytest.mark.parametrize("change, field", [
