@@ -168,8 +168,9 @@ def test_node_parameters_come_from_the_schemas():
     # torquer fields of issue 30 item 6 (coupling, off time, decay time, compensation), plus the estimator's
     # magnetometer-bias states of issue 31 (initial_mag_bias_std, mag_bias_rw), plus the simulator's
     # max_substeps (the sub-steps re-chosen from the rate), plus issue 44's full stack: the mode logic's
-    # attitude_loss_time, the estimator's 5 validity fields and its sun_loss_samples, and its 5 sensor-watch fields
-    assert len(NODE_PARAMETERS) == 37 + 8 + 12 + 2 + 1 + 4 + 1 + 4 + 2 + 4 + 2 + 1 + 1 + 5 + 1 + 5
+    # attitude_loss_time, the estimator's 5 validity fields and its sun_loss_samples, its 5 sensor-watch fields and
+    # its torquer_watch switch
+    assert len(NODE_PARAMETERS) == 37 + 8 + 12 + 2 + 1 + 4 + 1 + 4 + 2 + 4 + 2 + 1 + 1 + 5 + 1 + 5 + 1
     assert {"initial_quaternion", "mag_quantum", "min_field", "seed"} <= names
 
 
