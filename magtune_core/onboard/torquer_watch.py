@@ -164,6 +164,22 @@ class TorquerWatchParams:
         return np.diag(v) if v.size == 3 else v.reshape(3, 3)
 
 
+def unit_name(axis: int) -> str:
+    """The name of torquer ``axis`` as a unit (the issue's ``torquer x|y|z``: /diagnostics, mode notices, campaign rows).
+
+    Parameters
+    ----------
+    axis : int
+        0, 1, 2.
+
+    Returns
+    -------
+    str
+        E.g. ``torquer y``.
+    """
+    return f"torquer {AXES[axis]}"
+
+
 @dataclass(frozen=True)
 class TorquerVerdict:
     """A declared torquer fault: ``axis`` (0, 1, 2), ``kind`` (:data:`KINDS`), the test statistic and the
@@ -178,8 +194,19 @@ class TorquerVerdict:
     offset_std: float
     gain_std: float
 
+    @property
+    def unit(self) -> str:
+        """The unit's name on /diagnostics and in campaign rows.
+
+        Returns
+        -------
+        str
+            :func:`unit_name` of the axis, e.g. ``torquer z``.
+        """
+        return unit_name(self.axis)
+
     def __str__(self) -> str:
-        return f"torquer {AXES[self.axis]}: {self.kind}"
+        return f"{self.unit}: {self.kind}"
 
     @property
     def detail(self) -> str:

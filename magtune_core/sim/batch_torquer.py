@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..onboard.estimator import FilterModel
-from ..onboard.torquer_watch import AXES, KINDS, TorquerWatch, TorquerWatchParams
+from ..onboard.torquer_watch import KINDS, TorquerWatch, TorquerWatchParams, unit_name
 from .batch import TorquerInputs
 
 #: Steps replayed per chunk (10 sub-windows of 60 samples).
@@ -110,7 +110,7 @@ class TorquerDetections:
             ``torquer x|y|z``, or "" when none was named.
         """
         a = int(self.axis[run])
-        return f"torquer {AXES[a]}" if a >= 0 else ""
+        return unit_name(a) if a >= 0 else ""
 
 
 def replay(inputs: TorquerInputs, params: TorquerWatchParams, *, chunk: int = CHUNK,

@@ -79,7 +79,7 @@ from magtune_core.onboard.fdir import BACK, LOST, SunSensorWatch
 from magtune_core.onboard.modes import ACQUISITION, MODES, POINTING
 from magtune_core.onboard.params import ESTIMATOR_FIELDS
 from magtune_core.onboard.sensor_watch import FAILED, GYRO, SensorWatch, SensorWatchParams
-from magtune_core.onboard.torquer_watch import AXES, TorquerWatch, TorquerWatchParams
+from magtune_core.onboard.torquer_watch import TorquerWatch, TorquerWatchParams
 from magtune_core.onboard.validity import ValidityMonitor
 
 from .inputs import CommandLag, PairSync, StampGate, finite, now_wall, ns_to_stamp, sec_to_ns
@@ -339,8 +339,8 @@ class AttitudeEstimator(ManagedNode):
                 self.diag.count("dipole_missing", f"no dipole command for t={ns * 1e-9:.3f} s: the torquer watch restarts")
             verdict = self.torquer_watch.step(w, b, m if m is not None else np.zeros(3), q, active and m is not None)
             if verdict is not None:
-                unit = f"torquer {AXES[verdict.axis]}"
-                self.diag.unit_fault(unit, verdict.detail.removeprefix(f"{unit}: "), ns, level=DiagnosticStatus.ERROR)
+                self.diag.unit_fault(verdict.unit, verdict.detail.removeprefix(f"{verdict.unit}: "), ns,
+                                     level=DiagnosticStatus.ERROR)
 
     def watch_sun(self, ns, t, r, have_sun: bool):
         """The sun sensor's watch (onboard.fdir.SunSensorWatch) on this sample: WARN 'sun sensor' at the sample
