@@ -199,3 +199,27 @@ def test_inhibited_watch_restarts_its_window():
     for k in range(2 * n):
         watch.step(w, b, m)
     assert watch.tests > 1
+
+
+def _window(T, D, kind=1):
+    """One window's test figures as ``TorquerWatch._close_block`` hands them to ``_decide`` (one satellite)."""
+    return (np.zeros(6), np.eye(6), 5.0, 18, max(T), np.asarray(T, float), np.asarray(D, float), np.full(3, kind),
+            np.zeros((3, 2)), np.ones((3, 2)))
+
+
+def test_an_axis_a_shorter_window_cannot_tell_apart_is_not_isolated():
+    """The figures of a batched full-stack run, y stuck at 25 A m^2: 80-130 s after the onset the 300-s window
+    blamed x (T 267 / 687 against y's 128 / 432, x's hypothesis fitting) while the 180-s window, the fault alone,
+    put y level with or ahead of x. Two such tests declared x before; now nothing is isolated until the shorter
+    window agrees, and a window led by the isolated axis still declares it."""
+    watch = TorquerWatch(TorquerWatchParams())
+    ready = np.array(True)
+    for T2 in ((204.0, 208.0, 4.0), (392.0, 392.0, 0.0)):
+        new = watch._decide(ready, [_window((14.0, 61.0, 1.0), (103.0, 56.0, 116.0)),
+                                    _window((687.0, 432.0, 1.0), (4.0, 259.0, 691.0)), _window(T2, (0.1, 0.3, 392.0))])
+        assert not new.any() and watch.count.max() == 0 and np.all(watch.kind == -1)
+    for _ in range(2):  # the shortest window led by x: isolated twice, declared
+        new = watch._decide(ready, [_window((14.0, 61.0, 1.0), (103.0, 56.0, 116.0)),
+                                    _window((687.0, 432.0, 1.0), (4.0, 259.0, 691.0)),
+                                    _window((392.0, 350.0, 0.0), (0.1, 42.0, 392.0))])
+    assert new.tolist() == [True, False, False] and watch.declared[0] == 1
