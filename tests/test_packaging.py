@@ -31,7 +31,7 @@ def test_runtime_imports_are_declared():
     module_to_dist = {"yaml": "pyyaml", "pyIGRF14": "pyigrf14", "numpy": "numpy", "scipy": "scipy", "tqdm": "tqdm",
                       "mcap": "mcap", "rosbags": "rosbags", "matplotlib": "matplotlib", "cma": "cma",
                       "threadpoolctl": "threadpoolctl", "dask": "dask", "distributed": "distributed", "pyarrow": "pyarrow", "numba": "numba",
-                      "foxglove": "foxglove-sdk"}
+                      "foxglove": "foxglove-sdk", "sgp4": "sgp4"}
     seen = set()
     for p in (ROOT / "magtune_core").rglob("*.py"):
         for node in ast.walk(ast.parse(p.read_text())):

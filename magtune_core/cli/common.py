@@ -183,13 +183,30 @@ def load_design_spec(args, model=None):
     return replace(load_requirements(path, limit), source=shown_path(path))  # recorded in files: no checkout path
 
 
+def load_design_spacecraft(args, path=None):
+    """The spacecraft of ``--config`` (or ``path``) for a design command, loaded once per command (kept on
+    ``args``): an orbit the periodic circular model cannot represent (eccentricity over the bound) is one line
+    and exit 2 before any work; an orbit from a TLE is reported in one line (its eccentricity, mean motion and
+    period)."""
+    from ..design.params import check_design_orbit, load_spacecraft, orbit_summary
+
+    path = path or args.config
+    loaded = vars(args).setdefault("_spacecraft", {})
+    if str(path) not in loaded:
+        p = load_spacecraft(path)
+        check_design_orbit(p, path)
+        if p.tle is not None:
+            say(args.command, orbit_summary(p))
+        loaded[str(path)] = p
+    return loaded[str(path)]
+
+
 def load_model(args):
     """The LTP design model of ``--config`` and ``--field FILE`` or ``--field-model`` (if given)."""
     from ..design.fitfield import field_for_spacecraft
     from ..design.model import AttitudeLTP
-    from ..design.params import load_spacecraft
 
-    p = load_spacecraft(args.config)
+    p = load_design_spacecraft(args)
     if getattr(args, "field", None):
         return AttitudeLTP(p, field_for_spacecraft(args.field, p))
     return AttitudeLTP.from_params(p, getattr(args, "field_model", None))

@@ -26,6 +26,7 @@ from .common import (
     cluster_executor,
     field_model_argument,
     hold_constraint,
+    load_design_spacecraft,
     load_design_spec,
     load_model,
     repo_path,
@@ -197,14 +198,13 @@ def _closing_verification(args, gains, req) -> dict:
     import tempfile
 
     from ..design.gains import save_gains
-    from ..design.params import load_spacecraft
     from ..studies import verify
 
     with tempfile.TemporaryDirectory(prefix="magtune_tune_verify_") as tmp:
         path = f"{tmp}/gains.yaml"
         save_gains(path, gains)
         res = verify.run_verify(path, req, repo_path("config/campaigns/example.yaml"), args.verify_runs, f"{tmp}/mc",
-                                tightest=gains.provenance.get("hold_tightest_ts"), p=load_spacecraft(args.config),
+                                tightest=gains.provenance.get("hold_tightest_ts"), p=load_design_spacecraft(args),
                                 scheduler="synchronous")
     summary = verify.summary(res)
     summary["campaign"] = "config/campaigns/example.yaml"

@@ -15,6 +15,7 @@ from .common import (
     CommandError,
     add_scheduler_arguments,
     add_spec_argument,
+    load_design_spacecraft,
     load_design_spec,
     load_model,
     plain_summary,
@@ -84,11 +85,10 @@ def run(args) -> int:
 def _verify(args, sched, tls) -> int:
     """The verification into ``--out`` (locked): inputs, runs, verify.md/json; exit status."""
     from ..design.gains import load_gains
-    from ..design.params import load_spacecraft
 
     gains = load_gains(args.gains)  # ConfigError -> one line, exit 2, before any run
     req = load_design_spec(args)
-    p = load_spacecraft(args.config)
+    p = load_design_spacecraft(args)
     # the default is the repository's file from any working directory; files record its relative name
     campaign_file = args.campaign or repo_path("config/campaigns/example.yaml")
     campaign = args.campaign or shown_path(campaign_file)

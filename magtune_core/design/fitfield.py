@@ -32,7 +32,7 @@ ROS 2 parameters cannot hold nested lists, hence the flattened (H*3) coefficient
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -180,17 +180,47 @@ def fit_field(altitude: float = 450e3, inclination_deg: float = 87.0, harmonics:
     ValueError
         If ``harmonics`` < 1.
     """
+    cfg = OrbitConfig(altitude=altitude, inclination_deg=inclination_deg, raan_deg=raan_deg, epoch=epoch)
+    return fit_field_orbit(cfg, harmonics, days, step, degree)
+
+
+def fit_field_orbit(orbit: OrbitConfig, harmonics: int = 2, days: float = 3.0, step: float = 20.0, degree: int = 10):
+    """Fit b(u) to IGRF sampled along ``orbit`` (any :class:`OrbitConfig`: circular, or a TLE's state,
+    :meth:`magtune_core.design.params.SpacecraftParams.orbit_config`), as :func:`fit_field`.
+
+    Parameters
+    ----------
+    orbit : OrbitConfig
+        Orbit and epoch; propagated with J2 at rtol 1e-10, atol 1 mm (its own tolerances are replaced).
+    harmonics : int
+        Harmonics of the orbital rate.
+    days : float
+        Length of the sampled arc [days].
+    step : float
+        Sampling step [s].
+    degree : int
+        IGRF degree.
+
+    Returns
+    -------
+    (FourierField, FitReport)
+        The fitted field (rate: the measured mean nodal rate) and its residual report.
+
+    Raises
+    ------
+    ValueError
+        If ``harmonics`` < 1.
+    """
     if harmonics < 1:
         raise ValueError("harmonics must be >= 1")
-    cfg = OrbitConfig(altitude=altitude, inclination_deg=inclination_deg, raan_deg=raan_deg, epoch=epoch,
-                      rtol=1e-10, atol=1e-3)
+    cfg = replace(orbit, rtol=1e-10, atol=1e-3)
     t, u, b = sample_igrf_along_orbit(cfg, days, step, degree)
     omega = float(np.polyfit(t, np.unwrap(u), 1)[0])
     mean, cos, sin, res = fit_fourier(u, b, harmonics)
     report = FitReport(rms=np.sqrt(np.mean(res**2, axis=0)), max_abs=np.max(np.abs(res), axis=0),
                        field_rms=np.sqrt(np.mean(b**2, axis=0)), n_samples=t.size, days=days, omega=omega,
                        harmonics=harmonics)
-    name = f"igrf_fit_{altitude / 1e3:g}km_{inclination_deg:g}deg_h{harmonics}"
+    name = f"igrf_fit_{cfg.altitude / 1e3:g}km_{cfg.inclination_deg:g}deg_h{harmonics}"
     return FourierField(omega, mean=mean, cos=cos, sin=sin, name=name), report
 
 

@@ -32,13 +32,18 @@ DEFAULT_EPOCH = datetime(2026, 3, 20, 0, 0, 0)  #: default epoch (UTC), near the
 
 @dataclass(frozen=True)
 class OrbitConfig:
-    """Initial circular orbit of paper section 5 and the propagation settings.
+    """Initial orbit (circular, paper section 5, or a given state) and the propagation settings.
 
     altitude [m] above the JGM-3 equatorial radius; angles in degrees; ``arg_lat_deg`` is the
     argument of latitude (angle from the ascending node) at the epoch; ``epoch`` a UTC datetime
     or a Julian date; ``zonal_degree`` in {0 (point mass), 2, 3, 4}. With the defaults (RAAN 0 at
     the 2026 March equinox) the Sun lies in the orbit plane (beta ~ 0): noon-midnight orbit, the
     worst case for eclipses (38 % of the orbit in shadow at 450 km).
+
+    ``state0`` (6 floats: ECI position [m] and velocity [m/s] at the epoch, e.g. SGP4's state of a
+    TLE, :mod:`magtune_core.env.tle`) replaces the circular orbit of the elements as the start of
+    the propagation; the elements then describe it (altitude: of the mean motion, so that
+    :attr:`keplerian_period` is the TLE's 2 pi / n; osculating inclination, RAAN, argument of latitude).
     """
 
     altitude: float = 450e3
@@ -49,6 +54,7 @@ class OrbitConfig:
     zonal_degree: int = 2
     rtol: float = 1e-11
     atol: float = 1e-5  #: absolute tolerance on position [m] (velocity: atol * 1e-3 [m/s])
+    state0: tuple | None = None  #: (x, y, z, vx, vy, vz) at the epoch [m, m/s]; None: the circular orbit
 
     @property
     def jd0(self) -> float:
@@ -64,13 +70,38 @@ class OrbitConfig:
 
 
 def initial_state(cfg: OrbitConfig) -> tuple[np.ndarray, np.ndarray]:
-    """ECI position [m] and velocity [m/s] of the circular orbit at the epoch (osculating)."""
+    """ECI position [m] and velocity [m/s] at the epoch: ``cfg.state0`` if given, else the circular orbit (osculating)."""
+    if cfg.state0 is not None:
+        y = np.array(cfg.state0, dtype=float)
+        return y[:3], y[3:]
     a = cfg.semi_major_axis
     i, raan, u = np.deg2rad([cfg.inclination_deg, cfg.raan_deg, cfg.arg_lat_deg])
     cO, sO, ci, si, cu, su = np.cos(raan), np.sin(raan), np.cos(i), np.sin(i), np.cos(u), np.sin(u)
     r = a * np.array([cO * cu - sO * su * ci, sO * cu + cO * su * ci, su * si])
     v = np.sqrt(GM_EARTH / a) * np.array([-cO * su - sO * cu * ci, -sO * su + cO * cu * ci, cu * si])
     return r, v
+
+
+def rotate_state(state, d_raan_deg: float, d_arg_lat_deg: float) -> tuple:
+    """``state`` (6 floats, ECI r [m] and v [m/s]) turned by ``d_arg_lat_deg`` about its own orbit normal
+    (the satellite further along the same plane) and then by ``d_raan_deg`` about the ECI Z axis (the
+    node moved): the same orbit shape at another argument of latitude and RAAN. Returns 6 floats."""
+    y = np.asarray(state, dtype=float)
+    r, v = y[:3], y[3:]
+    k = cross(r, v)
+    k = k / np.linalg.norm(k)
+    a = np.deg2rad(d_arg_lat_deg)
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    R = np.eye(3) + np.sin(a) * K + (1.0 - np.cos(a)) * K @ K  # Rodrigues
+    c, s = np.cos(np.deg2rad(d_raan_deg)), np.sin(np.deg2rad(d_raan_deg))
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ R
+    return tuple(float(x) for x in np.concatenate([R @ r, R @ v]))
+
+
+def inclination(r, v) -> np.ndarray:
+    """Inclination [rad] of the osculating orbit plane: the angle between r x v and the ECI Z axis."""
+    h = cross(np.asarray(r, dtype=float), np.asarray(v, dtype=float))
+    return np.arccos(np.clip(h[..., 2] / np.linalg.norm(h, axis=-1), -1.0, 1.0))
 
 
 def gravity_acceleration(r, zonal_degree: int = 2) -> np.ndarray:

@@ -31,7 +31,7 @@ from ..design import faults as fl
 from ..design.fitfield import field_for_spacecraft
 from ..design.gains import CONTROLLER_NODE, Gains
 from ..design.node_params import INITIAL_RATE_ERROR
-from ..design.params import SpacecraftParams, check_sample_period
+from ..design.params import SpacecraftParams, check_sample_period, warn_tle
 from ..design.sensors import default_suite
 from ..onboard.modes import DETUMBLE, POINTING, ModeParams
 from ..onboard.params import BDOT_FIELDS, ESTIMATOR_FIELDS, MANAGER_FIELDS, MODE_FIELDS, MODE_NAMES, TORQUER_FIELDS
@@ -463,7 +463,9 @@ class SilScenario:
         gains_params = {ns: check_ros_params(g, CONTROLLER_NODE) for ns, g in sats.items()}
         gains = {ns: Gains.from_mapping(gains_params[ns], g) for ns, g in sats.items()}
         sc_doc = load_ros_params(req.spacecraft)
-        sc = SpacecraftParams.from_mapping(merge_ros_params(sc_doc), req.spacecraft, strict=True)
+        sc = SpacecraftParams.from_mapping(merge_ros_params(sc_doc), req.spacecraft, strict=True,
+                                           base_dir=Path(req.spacecraft).parent)
+        warn_tle(sc, req.spacecraft)
         simulator_params, substeps = initial_state_parameters(
             sc, dict(req.simulator_params or {}), req.initial_attitude_deg, req.initial_rate_deg, req.substeps,
             run_sample_period(req.ts, sc, gains))
@@ -531,9 +533,13 @@ class SilScenario:
         return log_dir / (f"results_{tag(ns)}.npz" if ns else "results.npz")
 
     def _spacecraft_params(self, node: str) -> dict:
-        """The spacecraft file's parameters for ``node`` (fully qualified), with the derived period."""
+        """The spacecraft file's parameters for ``node`` (fully qualified), with the derived period; a
+        ``tle_file`` becomes its lines (``tle``: the node's parameter file lives elsewhere)."""
         params = {k: _plain(v) for k, v in merge_ros_params(self.spacecraft_doc, node).items()}
         params["orbit_period"] = float(self.spacecraft.orbit_period)
+        if params.pop("tle_file", ""):
+            tle = self.spacecraft.tle
+            params["tle"] = ([tle.name] if tle.name else []) + [tle.line1, tle.line2]
         return params
 
     def _startup_timeout(self) -> float:

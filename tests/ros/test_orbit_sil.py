@@ -73,3 +73,50 @@ def test_bad_orbit_one_line_in_cli_and_node(tmp_path):
                            env=env, capture_output=True, text=True, timeout=30)
     assert r.returncode == 2
     assert r.stderr.strip().splitlines()[-1].startswith("simulator: parameter 'altitude': expected a number in [150000, 2e+06] m")
+
+
+def test_sil_flies_the_tle_orbit(tmp_path):
+    """The 12U example given by a TLE (tle_file beside the spacecraft file): the nodes get its lines and fly
+    SGP4's state at the epoch through the J2 model, exactly as the offline simulation."""
+    sc = f"{EXAMPLE}/spacecraft_tle.yaml"
+    gains = f"{EXAMPLE}/gains_sigma120.yaml"
+    run = sil.run_sil(gains, steps=100, environment="full", spacecraft=sc, log_dir=tmp_path, timeout=120)
+    p = load_spacecraft(sc)
+    node = read_ros_params(sc, "simulator")
+    off = simulate(load_gains(gains).K, p, steps=100, environment="full", dipole_limit=node["dipole_limit"],
+                   residual_dipole=node["residual_dipole"])
+    assert run.result.orbit_period == off.orbit_period == nominal_orbit_period(p)
+    for k in ("q", "w", "x", "m", "b"):  # same FullDynamics and arithmetic: 1e-9 is a loose bound on 0
+        assert np.max(np.abs(getattr(run.result, k) - getattr(off, k))) <= 1e-9, k
+    circular = simulate(load_gains(gains).K, load_spacecraft(f"{EXAMPLE}/spacecraft.yaml"), steps=100, environment="full")
+    assert np.max(np.abs(circular.b - off.b)) > 1e-8  # another orbit than the circular one (e = 0.0012, osculating state)
+
+
+@pytest.mark.parametrize("extra, field, words", [
+    ('    tle: ["1 25544U 98067A   08264.51782528 -.00002182  00000-0 -11606-4 0  2927",\n'
+     '          "2 25544  51.6416 247.4627 0006703 130.5360 325.0288 15.72125391563530"]\n',
+     "tle", "line 2 checksum: column 69 holds '0', the line tallies to 7"),
+    ('    tle: ["1 25544U 98067A   08264.51782528 -.00002182  00000-0 -11606-4 0  2927",\n'
+     '          "2 25544  51.6416 247.4627 0006703 130.5360 325.0288 15.72125391563537"]\n',
+     "altitude", "given together with tle: the TLE gives the orbit; remove altitude"),
+])
+def test_bad_tle_same_line_in_cli_and_node(tmp_path, extra, field, words):
+    """A bad TLE (or one given with the circular elements) is the same one line in the CLI and in a node
+    started by hand with the file (the schema's defaults leave the circular elements unset in both)."""
+    bad = tmp_path / "spacecraft.yaml"
+    text = open("config/spacecraft.yaml").read()
+    for key in ("inclination", "raan", "arg_latitude", "epoch", "orbit_period"):  # altitude stays in the file
+        text = "\n".join(ln for ln in text.splitlines() if not ln.strip().startswith(f"{key}:")) + "\n"
+    bad.write_text(text.replace("  ros__parameters:\n", "  ros__parameters:\n" + extra, 1))
+    if field == "tle":
+        bad.write_text(bad.read_text().replace("    altitude: 450000.0", "    # altitude: given by the TLE"))
+    cli = subprocess.run([sys.executable, "-m", "magtune_core", "sil", "--gains", "config/gains/sigma_60.yaml",
+                          "--config", str(bad), "--quiet"], capture_output=True, text=True, timeout=60)
+    assert cli.returncode == 2 and len(cli.stderr.strip().splitlines()) == 1, cli.stderr
+    assert f"field '{field}': {words}" in cli.stderr
+    with process.DomainLock() as lock:
+        env = process.child_env(lock.domain_id, process.package_prefix())
+        r = subprocess.run([str(process.resolve_executable("simulator")), "--ros-args", "--params-file", str(bad)],
+                           env=env, capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines()[-1].startswith(f"simulator: parameter '{field}': {words}")

@@ -69,3 +69,19 @@ def test_bad_input_is_one_config_error_before_anything_is_written(tmp_path, kwar
         SilScenario.build({"": GAINS[0]}, SilRequest(log_dir=logs, **kwargs))
     assert str(exc.value).startswith(field) and "\n" not in str(exc.value)
     assert not logs.exists()
+
+
+def test_tle_file_reaches_the_nodes_as_its_lines(tmp_path):
+    """A spacecraft file with a relative tle_file (the 12U example's): each node's parameter file (in the log
+    directory, far from the TLE file) carries the TLE's lines, and the node's reading of it - without the
+    spacecraft file's directory - is the runner's orbit bit for bit (SGP4's state at the epoch, the period)."""
+    example = DEFAULT_SPACECRAFT.parent / "examples" / "cubesat12u"
+    sc = SilScenario.build({"": GAINS[0]}, SilRequest(steps=5, environment="full",
+                                                      spacecraft=example / "spacecraft_tle.yaml"))
+    assert sc.spacecraft.tle is not None and sc.spacecraft.tle_field == "tle_file"
+    for node, f in sc.write_parameter_files(sc.satellites[0], tmp_path, tmp_path / "r.npz").items():
+        params = paramfile.check_ros_params(f, node)
+        assert "tle_file" not in params and params["tle"][1:] == [sc.spacecraft.tle.line1, sc.spacecraft.tle.line2]
+        p = SpacecraftParams.from_mapping(params, f"node '{node}'")
+        assert p.state0 == sc.spacecraft.state0 and p.epoch == sc.spacecraft.epoch
+        assert p.orbit_period == sc.spacecraft.orbit_period and p.orbit_config() == sc.spacecraft.orbit_config()
