@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from cli_errors import one_line_exit2  # tests/support
 
 from magtune_core.base.errors import ConfigError
 from magtune_core.base.schema import Field, parse
@@ -34,14 +35,6 @@ def _edit(tmp_path, src: Path, name: str, **changes) -> Path:
     return out
 
 
-def _one_line_exit2(capsys, argv) -> str:
-    code = cli_main(argv)
-    err = capsys.readouterr().err
-    assert code == 2, (argv, err)
-    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
-    return err
-
-
 def test_bounds_are_checked_per_element():
     f = Field("b", "float[]", "field [T]", size=3, bounds=(-1e-3, 1e-3), unit="T")
     assert parse({"b": [1e-5, 0.0, -1e-5]}, [f], "x.yaml")["b"].tolist() == [1e-5, 0.0, -1e-5]
@@ -53,7 +46,7 @@ def test_bounds_are_checked_per_element():
 def test_huge_gains_values_are_rejected(tmp_path, capsys, key, value):
     """Why #5: huge but finite values ended in tracebacks."""
     bad = _edit(tmp_path, GAINS, "g.yaml", **{key: value})
-    err = _one_line_exit2(capsys, ["analyze", str(bad)])
+    err = one_line_exit2(capsys, ["analyze", str(bad)])
     assert f"field '{key}'" in err
 
 
@@ -62,7 +55,7 @@ def test_huge_gains_values_are_rejected(tmp_path, capsys, key, value):
 def test_huge_spacecraft_values_are_rejected(tmp_path, capsys, key, value):
     """Why #5/#7: orbit_period near 1e300, a 1e308 T field accepted and not counted."""
     bad = _edit(tmp_path, SPACECRAFT, "sc.yaml", **{key: value})
-    err = _one_line_exit2(capsys, ["--config", str(bad), "analyze", str(GAINS)])
+    err = one_line_exit2(capsys, ["--config", str(bad), "analyze", str(GAINS)])
     assert f"field '{key}'" in err and "expected" in err
 
 
@@ -110,7 +103,7 @@ def test_sample_period_must_resolve_nutation():
 def test_sil_rejects_bad_arguments_before_starting(tmp_path, capsys, extra, words):
     """Why #5/#6: --orbits -1 'timed out after 0 s'; an unwritable --results/--log-dir was
     discovered after the whole run. Now: exit 2 at once, nothing created."""
-    err = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--log-dir", str(tmp_path / "logs"), *extra])
+    err = one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--log-dir", str(tmp_path / "logs"), *extra])
     assert words in err
     if "--log-dir" not in extra:
         assert not (tmp_path / "logs").exists()  # rejected before any work
@@ -118,9 +111,9 @@ def test_sil_rejects_bad_arguments_before_starting(tmp_path, capsys, extra, word
 
 def test_sil_bad_gains_file_exits_2(tmp_path, capsys):
     """Why #7: sil exited 1 on a bad gains file where the README promises 2."""
-    err = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(_edit(tmp_path, GAINS, "g.yaml", sigma=-60.0))])
+    err = one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(_edit(tmp_path, GAINS, "g.yaml", sigma=-60.0))])
     assert "field 'sigma'" in err
-    err = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(tmp_path / "missing.yaml")])
+    err = one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(tmp_path / "missing.yaml")])
     assert "file not found" in err
 
 
@@ -144,7 +137,7 @@ def test_same_error_same_exit_code_everywhere(tmp_path, capsys):
     missing = str(tmp_path / "nope")
     for argv in (["analyze", missing], ["sil", "--quiet", "--gains", missing], ["bag", "info", missing],
                  ["bag", "recover", missing], ["replay", missing]):
-        err = _one_line_exit2(capsys, argv)
+        err = one_line_exit2(capsys, argv)
         assert re.search(r"nope", err), err
 
 
@@ -210,7 +203,7 @@ def test_truncated_gains_file_is_one_line(tmp_path, capsys, keep):
     18-entry gain, 23: after the gain, before sigma)."""
     bad = tmp_path / "g.yaml"
     bad.write_text("".join(GAINS.read_text().splitlines(keepends=True)[:keep]))
-    err = _one_line_exit2(capsys, ["analyze", str(bad)])
+    err = one_line_exit2(capsys, ["analyze", str(bad)])
     assert "field 'gain'" in err or "field 'sigma'" in err, err
 
 
@@ -230,14 +223,14 @@ def _not_utf8(tmp_path, src: Path, name: str) -> Path:
 def test_non_utf8_gains_and_spacecraft_files_are_one_line(tmp_path, capsys):
     """Why: a non-UTF-8 gains or spacecraft file was a UnicodeDecodeError traceback."""
     g, sc = _not_utf8(tmp_path, GAINS, "g.yaml"), _not_utf8(tmp_path, SPACECRAFT, "sc.yaml")
-    a = _one_line_exit2(capsys, ["analyze", str(g)])
+    a = one_line_exit2(capsys, ["analyze", str(g)])
     offset = g.read_bytes().index(b"\xff")
     line = g.read_bytes()[:offset].count(b"\n") + 1
     assert _message(a) == f"{g}: not UTF-8 text (byte 0xff at line {line}, offset {offset}); save the file as UTF-8"
-    s = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(g)])
+    s = one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(g)])
     assert _message(s) == _message(a)                       # the same wording from every command
-    a = _one_line_exit2(capsys, ["analyze", str(GAINS), "--config", str(sc)])
-    s = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--spacecraft", str(sc)])
+    a = one_line_exit2(capsys, ["analyze", str(GAINS), "--config", str(sc)])
+    s = one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--spacecraft", str(sc)])
     assert _message(s) == _message(a) and "not UTF-8 text" in a
 
 
@@ -249,7 +242,7 @@ def test_symlink_loops_are_one_line_everywhere(tmp_path, capsys):
     for argv in (["analyze", str(loop)], ["sil", "--quiet", "--gains", str(loop)], ["bag", "info", str(loop)],
                  ["bag", "recover", str(loop)], ["replay", str(loop)], ["report", str(loop), "--out", str(tmp_path / "r")],
                  ["tune", "--sigma", "60", "--out", str(loop)], ["analyze", str(GAINS), "--config", str(loop)]):
-        assert _message(_one_line_exit2(capsys, argv)) == expected, argv
+        assert _message(one_line_exit2(capsys, argv)) == expected, argv
 
 
 def test_sil_bag_symlink_loop_leaks_no_temporary_directory(tmp_path, capsys, monkeypatch):
@@ -261,7 +254,7 @@ def test_sil_bag_symlink_loop_leaks_no_temporary_directory(tmp_path, capsys, mon
     monkeypatch.setattr(tempfile, "tempdir", str(tmp))
     loop = tmp_path / "loop"
     loop.symlink_to(loop)
-    err = _one_line_exit2(capsys, ["sil", "--gains", str(GAINS), "--bag", str(loop), "--orbits", "0.01"])
+    err = one_line_exit2(capsys, ["sil", "--gains", str(GAINS), "--bag", str(loop), "--orbits", "0.01"])
     assert "symbolic link loop" in err and "starting the nodes" not in err
     assert list(tmp.iterdir()) == []
 
@@ -278,7 +271,7 @@ def test_duplicate_keys_are_rejected_with_key_and_lines(tmp_path, capsys, text, 
     second, first = lines
     want = f"{f}: malformed YAML at line {second}, column 1" if key == "/**" else f"{f}: malformed YAML at line {second}, column 5"
     for argv in (["analyze", str(f)], ["sil", "--quiet", "--gains", str(f)], ["analyze", str(GAINS), "--config", str(f)]):
-        msg = _message(_one_line_exit2(capsys, argv))
+        msg = _message(one_line_exit2(capsys, argv))
         assert msg == f"{want}: duplicate key {key!r} (first given at line {first}; keep one)", (argv, msg)
 
 
@@ -297,9 +290,9 @@ def test_duplicate_key_in_campaign_spec(tmp_path):
 def test_inertia_violating_the_triangle_inequality_is_rejected(tmp_path, capsys, inertia, words):
     """Why: Ixx > Iyy + Izz (no rigid body has it) was accepted."""
     sc = _edit(tmp_path, SPACECRAFT, "sc.yaml", inertia=inertia)
-    a = _one_line_exit2(capsys, ["analyze", str(GAINS), "--config", str(sc)])
+    a = one_line_exit2(capsys, ["analyze", str(GAINS), "--config", str(sc)])
     assert words in a and "field 'inertia'" in a and "not a rigid body" in a
-    s = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--spacecraft", str(sc)])
+    s = one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--spacecraft", str(sc)])
     assert _message(s) == _message(a)
     SpacecraftParams.from_mapping({**yaml.safe_load(SPACECRAFT.read_text())["/**"]["ros__parameters"],
                                    "inertia": [2.0, 1.0, 1.0]}, "flat plate")  # equality: a flat plate is allowed
@@ -315,7 +308,7 @@ def test_inertia_violating_the_triangle_inequality_is_rejected(tmp_path, capsys,
 ])
 def test_sil_rejects_bad_faults_before_starting(tmp_path, capsys, extra, words):
     """A bad --fault: one line naming the field and the fix, exit 2, no log directory created."""
-    err = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--log-dir", str(tmp_path / "logs"), *extra])
+    err = one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--log-dir", str(tmp_path / "logs"), *extra])
     assert words in err, err
     assert not (tmp_path / "logs").exists()
 
@@ -336,9 +329,9 @@ def test_sil_rejects_bad_faults_before_starting(tmp_path, capsys, extra, words):
 def test_sil_rejects_bad_scenario_files(tmp_path, capsys, text, words):
     scen = tmp_path / "scenario.yaml"
     scen.write_text(text)
-    err = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--scenario", str(scen)])
+    err = one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--scenario", str(scen)])
     assert words in err and str(scen) in err, err
-    err = _one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--scenario", str(tmp_path / "no.yaml")])
+    err = one_line_exit2(capsys, ["sil", "--quiet", "--gains", str(GAINS), "--scenario", str(tmp_path / "no.yaml")])
     assert "file not found" in err
 
 

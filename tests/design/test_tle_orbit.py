@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from cli_errors import one_line_exit2  # tests/support
 
 from magtune_core.base.errors import ConfigError
 from magtune_core.cli import main as cli_main
@@ -51,14 +52,6 @@ def _spacecraft(tmp_path, name="sc.yaml", **orbit) -> Path:
     out = tmp_path / name
     out.write_text(yaml.safe_dump(doc))
     return out
-
-
-def _one_line_exit2(capsys, argv) -> str:
-    code = cli_main(argv)
-    err = capsys.readouterr().err
-    assert code == 2, (argv, err)
-    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
-    return err
 
 
 def test_file_without_tle_gives_exactly_the_old_orbit():
@@ -164,7 +157,7 @@ def test_orbit_overrides_turn_the_tle_state():
 ])
 def test_bad_tle_is_one_line_and_exit_2(tmp_path, capsys, orbit, field, words):
     sc = _spacecraft(tmp_path, **orbit)
-    err = _one_line_exit2(capsys, ["--config", str(sc), "analyze", str(GAINS)])
+    err = one_line_exit2(capsys, ["--config", str(sc), "analyze", str(GAINS)])
     assert f"field '{field}': " in err and words in err, err
 
 
@@ -177,7 +170,7 @@ def test_design_commands_refuse_an_eccentric_orbit(tmp_path, capsys):
     assert p.eccentricity == 0.02 > ECCENTRICITY_MAX
     for argv in (["--config", str(sc), "analyze", str(GAINS)], ["--config", str(sc), "verify", str(GAINS), "--out", str(tmp_path / "v")],
                  ["fit-field", "--spacecraft", str(sc), "--out", str(tmp_path / "f.yaml")]):
-        err = _one_line_exit2(capsys, argv)
+        err = one_line_exit2(capsys, argv)
         assert "field 'tle': eccentricity 0.0200 > 0.01: the circular LTP model cannot represent this orbit" in err
         assert "design for a near-circular orbit" in err
     assert not (tmp_path / "f.yaml").exists()
@@ -200,5 +193,5 @@ def test_fit_field_along_the_tle_orbit(tmp_path, capsys):
     assert field_for_spacecraft(out, p).omega == field.omega
     # the fitted rate is the nodal rate of that orbit: the j2_mean period within 0.05 % (a quarter-day arc)
     assert abs(field.period / p.orbit_period - 1.0) < 5e-4
-    err = _one_line_exit2(capsys, ["fit-field", "--spacecraft", str(sc), "--altitude", "500", "--out", str(out), "--force"])
+    err = one_line_exit2(capsys, ["fit-field", "--spacecraft", str(sc), "--altitude", "500", "--out", str(out), "--force"])
     assert "--altitude: the orbit comes from --spacecraft" in err
