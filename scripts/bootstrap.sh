@@ -15,6 +15,14 @@ if [ ! -x "$venv/bin/python" ]; then
   fi
 fi
 
+# A C compiler: the suite compiles the exported flight header (tests/cli/test_export.py, which fails
+# without one). Debian's gcc (it provides cc) where a machine lacks one.
+if ! command -v cc >/dev/null 2>&1; then
+  echo "bootstrap: no C compiler (cc); installing Debian's gcc (needs root/sudo)" >&2
+  if [ "$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq gcc libc6-dev >/dev/null
+  else sudo apt-get update -qq && sudo apt-get install -y -qq gcc libc6-dev >/dev/null; fi
+fi
+
 stamp="$venv/.magtune-deps"
 want=$(cat "$root/scripts/requirements.txt" "$root/pyproject.toml" | sha1sum | cut -d' ' -f1)
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then

@@ -9,11 +9,11 @@ from __future__ import annotations
 import argparse
 
 from .. import __version__
-from . import analyze, bag, campaign, fit_field, front, replay, report, sampling, sil, table1, tune, verify
+from . import analyze, bag, campaign, export, export_check, fit_field, front, replay, report, sampling, sil, table1, tune, verify
 from .common import DEFAULT_CONFIG, run_command
 
 #: Subcommands in the order ``magtune --help`` lists them.
-COMMANDS = (tune, verify, analyze, table1, front, fit_field, sil, replay, bag, report, sampling, campaign)
+COMMANDS = (tune, verify, analyze, table1, front, fit_field, sil, replay, bag, report, sampling, campaign, export, export_check)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -83,11 +83,12 @@ def _writers(tmp_path: Path) -> dict:
         "front": (["front", "--sigmas", "60", "--max-evals", "16", "--workers", "1", "--out-dir", str(d)],
                   d, True, "--out-dir"),
         "bag recover": (["bag", "recover", str(tiny), "-o", str(d)], d, True, "--output"),
+        "export": (["export", GAINS, "--steps", "5", "--out", str(d)], d, True, "--out"),
     }
 
 
 @pytest.mark.parametrize("command", ["campaign", "verify", "sampling", "report", "tune", "campaign-report", "table1",
-                                     "fit-field", "front", "bag recover"])
+                                     "fit-field", "front", "bag recover", "export"])
 def test_second_writer_of_an_output_gets_one_line_and_exit_2(tmp_path, capsys, command):
     argv, out, directory, option = _writers(tmp_path)[command]
     capsys.readouterr()
