@@ -114,7 +114,7 @@ FAULTS = Field("faults", "str[]", "injected faults, each KIND@T[:DURATION][,axis
 SIL_NODE_FIELDS = {"simulator": SIMULATOR_FIELDS + TORQUER_FIELDS + (FAULTS,),
                    "attitude_sensors": SENSOR_FIELDS + TORQUER_FIELDS + (AUTOSTART, FAULTS),
                    "controller": CONTROLLER_FIELDS + BDOT_FIELDS + TORQUER_FIELDS + (AUTOSTART,),
-                   "attitude_estimator": ESTIMATOR_FIELDS + (AUTOSTART,),
+                   "attitude_estimator": ESTIMATOR_FIELDS + TORQUER_FIELDS + (AUTOSTART,),
                    "mode_manager": MANAGER_FIELDS + MODE_FIELDS + BDOT_FIELDS}
 #: Parameters every node has (rclpy's own).
 NODE_COMMON = ("use_sim_time",)

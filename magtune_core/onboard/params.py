@@ -29,8 +29,9 @@ DIPOLE_LIMIT = Field("dipole_limit", "float[]", "per-axis dipole saturation [A m
                      size=3, positive=True, bounds=(1e-6, 1e4), unit="A m^2")
 
 #: The torquers as the magnetometer and the plant see them (onboard/torquers.py, docs/torquers.md): the
-#: simulator, the sensors, the controller, scenario files and campaigns read this one schema. A coupling
-#: entry of 1e-3 T/(A m^2) is a magnetometer 6 cm from the rods; decay times of real rods are ms.
+#: simulator, the sensors, the controller, the estimator (its torquer watch), scenario files and campaigns read
+#: this one schema. A coupling entry of 1e-3 T/(A m^2) is a magnetometer 6 cm from the rods; decay times of real
+#: rods are ms.
 TORQUER_FIELDS = (
     Field("torquer_coupling", "float[]", "field of the torquers at the magnetometer per unit dipole C "
           "[T/(A m^2)], row-major 3x3, body axes (zeros: none)", (0.0,) * 9, size=9, bounds=(-1e-3, 1e-3),

@@ -87,6 +87,10 @@ class TorquerWatchParams:
     torque_std: float = 2e-6  #: std of unmodelled torques [N m] per axis (gravity gradient of a 2-deg error)
     residual_dipole: tuple = (0.0, 0.0, 0.0)  #: calibrated residual dipole, modelled [A m^2]
     residual_bound: float = 2.0  #: bound of the uncalibrated residual dipole per axis [A m^2]
+    #: the fraction of a period the torquers drive (onboard.torquers.Torquers.on_fraction): a duty-cycled period
+    #: applies this times the command as published, compensated or not (unmodelled, a 0.2-s off time at 1 s
+    #: read as a gain drop of 0.2 on every axis: 2 of 20 fault-free batched runs were declared)
+    on_fraction: float = 1.0
     sub_window: int = 60  #: samples per sub-window (one test per sub-window)
     windows: tuple = (8, 4, 2)  #: equations per test window, longest first: a window spans n + 1 sub-windows
     min_window: int = 8  #: equations needed before the first test after a (re)start
@@ -685,7 +689,7 @@ class TorquerWatch:
         S, p = tuple(self.shape), self.params
         w = np.asarray(w, dtype=float)
         b = np.full(S + (3,), np.nan) if b is None else np.asarray(b, dtype=float)
-        m = np.asarray(m_prev, dtype=float)
+        m = np.asarray(m_prev, dtype=float) * p.on_fraction  # the period's mean dipole, as commanded
         ok = np.asarray(active, bool) & np.isfinite(w.sum(-1) + b.sum(-1) + m.sum(-1))
         if q is not None:
             q = np.asarray(q, dtype=float)

@@ -580,7 +580,7 @@ class SilScenario:
             own["attitude_sensors"]["faults"] = sensor_faults
         if sim_faults:
             sim["faults"] = sim_faults
-        for node in ("simulator", "attitude_sensors", "controller"):  # one schema, the same values
+        for node in ("simulator", "attitude_sensors", "controller", ESTIMATOR):  # one schema, the same values
             own[node].update(self.torquers)
         if self.modes:  # the managed nodes wait for the mode manager's transitions
             bd = {k: v for k, v in self.mode_params.items() if k in {f.name for f in BDOT_FIELDS}}

@@ -560,7 +560,9 @@ def _simulate_rows(spec: CampaignSpec, jobs: list, steps: int, record_every: int
     t_all = np.arange(steps + 1) * spec.campaign["ts"]
     torquer = None
     if res.torquer_inputs is not None:  # the torquer watch replayed over the recorded inputs, then the inputs dropped
-        torquer = replay(res.torquer_inputs, watch_params(spec.batch_estimator(), spec.p, spec.campaign["ts"]))
+        ts = spec.campaign["ts"]
+        torquer = replay(res.torquer_inputs, watch_params(spec.batch_estimator(), spec.p, ts,
+                                                          on_fraction=spec.batch_torquers().on_fraction(ts)))
         res.torquer_inputs = None
     rows = []
     for b, ((g, i), r) in enumerate(zip(jobs, draws)):

@@ -39,7 +39,8 @@ magnetometer stream lag the estimate's (its staleness rule). Sun sensor loss (on
 ``sun_loss_samples`` predicted-lit samples in a row without one): WARN "sun sensor" on /diagnostics at
 that sample, and steps no longer wait for it until a sun sample comes again (OK "sun sensor"). The sensor
 watch (magnetometer, gyro) and the torquer watch (``torquer_watch``: each sample with the dipole commanded one
-period before it, inputs.CommandLag; ERROR "torquer x|y|z", report only) run on the estimate (docs/modes.md).
+period before it, inputs.CommandLag, times the duty cycle's on fraction (TORQUER_FIELDS, the controller's and
+simulator's values); ERROR "torquer x|y|z", report only) run on the estimate (docs/modes.md).
 Before the coarse fix each sample's message has
 orientation_covariance[0] = -1 (unknown; the controller commands zero dipole outside DETUMBLE). With
 ``validity_gate`` (the full stack, ``magtune sil --modes --attitude estimator``) so does every estimate
@@ -77,9 +78,10 @@ from magtune_core.design.params import SpacecraftParams
 from magtune_core.onboard.estimator import FilterModel, MekfStream, OnboardModels
 from magtune_core.onboard.fdir import BACK, LOST, SunSensorWatch
 from magtune_core.onboard.modes import ACQUISITION, MODES, POINTING
-from magtune_core.onboard.params import ESTIMATOR_FIELDS
+from magtune_core.onboard.params import ESTIMATOR_FIELDS, TORQUER_FIELDS
 from magtune_core.onboard.sensor_watch import FAILED, GYRO, SensorWatch, SensorWatchParams
 from magtune_core.onboard.torquer_watch import TorquerWatch, TorquerWatchParams
+from magtune_core.onboard.torquers import Torquers
 from magtune_core.onboard.validity import ValidityMonitor
 
 from .inputs import CommandLag, PairSync, StampGate, finite, now_wall, ns_to_stamp, sec_to_ns
@@ -123,7 +125,9 @@ class AttitudeEstimator(ManagedNode):
         declare_overrides(self)
         self.values, self.full = v, v["environment"] == "full"
         self.model, self.models = FilterModel.from_values(v), models_from(v, p)
-        self.torquer_params = TorquerWatchParams.of_filter(self.model, p.inertia, p.wheel_momentum, p.orbit_rate)
+        on = Torquers.from_values(parse_fields(self, TORQUER_FIELDS)).on_fraction(self.model.ts)  # a duty cycle
+        self.torquer_params = TorquerWatchParams.of_filter(self.model, p.inertia, p.wheel_momentum, p.orbit_rate,
+                                                           on_fraction=on)
         self.msg = Imu()
         self.msg.header.frame_id = FRAME_BODY
         self.msg.linear_acceleration_covariance[0] = -1.0
