@@ -164,23 +164,55 @@ SPEC_HELP = ("design spec: the hard requirements (sample-period range, hold gain
 
 
 def add_spec_argument(p: argparse.ArgumentParser) -> None:
-    """``--spec DESIGN_SPEC``: the one option every command reading the requirements takes."""
+    """``--spec DESIGN_SPEC``: the one option every command reading the requirements takes (and ``--hardware``:
+    the torquers' limit the spec's dipole budget resolves against)."""
     p.add_argument("--spec", metavar="DESIGN_SPEC", default=None, help=SPEC_HELP)
+    add_hardware_argument(p)
+
+
+HARDWARE_HELP = ("hardware file: the torquers' and sensors' datasheet figures (config/hardware.yaml; docs/hardware.md); "
+                 "default: none, the spacecraft file's node sections and the nodes' defaults")
+
+
+def add_hardware_argument(p: argparse.ArgumentParser) -> None:
+    """``--hardware FILE``: optional; without it every value is what it was before hardware files."""
+    p.add_argument("--hardware", metavar="FILE", default=None, help=HARDWARE_HELP)
+
+
+def load_hardware_file(args):
+    """The hardware file of ``--hardware`` (None without one), read once per command and kept on ``args``:
+    one line and exit 2 if bad, before any work."""
+    from ..design.hardware import load_hardware
+
+    path = getattr(args, "hardware", None)
+    if path is None:
+        return None
+    loaded = vars(args).setdefault("_hardware", {})
+    if str(path) not in loaded:
+        loaded[str(path)] = load_hardware(path)
+    return loaded[str(path)]
 
 
 def load_design_spec(args, model=None):
     """The requirements of ``--spec`` (default ``config/design.yaml``; the built-in defaults when that
-    file is absent), the dipole limit resolved against ``--config``'s: one line and exit 2 if bad."""
+    file is absent), the dipole limit resolved against ``--hardware``'s torquers (the weakest rod), else
+    ``--config``'s: one line and exit 2 if bad."""
     from dataclasses import replace
 
     from ..design.requirements import Requirements, load_requirements, spacecraft_dipole_limit
 
-    limit = spacecraft_dipole_limit(args.config)
+    hw = load_hardware_file(args)
+    if hw is not None:
+        from ..base.paramfile import load_ros_params
+        from ..design.hardware import check_spacecraft_agrees
+
+        check_spacecraft_agrees(hw, load_ros_params(args.config), args.config)
+    limit = hw.dipole_limit if hw is not None and hw.dipole_limit is not None else spacecraft_dipole_limit(args.config)
     path = args.spec or repo_path("config/design.yaml")
     if args.spec is None and not Path(path).is_file():
-        return Requirements.from_mapping({}, limit)
+        return replace(Requirements.from_mapping({}, limit), hardware=hw)
     check_user_file(path, "expected a design spec")  # a regular file within the size limit, before it is parsed
-    return replace(load_requirements(path, limit), source=shown_path(path))  # recorded in files: no checkout path
+    return replace(load_requirements(path, limit), source=shown_path(path), hardware=hw)  # recorded: no checkout path
 
 
 def load_design_spacecraft(args, path=None):

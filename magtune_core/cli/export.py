@@ -21,7 +21,7 @@ from ..base.errors import ConfigError
 from ..base.paramfile import check_user_file
 from ..studies import flight_table as ft
 from ..studies import flight_vectors as fv
-from .common import add_force_argument, check_outputs, plain_summary, say, shown_path
+from .common import add_force_argument, add_hardware_argument, check_outputs, plain_summary, say, shown_path
 
 PARAMS, JSON, HEADER, CSV, PARQUET, README = ("flight_params.yaml", "flight_table.json", "flight_table.h",
                                               "flight_vectors.csv", "flight_vectors.parquet", "README.md")
@@ -42,6 +42,7 @@ def register(sub) -> None:
                    help="ROS 2 parameter file for the flight nodes (sections /**, /**/controller, /**/mode_manager, "
                         "/**/attitude_estimator): mode thresholds, B-dot, estimator noise figures ...; without it "
                         "the nodes' defaults (listed in flight_table.json 'defaults')")
+    add_hardware_argument(p)
     p.add_argument("--environment", choices=("full", "paper"), default="full",
                    help="the estimator's on-board models unless --params sets 'environment': full (default: IGRF at "
                         "the position fix, Sun of date: a flight computer's) or paper (eq. 26, no Sun)")
@@ -59,7 +60,7 @@ def _check(args) -> None:
     if args.seed < 0:
         raise ConfigError("--seed", None, f"expected a non-negative integer, got {args.seed}")
     for path, what in ((args.gains, "expected a gains file"), (args.spacecraft, "expected a spacecraft file"),
-                       (args.params, "expected a ROS 2 parameter file")):
+                       (args.params, "expected a ROS 2 parameter file"), (args.hardware, "expected a hardware file")):
         if path is not None:
             check_user_file(path, what)
 
@@ -76,7 +77,7 @@ def run(args) -> int:
 def _export(args, out: Path) -> int:
     """Build the table, run the reference, write every file (the JSON last: it records the others' hashes)."""
     t0 = time.perf_counter()
-    table = ft.build_table(args.gains, args.spacecraft, args.params, args.environment)
+    table = ft.build_table(args.gains, args.spacecraft, args.params, args.environment, args.hardware)
     defaults = sum(s == ft.DEFAULT for node in ft.FLIGHT_NODES for s in table.sources[node].values())
     say("export", f"{shown_path(args.gains)}: {defaults} flight-node parameters are the nodes' defaults"
                   + ("" if args.params else " (no --params)") + f"; on-board models: "
@@ -85,7 +86,8 @@ def _export(args, out: Path) -> int:
     cols.update(fv.recompute(table, cols))
     cover = fv.coverage(cols, table)
     banner = (f"magtune export {shown_path(args.gains)} (magtune {__version__}); spacecraft "
-              f"{shown_path(args.spacecraft)}" + (f"; --params {shown_path(args.params)}" if args.params else ""))
+              f"{shown_path(args.spacecraft)}" + (f"; --hardware {shown_path(args.hardware)}" if args.hardware else "")
+              + (f"; --params {shown_path(args.params)}" if args.params else ""))
     texts = {PARAMS: ft.parameter_file_text(table, f"Flight parameters: {banner}\nload with --ros-args --params-file "
                                                    f"{PARAMS} (docs/export.md)"),
              HEADER: ft.header_text(table, banner=f"Flight parameter table: {banner}\nData only; doubles with 17 "

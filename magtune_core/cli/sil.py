@@ -9,7 +9,7 @@ from ..design.faults import parse_spec
 from ..ros import sil
 from ..ros.process import DDS_INTERFACES
 from ..ros.scenario import SilRequest, SilScenario, load_scenario_file, normalize_namespace
-from .common import CommandError, add_environment_arguments, environment_options, plain_summary
+from .common import CommandError, add_environment_arguments, add_hardware_argument, environment_options, plain_summary
 
 #: The ROS_DOMAIN_IDs whose DDS (RTPS) ports fit in 16 bits: 7400 + 250 x id + offsets <= 65535.
 DOMAIN_ID_MIN, DOMAIN_ID_MAX = 0, 232
@@ -60,6 +60,7 @@ def register(sub) -> None:
                         "duty_compensation; docs/torquers.md)")
     p.add_argument("--spacecraft", "--config", dest="spacecraft", default=None,
                    help="spacecraft/orbit parameter file (default: the global --config, config/spacecraft.yaml)")
+    add_hardware_argument(p)
     p.add_argument("--field", metavar="FILE", default=None,
                    help="paper environment: simulate this field file (magtune fit-field output) instead of the "
                         "spacecraft's field_model (the full environment keeps IGRF along the orbit)")
@@ -140,7 +141,7 @@ def run(args) -> int:
                                  initial_mode=args.initial_mode,
                                  attitude=args.attitude, estimator_params=_assignments(args.estimator_param),
                                  faults=faults, torquers=scen["torquers"],
-                                 torquers_source=scen["torquers_source"]))
+                                 torquers_source=scen["torquers_source"], hardware=args.hardware))
     if not args.quiet:
         print("magtune sil: starting the nodes (discovery takes a few seconds)", file=sys.stderr, flush=True)
         if args.foxglove is not None:

@@ -107,7 +107,8 @@ def _verify(args, sched, tls) -> int:
     print(f"verify {args.gains}: {args.runs} runs at Ts = {', '.join(f'{t:g}' for t in periods)} s "
           f"(ends of {lo:g}-{hi:g} s and the tightest hold margin" + (", asked" if args.also_ts else "") + "), "
           f"dispersions of {campaign} with the design spec's rates, residual dipoles and torquers "
-          f"({req.dipole_budget or req.dipole_limit:g}-{req.dipole_limit:g} A m^2)", flush=True)
+          f"({req.dipole_budget or req.dipole_limit:g}-{req.dipole_limit:g} A m^2)"
+          + (f"; sensor noise and torquer range of the hardware file {args.hardware}" if args.hardware else ""), flush=True)
     try:
         res = verify.run_verify(args.gains, req, campaign_file, args.runs, args.out, tightest=tightest, p=p,
                                 scheduler=sched, workers=args.workers, progress=not args.no_progress, tls=tls,

@@ -123,6 +123,9 @@ class Requirements:
     dipole_limit: float  # the resolved per-axis limit [A m^2]
     source: str = "defaults"
     extra_periods: tuple = field(default=())  # periods added by the dense scan (cutting planes)
+    #: the hardware file the limit was resolved against (design.hardware.Hardware; verify flies its sensors and
+    #: torquer range), None without one
+    hardware: object = field(default=None, compare=False)
 
     @classmethod
     def from_mapping(cls, raw: dict | None, spacecraft_limit: float, where="design spec") -> "Requirements":

@@ -30,6 +30,7 @@ from ..base.topics import TOPIC_ATTITUDE, TOPIC_ESTIMATE
 from ..design import faults as fl
 from ..design.fitfield import field_for_spacecraft
 from ..design.gains import CONTROLLER_NODE, Gains
+from ..design.hardware import check_spacecraft_agrees, load_hardware
 from ..design.node_params import INITIAL_RATE_ERROR
 from ..design.params import SpacecraftParams, check_sample_period, warn_tle
 from ..design.sensors import default_suite
@@ -183,11 +184,13 @@ def check_modes_arguments(modes: bool, initial_mode, mode_params) -> tuple[str, 
     return mode, mparams
 
 
-def check_attitude_arguments(attitude: str, sensor_params, estimator_params, field) -> tuple[dict, dict]:
+def check_attitude_arguments(attitude: str, sensor_params, estimator_params, field, suite=None) -> tuple[dict, dict]:
     """The sensors' and the estimator's parameters for ``attitude`` ("truth": unchanged, no
     estimator), validated by ESTIMATOR_FIELDS before anything starts (ConfigError: one line).
-    With the estimator the sensors default to :func:`magtune_core.design.sensors.default_suite`
-    (the filter's own model), the explicit ``sensor_params`` on top."""
+    With the estimator the sensors default to ``suite`` (a hardware file's sensor parameters,
+    :meth:`magtune_core.design.hardware.Hardware.sensor_parameters`), else to
+    :func:`magtune_core.design.sensors.default_suite` (the filter's own model), the explicit
+    ``sensor_params`` on top."""
     sensor_params = dict(sensor_params or {})
     if attitude not in ATTITUDE_SOURCES:
         raise ConfigError("--attitude", None, f"expected one of {', '.join(ATTITUDE_SOURCES)}, got {attitude!r}")
@@ -204,6 +207,8 @@ def check_attitude_arguments(attitude: str, sensor_params, estimator_params, fie
     if extra:
         raise ConfigError("estimator parameters", extra[0], "not an attitude_estimator parameter")
     parse(eparams, ESTIMATOR_FIELDS, "estimator parameters")
+    if suite is not None:
+        return {**suite, "seed": 0, **sensor_params}, eparams
     su = default_suite()
     g = su.gyro
     defaults = dict(mag_noise_std=su.magnetometer.noise_std, gyro_arw=g.arw, gyro_rrw=g.rrw,
@@ -335,6 +340,8 @@ class SilRequest:
     #: TORQUER_FIELDS values; errors name torquers_source
     torquers: dict | None = None
     torquers_source: str = "torquers"
+    #: a hardware file (design.hardware): its torquers and sensors, a layer over the spacecraft file's node sections
+    hardware: object = None
     # -- extra ROS parameters of each node (every satellite)
     simulator_params: dict | None = None
     sensor_params: dict | None = None
@@ -431,6 +438,8 @@ class SilScenario:
     #: the torquers' coupling and duty cycle (TORQUER_FIELDS given), every satellite's simulator,
     #: sensors and controller
     torquers: dict = _field(default_factory=dict)
+    #: node -> parameters of the hardware file (design.hardware.Hardware.node_parameters); empty without one
+    hardware_params: dict = _field(default_factory=dict)
 
     @classmethod
     def build(cls, satellites: dict, request: SilRequest | None = None) -> "SilScenario":
@@ -466,12 +475,15 @@ class SilScenario:
         sc = SpacecraftParams.from_mapping(merge_ros_params(sc_doc), req.spacecraft, strict=True,
                                            base_dir=Path(req.spacecraft).parent)
         warn_tle(sc, req.spacecraft)
+        hw = load_hardware(req.hardware) if req.hardware is not None else None
+        if hw is not None:
+            check_spacecraft_agrees(hw, sc_doc, req.spacecraft)
         simulator_params, substeps = initial_state_parameters(
             sc, dict(req.simulator_params or {}), req.initial_attitude_deg, req.initial_rate_deg, req.substeps,
             run_sample_period(req.ts, sc, gains))
         mode, mparams = check_modes_arguments(req.modes, req.initial_mode, req.mode_params)
         sensor_params, eparams = check_attitude_arguments(req.attitude, req.sensor_params, req.estimator_params,
-                                                          req.field)
+                                                          req.field, hw and hw.sensor_parameters())
         check_run_arguments(orbits=req.orbits, steps=req.steps, substeps=substeps, real_time_factor=req.real_time_factor,
                             timeout=req.timeout, lockstep_timeout=req.lockstep_timeout)
         sat_list = []
@@ -499,7 +511,8 @@ class SilScenario:
                    node_params={"simulator": simulator_params, "attitude_sensors": dict(sensor_params or {}),
                                 "controller": dict(req.controller_params or {}), ESTIMATOR: eparams},
                    modes=bool(req.modes), initial_mode=mode, mode_params=mparams, attitude=req.attitude, faults=faults,
-                   torquers=check_torquer_arguments(req.torquers, [s.ts for s in sat_list], req.torquers_source))
+                   torquers=check_torquer_arguments(req.torquers, [s.ts for s in sat_list], req.torquers_source),
+                   hardware_params=hw.node_parameters() if hw is not None else {})
 
     # ------------------------------------------------------------------ derived
     @property
@@ -593,6 +606,7 @@ class SilScenario:
         out = {}
         for node in self.nodes:
             params = self._spacecraft_params(f"{sat.namespace}/{node}")
+            params.update(self.hardware_params.get(node, {}))  # the hardware file's layer (design.hardware)
             if node == "controller":
                 params.update({k: _plain(v) for k, v in sat.gains_params.items()})
             out[node] = {**params, **own[node], **self.node_params.get(node, {})}

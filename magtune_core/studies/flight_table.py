@@ -5,8 +5,9 @@
 from (lowest first): the schemas' defaults (``onboard/params.py``), the flight stack's settings
 (:data:`FLIGHT_SETTINGS`: what ``magtune sil --modes --attitude estimator`` sets, the on-board models'
 environment and the time origin at the spacecraft's epoch), the spacecraft file (its node sections),
-the gains file (the controller's) and an optional parameter file (``--params``). A later source
-(e.g. a hardware file) is one more layer. Every node's values are validated by its own schema.
+an optional hardware file (``--hardware``: its torquers' limit and coupling for the controller, its
+noise model for the estimator, :mod:`magtune_core.design.hardware`), the gains file (the controller's)
+and an optional parameter file (``--params``). Every node's values are validated by its own schema.
 
 Writers: :func:`parameter_file_text` (a ROS 2 parameter file the nodes load: ``/**`` the mission
 data, ``/**/<node>`` each node's parameters), :func:`header_text` (a C99 header of ``static const``
@@ -29,6 +30,7 @@ from ..base.errors import ConfigError
 from ..base.paramfile import check_ros_params, load_ros_params, merge_ros_params, read_regular
 from ..base.schema import parse
 from ..design.gains import CONTROLLER_NODE, Gains
+from ..design.hardware import check_spacecraft_agrees, load_hardware
 from ..design.node_params import SIL_NODE_FIELDS
 from ..design.params import SpacecraftParams, warn_tle
 from ..onboard.modes import MODES
@@ -51,7 +53,8 @@ MISSION_FIELDS = SpacecraftParams.FIELDS
 C_PREFIX = {"controller": "MAGTUNE_CTRL_", "mode_manager": "MAGTUNE_MODES_", "attitude_estimator": "MAGTUNE_EST_",
             "mission": "MAGTUNE_SC_"}
 #: Source names (JSON ``source`` of each value).
-DEFAULT, STACK, SPACECRAFT, GAINS, PARAMS = "default", "flight stack", "spacecraft file", "gains file", "--params"
+DEFAULT, STACK, SPACECRAFT, HARDWARE, GAINS, PARAMS = ("default", "flight stack", "spacecraft file", "hardware file",
+                                                     "gains file", "--params")
 
 
 def _fields(node: str) -> dict:
@@ -161,11 +164,13 @@ def _mission(doc: dict, p: SpacecraftParams) -> dict:
     return out
 
 
-def _layers(node: str, settings: dict, sc_doc: dict, gains_params: dict, params_doc: dict | None) -> list:
+def _layers(node: str, settings: dict, sc_doc: dict, gains_params: dict, params_doc: dict | None, hw=None) -> list:
     """(source, mapping) of ``node`` from the lowest to the highest (restricted to the node's schema)."""
     names = _fields(node)
     pick = lambda m: {k: v for k, v in m.items() if k in names}  # noqa: E731
     layers = [(STACK, settings.get(node, {})), (SPACECRAFT, pick(merge_ros_params(sc_doc, node)))]
+    if hw is not None:
+        layers.append((HARDWARE, pick(hw.node_parameters().get(node, {}))))
     if node == CONTROLLER_NODE:
         layers.append((GAINS, pick(gains_params)))
     if params_doc is not None:
@@ -210,7 +215,7 @@ def parse_nodes(raw: dict, where) -> dict:
     return out
 
 
-def build_table(gains_path, spacecraft_path, params_path=None, environment: str = "full") -> FlightTable:
+def build_table(gains_path, spacecraft_path, params_path=None, environment: str = "full", hardware_path=None) -> FlightTable:
     """The flight table of a gains file, a spacecraft file and an optional parameter file (module docstring).
 
     Parameters
@@ -224,6 +229,9 @@ def build_table(gains_path, spacecraft_path, params_path=None, environment: str 
         mode thresholds or the estimator's noise figures; an exported ``flight_params.yaml`` is one.
     environment : str
         The estimator's on-board models unless the parameter file sets ``environment``.
+    hardware_path : str or Path, optional
+        A hardware file (:mod:`magtune_core.design.hardware`): a layer between the spacecraft file and the gains
+        file (a spacecraft node section that gives one of its parameters another value is refused).
 
     Returns
     -------
@@ -241,6 +249,9 @@ def build_table(gains_path, spacecraft_path, params_path=None, environment: str 
     p = SpacecraftParams.from_mapping(merge_ros_params(sc_doc), spacecraft_path, strict=True,
                                       base_dir=Path(spacecraft_path).parent)
     warn_tle(p, spacecraft_path)
+    hw = load_hardware(hardware_path) if hardware_path is not None else None
+    if hw is not None:
+        check_spacecraft_agrees(hw, sc_doc, spacecraft_path)
     params_doc = None
     if params_path is not None:
         params_doc = load_ros_params(params_path)
@@ -249,7 +260,7 @@ def build_table(gains_path, spacecraft_path, params_path=None, environment: str 
     raw, sources = {}, {}
     for node in FLIGHT_NODES:
         values, src = {}, {}
-        for source, mapping in _layers(node, settings, sc_doc, gains_params, params_doc):
+        for source, mapping in _layers(node, settings, sc_doc, gains_params, params_doc, hw):
             values.update(mapping)
             src.update({k: source for k in mapping})
         raw[node], sources[node] = values, src
@@ -271,8 +282,10 @@ def build_table(gains_path, spacecraft_path, params_path=None, environment: str 
                      if not (flds[name].kind == "str[]" and values[node][name] == () and name not in raw[node])}
         for name in flds:
             sources[node].setdefault(name, DEFAULT)
-    residual = _residual_dipole(sc_doc)
+    residual = tuple(hw.node_parameters()["simulator"].get("residual_dipole", _residual_dipole(sc_doc)) if hw else _residual_dipole(sc_doc))
     files = {"gains": Path(gains_path), "spacecraft": Path(spacecraft_path)}
+    if hw is not None:
+        files["hardware"] = Path(hardware_path)
     if p.tle_field == "tle_file":
         files["tle_file"] = Path(spacecraft_path).parent / merge_ros_params(sc_doc)["tle_file"]
     if params_path is not None:

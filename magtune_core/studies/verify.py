@@ -74,13 +74,17 @@ def campaign_for(spec: CampaignSpec, gains_path, ts: float, req: Requirements, p
     spacecraft ``p`` (default the campaign's). What the design spec states is what is flown: the
     initial rate and the residual dipole of its ``dipole`` section (its +- radius as 3 sigma) and
     torquers anywhere between the budget and the limit (the weakest torquer the design holds for);
-    the campaign keeps the rest (environment, epochs, attitude, inertia, sensor noise)."""
+    the campaign keeps the rest (environment, epochs, attitude, inertia, sensor noise). The hardware file
+    the design spec was resolved against (``req.hardware``, ``--hardware``) replaces the sensor noise figures
+    and the torquers' range with its own (:meth:`magtune_core.design.hardware.Hardware.verify_dispersions`)."""
     g = load_gains(gains_path)
     d = req.dipole
     disp = dict(spec.dispersions, rate_mean=np.asarray(d["rate_nominal"], float),
                 rate_max=np.asarray(d["rate_radius"], float), residual_dipole_mean=np.asarray(d["residual_nominal"], float),
                 residual_dipole_std=np.asarray(d["residual_radius"], float) / 3.0,
                 dipole_limit_min=float(req.dipole_budget or req.dipole_limit), dipole_limit_max=float(req.dipole_limit))
+    if req.hardware is not None:
+        disp.update(req.hardware.verify_dispersions(req.dipole_budget, req.dipole_limit))
     camp = dict(spec.campaign, ts=float(ts))
     if p is not None:
         camp["arg_lat_deg"] = float(p.arg_lat_deg)
