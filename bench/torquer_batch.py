@@ -8,7 +8,8 @@ The watch (the attitude_estimator node's parameters) is replayed over the record
 fault-free runs' verdicts, then per onset of the fault (the same runs, the same fault from each onset): the first
 torquer declared; the runs declaring the faulty axis within 600 s (first or after another), when, with what kind at
 the end; how long POINTING lasted after
-the onset (the node runs the watch in ACQUISITION and POINTING, not in DETUMBLE or SAFE). A run that starts in eclipse fixes its attitude from the
+the onset (the node runs the watch in POINTING and an ACQUISITION after it, not in DETUMBLE or SAFE). A run that
+starts in eclipse fixes its attitude from the
 magnetometer alone, is not valid within attitude_loss_time and comes back to POINTING only after a detumble and an
 acquisition (~2400-4000 s): at an early onset it is not in POINTING and counts for nothing.
 
@@ -102,9 +103,9 @@ def main() -> None:
         delay = ta[hit] - t0
         kinds = {str(k): int(c) for k, c in zip(*np.unique([det.axis_kind(r, axis) for r in np.flatnonzero(hit)],
                                                            return_counts=True))}
-        on = watched[:, 0]
-        print(f"onset {t0:g} s: in ACQUISITION or POINTING at the onset {int(on.sum())} / {a.runs} (POINTING "
-              f"{int(pnt[:, 0].sum())}; the others in DETUMBLE after a start without a valid estimate); torquer "
+        on = res.torquer_inputs.active[:, int(t0)]  # the watch running at the onset (torquer_watch.watch_mode)
+        print(f"onset {t0:g} s: watched at the onset {int(on.sum())} / {a.runs} (POINTING "
+              f"{int(pnt[:, 0].sum())}; the others in DETUMBLE or a capture after a start without a valid estimate); torquer "
               f"{a.axis} declared within 600 s in {int(hit.sum())}"
               + (f", delay p50 / p95 / max {np.percentile(delay, 50):.0f} / {np.percentile(delay, 95):.0f} / "
                  f"{delay.max():.0f} s" if hit.any() else "")

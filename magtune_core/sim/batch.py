@@ -238,8 +238,8 @@ class TorquerInputs:
     b: np.ndarray  #: (B, N + 1, 3) measured field at t_k [T] (the magnetometer sample the filter took)
     m_prev: np.ndarray  #: (B, N + 1, 3) dipole commanded at t_(k-1), as published (after saturation) [A m^2] (nan at k = 0)
     q: np.ndarray  #: (B, N + 1, 4) the estimate w.r.t. the orbital axes, scalar first (nan: no state)
-    #: (B, N + 1) a valid estimate, mode ACQUISITION or POINTING (the manager's last, the decision of k - 1; or no
-    #: modes), a command at k - 1: the node's rule (POINTING only: ``active[:, 1:]`` and ``BatchResult.mode[:, :-1]`` POINTING)
+    #: (B, N + 1) a valid estimate, a mode onboard.torquer_watch.watch_mode lets the watch run in (POINTING or an
+    #: ACQUISITION after it; the manager's last, the decision of k - 1; or no modes), a command at k - 1: the node's rule
     active: np.ndarray
     ts: float  #: controller period [s]
 
@@ -720,11 +720,11 @@ def _watch_arrays(e: BatchEstimator | None, est, B: int) -> tuple:
 
 
 def _torquer_watch_arrays(on: bool, B: int, n: int) -> tuple:
-    """EstimatorIO's torquer-watch fields: (on, w, b, m_prev, q, active), (B, n + 1, .) nan and False when ``on``, else
-    (1, 1, .) placeholders the kernel does not write."""
+    """EstimatorIO's torquer-watch fields: (on, w, b, m_prev, q, active, armed), (B, n + 1, .) nan and False when ``on``,
+    else (1, 1, .) placeholders the kernel does not write."""
     B, N = (B, n + 1) if on else (1, 1)
     return (bool(on), np.full((B, N, 3), np.nan), np.full((B, N, 3), np.nan), np.full((B, N, 3), np.nan),
-            np.full((B, N, 4), np.nan), np.zeros((B, N), dtype=np.bool_))
+            np.full((B, N, 4), np.nan), np.zeros((B, N), dtype=np.bool_), np.zeros(B, dtype=np.bool_))
 
 
 def _estimator_chunk(est, eio: EstimatorIO, tables: _EnvTables, kc: int, k1: int, ts: float, aux_block) -> EstimatorIO:

@@ -565,14 +565,15 @@ class EstimatorIO(NamedTuple):
     #: the torquer watch's inputs at every step (``tw_on``; the attitude_estimator node's ``watch_torquers``, replayed
     #: after the run by sim.batch_torquer): gyro minus the estimated bias [rad/s] and the estimate w.r.t. the orbital
     #: axes (nan: the filter has no state, the node does not step the watch), the measured field [T], the dipole
-    #: commanded (published) the step before [A m^2] (nan at step 0), and active (a valid estimate in ACQUISITION or
-    #: POINTING, or without modes, and a command); (B, n + 1, .) or (1, 1, .)
+    #: commanded (published) the step before [A m^2] (nan at step 0), and active (a valid estimate in POINTING or an
+    #: ACQUISITION after it, or without modes, and a command); (B, n + 1, .) or (1, 1, .)
     tw_on: bool
     tw_w: np.ndarray
     tw_b: np.ndarray
     tw_m: np.ndarray
     tw_q: np.ndarray
     tw_act: np.ndarray
+    tw_armed: np.ndarray  #: (B,) bool: torquer_watch.watch_mode's armed flag per run
 
 
 @njit(cache=True, error_model="numpy")
@@ -817,10 +818,12 @@ def closed_loop(y, chunk, plant, ctrl, sens, out, modes, est, eio, fk):
                 have, qe, re = _estimate(est, eio, idx[b], b, rec_slot[k], k, kc, noise_k0, a0, a1, a2, a3, fo0, fo1,
                                          fo2, bm0, bm1, bm2, wm0, wm1, wm2, full, sun_lost,
                                          mon and modes.mode[b] != _PNT)
-                if eio.tw_on:  # the node's watch_torquers: a valid estimate in ACQUISITION or POINTING (the mode before
-                    # this step's decision: the manager's last) or without modes, a command the step before
-                    _record_watch(eio, b, k, have and k > 0 and (not mon or modes.mode[b] == _PNT
-                                                                 or modes.mode[b] == _ACQ), qe, re, bm0, bm1, bm2)
+                if eio.tw_on:  # the node's watch_torquers: a valid estimate in the modes of torquer_watch.watch_mode (the
+                    # mode before this step's decision: the manager's last) or without modes, a command the step before
+                    md = modes.mode[b]
+                    eio.tw_armed[b] = (eio.tw_armed[b] or md == _PNT) and md != _DET and md != _SAFE
+                    _record_watch(eio, b, k, have and k > 0 and (not mon or md == _PNT or (md == _ACQ and eio.tw_armed[b])),
+                                  qe, re, bm0, bm1, bm2)
                 qm0, qm1, qm2, qm3 = qe[0], qe[1], qe[2], qe[3]
                 wm0, wm1, wm2 = re[0], re[1], re[2]
             sg = -1.0 if qm0 < 0.0 else 1.0

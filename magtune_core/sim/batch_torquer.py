@@ -2,7 +2,7 @@
 
 The attitude_estimator node steps the torquer watch on every sample its filter has a state for (``watch_torquers``)
 with the gyro minus the estimated bias, the measured field, the dipole commanded one period before, the estimate
-w.r.t. the orbital axes and ``active`` (a valid estimate in ACQUISITION or POINTING, a command). The watch only
+w.r.t. the orbital axes and ``active`` (a valid estimate in POINTING or an ACQUISITION after it, a command). The watch only
 reports: nothing in the loop reads it. So a batched run records those inputs at every step
 (``BatchEstimator(torquer_watch=True)``, :class:`~magtune_core.sim.batch.TorquerInputs`) and :func:`replay` runs the
 flight's watch over them afterwards, all runs at once (``TorquerWatch(shape=(B,))``: the flight's arithmetic with a

@@ -14,7 +14,7 @@ Subscribes (LOCKSTEP_QOS):
   sensors/position        nav_msgs/Odometry          position fix r [m], v [m/s], ECI (environment 'full')
                           (each taken raw: the serialized bytes, the fields read in place)
   mode                    magtune_interfaces/Mode    the mode manager's (MODE_QOS): the sensor watch runs in POINTING,
-                                                     the torquer watch in ACQUISITION and POINTING
+                                                     the torquer watch in POINTING and an ACQUISITION after it
   controller/dipole_command geometry_msgs/Vector3Stamped the commanded dipole [A m^2] (raw; the torquer watch's input)
   /clock                  rosgraph_msgs/Clock        (use_sim_time)
 Publishes:
@@ -77,10 +77,10 @@ from magtune_core.base.topics import (
 from magtune_core.design.params import SpacecraftParams
 from magtune_core.onboard.estimator import FilterModel, MekfStream, OnboardModels
 from magtune_core.onboard.fdir import BACK, LOST, SunSensorWatch
-from magtune_core.onboard.modes import ACQUISITION, MODES, POINTING
+from magtune_core.onboard.modes import MODES, POINTING
 from magtune_core.onboard.params import ESTIMATOR_FIELDS, TORQUER_FIELDS
 from magtune_core.onboard.sensor_watch import FAILED, GYRO, SensorWatch, SensorWatchParams
-from magtune_core.onboard.torquer_watch import TorquerWatch, TorquerWatchParams
+from magtune_core.onboard.torquer_watch import TorquerWatch, TorquerWatchParams, watch_mode
 from magtune_core.onboard.torquers import Torquers
 from magtune_core.onboard.validity import ValidityMonitor
 
@@ -149,6 +149,7 @@ class AttitudeEstimator(ManagedNode):
         self.sun_watch = SunSensorWatch(int(v["sun_loss_samples"]))
         self.sensor_watch = SensorWatch(SensorWatchParams.of_stream(self.stream)) if v["sensor_watch"] else None
         self.torquer_watch = TorquerWatch(self.torquer_params) if v["torquer_watch"] else None
+        self.torquer_armed = False  # torquer_watch.watch_mode: armed in POINTING
         self.commands = CommandLag(self.ts_ns)  # each sample with the dipole commanded one period before
         self.last_ns, self.w_prev, self.pending, self.paired = -1, None, None, False
         self.mode = None  # the mode manager's mode (None: no manager; the sensor watch then runs in every state)
@@ -304,7 +305,8 @@ class AttitudeEstimator(ManagedNode):
             self.watch_sensors(ns, out, valid)
         q = self.models.to_orbital(out.state.q, t, r, v)
         if self.torquer_watch is not None:
-            active = valid and self.mode in (None, ACQUISITION, POINTING) and b is not None
+            watching, self.torquer_armed = watch_mode(self.mode, self.torquer_armed)
+            active = valid and watching and b is not None
             self.watch_torquers(self.commands.sample(ns, (self.w_prev - out.state.b, b, q, active)))
         self.publish(ns, out.state, q, valid)
 
@@ -334,8 +336,8 @@ class AttitudeEstimator(ManagedNode):
         """The torquer watch (onboard.torquer_watch.TorquerWatch) on each ready sample (inputs.CommandLag: its
         gyro minus the estimated bias, measured field and attitude w.r.t. the orbital axes, with the dipole
         commanded for the period that ended at it; no command: the window restarts, counted). Active on a valid
-        estimate in ACQUISITION and POINTING (or without a mode manager), not in DETUMBLE or SAFE: a stuck torquer
-        can take POINTING to ACQUISITION before its window isolates it (the field must turn to tell x from y).
+        estimate in the modes of onboard.torquer_watch.watch_mode: POINTING, and an ACQUISITION after it (a stuck
+        torquer can take POINTING to ACQUISITION before its window isolates it), not the capture after DETUMBLE.
         A verdict: ERROR naming the torquer, stamped with its sample; reported only
         (docs/modes.md#torquer-fault-detection)."""
         for ns, (w, b, q, active), m in ready:
