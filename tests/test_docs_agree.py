@@ -252,3 +252,82 @@ def test_quoted_repository_paths_exist():
             if not (ROOT / path).exists():
                 bad.append(f"{page.relative_to(ROOT)}: {quoted}")
     assert not bad, bad
+
+
+OWN_SATELLITE = ROOT / "docs" / "own_satellite.md"
+WALKTHROUGH = "### Walk-through: the 12U from its TLE and hardware file"
+
+
+def _magtune_lines(text):
+    """The ``magtune`` command lines of the fenced code blocks of ``text``, shell-split, comments dropped."""
+    import shlex
+
+    lines = "\n".join(_code_blocks(text)).splitlines()
+    return [shlex.split(line, comments=True) for line in lines if line.startswith("magtune ")]
+
+
+def _parse(argv):
+    """``magtune ARGV`` through the CLI's own parser (nothing runs): the namespace, or an assertion
+    naming the line argparse refuses."""
+    import contextlib
+    import io
+
+    from magtune_core.cli import build_parser
+
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err):
+            return build_parser().parse_args(argv)
+    except SystemExit:
+        raise AssertionError(f"magtune {' '.join(argv)}: {err.getvalue().strip().splitlines()[-1]}") from None
+
+
+def test_own_satellite_commands_parse_and_name_existing_files():
+    """Every ``magtune`` line of docs/own_satellite.md's code blocks is accepted by the CLI parser
+    (subcommand, options, their values' types), and every repository file it names exists."""
+    commands = _magtune_lines(OWN_SATELLITE.read_text())
+    assert len(commands) >= 10, commands
+    bad = []
+    helps = {}
+    for argv in commands:
+        a = _parse(argv[1:])
+        at = argv.index(a.command)  # options before it are the global parser's
+        for flags, text in ((argv[1:at], helps.setdefault("", _help())),
+                            (argv[at + 1:], helps.setdefault(a.command, _help(a.command)))):
+            # written in full (argparse would take an abbreviation such as --run for --runs)
+            bad += [f"magtune {a.command}: {f} is not an option's full name" for f in flags
+                    if f.startswith("--") and not re.search(rf"(?<![\w-]){re.escape(f)}(?![\w-])", text)]
+        bad += [f"magtune {' '.join(argv[1:3])} ...: {a}" for a in argv
+                if re.match(r"(config|docs|tests|scripts|bags)/", a) and not (ROOT / a).exists()]
+    assert not bad, bad
+
+
+def test_own_satellite_walkthrough_goes_from_the_tle_and_hardware_file_to_export():
+    """The walk-through of the 12U starts from the TLE spacecraft file and the hardware file and runs
+    fit-field -> tune -> verify -> sil --environment full -> export -> export-check on the export's own
+    vectors, every command given both files (fit-field: the spacecraft file), each /tmp input written by
+    an earlier command's --out, and the files it starts from hold a TLE file and a hardware file."""
+    from magtune_core.base.paramfile import read_ros_params
+
+    steps = _magtune_lines(_section(OWN_SATELLITE.read_text(), WALKTHROUGH))
+    args = [_parse(argv[1:]) for argv in steps]
+    assert [a.command for a in args] == ["fit-field", "tune", "verify", "sil", "export", "export-check"], steps
+    example = "config/examples/cubesat12u/"
+    tle, hardware = example + "spacecraft_tle.yaml", example + "hardware.yaml"
+    assert read_ros_params(ROOT / tle, "simulator").get("tle_file") == "cubesat12u.tle"
+    assert (ROOT / example / "cubesat12u.tle").is_file() and (ROOT / hardware).is_file()
+    spacecraft = {"fit-field": "spacecraft", "tune": "config", "verify": "config", "sil": "spacecraft", "export": "spacecraft"}
+    written = []
+    for argv, a in zip(steps, args):
+        if a.command in spacecraft:
+            assert getattr(a, spacecraft[a.command]) == tle, argv
+        if a.command not in ("fit-field", "export-check"):
+            assert a.hardware == hardware, argv
+        if a.command == "sil":
+            assert a.environment == "full", argv
+        inputs = [x for x in argv if x.startswith("/tmp/") and x != getattr(a, "out", None)]
+        orphans = [x for x in inputs if not any(x == w or x.startswith(w.rstrip("/") + "/") for w in written)]
+        assert not orphans, f"{argv}: {orphans} not written by an earlier command"
+        if getattr(a, "out", None):
+            written.append(a.out)
+    assert args[-1].vectors == args[-1].outputs == f"{args[-2].out}/flight_vectors.csv", steps[-1]

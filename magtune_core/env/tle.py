@@ -79,6 +79,11 @@ class TLE:
     name: str = ""
     satrec: Satrec = field(default=None, compare=False, repr=False)
 
+    def __reduce__(self):
+        """Pickled as its lines (a ``Satrec`` does not pickle): Dask sends spacecraft parameters with a
+        TLE to campaign and verify workers, which rebuild the same SGP4 record from them."""
+        return (_from_lines, (self.line1, self.line2, self.name))
+
     @property
     def satnum(self) -> str:
         """Catalogue number (columns 3-7 of both lines)."""
@@ -160,6 +165,11 @@ class TLE:
             raise ConfigError(where, name, f"SGP4 error {err} for {self.label} {when}: {SGP4_ERRORS.get(err, 'unknown')} "
                                            "(a decayed or wrong TLE: use a current one)")
         return np.array(r) * 1e3, np.array(v) * 1e3
+
+
+def _from_lines(line1: str, line2: str, name: str) -> TLE:
+    """A :class:`TLE` of already checked lines with its SGP4 record (unpickling, :meth:`TLE.__reduce__`)."""
+    return TLE(line1, line2, name, Satrec.twoline2rv(line1, line2, WGS72))
 
 
 def split_lines(text: str) -> list[str]:

@@ -195,3 +195,14 @@ def test_fit_field_along_the_tle_orbit(tmp_path, capsys):
     assert abs(field.period / p.orbit_period - 1.0) < 5e-4
     err = one_line_exit2(capsys, ["fit-field", "--spacecraft", str(sc), "--altitude", "500", "--out", str(out), "--force"])
     assert "--altitude: the orbit comes from --spacecraft" in err
+
+
+def test_spacecraft_with_a_tle_pickles():
+    """Campaigns and verify send the spacecraft parameters to Dask workers by pickle: a TLE's SGP4 record
+    (a Satrec, which does not pickle) travels as its lines and gives the same state there."""
+    import pickle
+
+    p = load_spacecraft(EXAMPLE / "spacecraft_tle.yaml", warn=False)
+    q = pickle.loads(pickle.dumps(p))
+    assert q.tle == p.tle and q.tle.label == "MAGTUNE-12U EXAMPLE"
+    assert all(np.array_equal(a, b) for a, b in zip(q.tle.state(600.0), p.tle.state(600.0)))

@@ -66,6 +66,18 @@ def test_tle_elements_and_epoch():
     assert 340e3 < tle.perigee_altitude < tle.apogee_altitude < 370e3
 
 
+def test_tle_pickles_with_its_sgp4_record():
+    """Dask pickles the spacecraft parameters to campaign and verify workers (a Satrec does not pickle):
+    the TLE travels as its lines and SGP4 gives the same state on the other side."""
+    import pickle
+
+    tle = parse_tle(["0 ISS (ZARYA)", *ISS])
+    back = pickle.loads(pickle.dumps(tle))
+    assert back == tle and back.name == tle.name
+    for t in (0.0, 5400.0):
+        assert all(np.array_equal(a, b) for a, b in zip(back.state(t), tle.state(t)))
+
+
 @pytest.mark.parametrize("edit, words", [
     (lambda l1, l2: [l1], "expected the 2 lines of a TLE (or a name line and 2 lines), got 1 lines"),
     (lambda l1, l2: [l2, l1], "line 1 must start with '1 '"),
