@@ -55,6 +55,11 @@ MODE_MANAGER = "mode_manager"
 NAMESPACE = re.compile(r"^(/[A-Za-z][A-Za-z0-9_]*)+$")
 
 
+#: Simulator outputs that only viewers and bags read, off in a run where nothing can read them (SilScenario.outputs_read):
+#: 0.3-0.5 ms of the simulator's CPU per step (bench/sil_hops.py).
+UNREAD_OUTPUTS_OFF = {"publish_tf": False, "publish_markers": False, "publish_torques": False}
+
+
 def normalize_namespace(ns: str) -> str:
     """``sat1`` / ``/sat1/`` -> ``/sat1``; ``""`` or ``/`` -> ``""`` (root). Raises ConfigError
     for a name ROS would reject."""
@@ -533,6 +538,13 @@ class SilScenario:
         return []
 
     @property
+    def outputs_read(self) -> bool:
+        """Whether anything may read the simulator's outputs for viewers (/tf, sim/markers, sim/*_torque): a
+        recorder, the live view, or a user's tool on a domain they chose. Otherwise the run's domain is its own
+        (process.DomainLock) and nothing can."""
+        return bool(self.bag) or self.foxglove is not None or self.domain_id is not None
+
+    @property
     def n_steps(self) -> float:
         """Controller steps of the run (the slowest satellite's count when their Ts differ)."""
         return self.steps or self.orbits * self.spacecraft.orbit_period / min(s.ts for s in self.satellites)
@@ -607,6 +619,8 @@ class SilScenario:
         for node in self.nodes:
             params = self._spacecraft_params(f"{sat.namespace}/{node}")
             params.update(self.hardware_params.get(node, {}))  # the hardware file's layer (design.hardware)
+            if node == "simulator" and not self.outputs_read:
+                params = {**UNREAD_OUTPUTS_OFF, **params}  # the spacecraft file's simulator section still wins
             if node == "controller":
                 params.update({k: _plain(v) for k, v in sat.gains_params.items()})
             out[node] = {**params, **own[node], **self.node_params.get(node, {})}

@@ -1,5 +1,5 @@
-"""The serialized-message readers of magtune_ros.raw (what the mode manager takes from its raw
-subscriptions): the same numbers as rclpy's own deserialization for every frame_id length (the CDR
+"""The serialized-message readers of magtune_ros.raw (what the sensors, the estimator and the mode
+manager take from their raw subscriptions): the same numbers as rclpy's own deserialization for every frame_id length (the CDR
 alignment of the doubles after the header string), both byte orders, and None, never an exception,
 for bytes that are not such a message."""
 from __future__ import annotations
@@ -35,9 +35,10 @@ def _odometry(frame_id, child, rng):
     p, v = m.pose.pose.position, m.twist.twist.linear
     p.x, p.y, p.z = (float(x) for x in rng.normal(size=3) * 7e6)
     v.x, v.y, v.z = (float(x) for x in rng.normal(size=3) * 7e3)
-    m.pose.pose.orientation.w = 1.0
+    o, a = m.pose.pose.orientation, m.twist.twist.angular
+    o.w, o.x, o.y, o.z = (float(x) for x in rng.normal(size=4))
     m.pose.covariance = [float(x) for x in rng.normal(size=36)]
-    m.twist.twist.angular.z = 0.5
+    a.x, a.y, a.z = (float(x) for x in rng.normal(size=3))
     m.twist.covariance = [float(x) for x in rng.normal(size=36)]
     return m
 
@@ -89,6 +90,8 @@ def test_raw_odometry_and_vector3_stamped_equal_rclpy(ros, frame_id, child):
         m = deser(data, Odometry)
         p, v = m.pose.pose.position, m.twist.twist.linear
         assert c.raw_odometry(data) == (_ns(m.header.stamp), (p.x, p.y, p.z), (v.x, v.y, v.z))
+        o, a = m.pose.pose.orientation, m.twist.twist.angular  # sim/truth as the sensors node reads it
+        assert c.raw_odometry_attitude(data) == (_ns(m.header.stamp), (o.w, o.x, o.y, o.z), (a.x, a.y, a.z))
         s = Vector3Stamped()
         s.header = m.header
         s.vector.x, s.vector.y, s.vector.z = (float(x) for x in rng.normal(size=3))
@@ -118,11 +121,11 @@ def test_raw_readers_refuse_what_is_not_the_message(ros):
 
     odom, vec = ser(_odometry("eci", "eci", np.random.default_rng(1))), ser(Vector3Stamped())
     for n in range(len(odom)):
-        assert c.raw_odometry(odom[:n]) is None
+        assert c.raw_odometry(odom[:n]) is None and c.raw_odometry_attitude(odom[:n]) is None
     for n in range(len(vec)):
         assert c.raw_vector3_stamped(vec[:n]) is None
     assert c.raw_imu(b"\x00\x07" + imu[2:]) is None  # another encapsulation (XCDR2)
     huge = imu[:12] + struct.pack("<I", 2**31) + imu[16:]  # a frame_id longer than the message
     assert c.raw_imu(huge) is None and c.raw_magnetic_field(huge) is None and c.raw_odometry(huge) is None
     child = odom[:20] + struct.pack("<I", 2**31) + odom[24:]  # a huge child_frame_id
-    assert c.raw_odometry(child) is None
+    assert c.raw_odometry(child) is None and c.raw_odometry_attitude(child) is None

@@ -85,3 +85,22 @@ def test_tle_file_reaches_the_nodes_as_its_lines(tmp_path):
         p = SpacecraftParams.from_mapping(params, f"node '{node}'")
         assert p.state0 == sc.spacecraft.state0 and p.epoch == sc.spacecraft.epoch
         assert p.orbit_period == sc.spacecraft.orbit_period and p.orbit_config() == sc.spacecraft.orbit_config()
+
+
+def test_viewer_outputs_only_where_something_can_read_them(tmp_path):
+    """/tf, sim/markers and sim/*_torque: off in a run on its own domain with no bag and no live view, on with
+    any of a bag, the live view, a domain the user chose; the spacecraft file's simulator section wins."""
+    keys = ("publish_tf", "publish_markers", "publish_torques")
+
+    def sim(sc_path=DEFAULT_SPACECRAFT, **kw):
+        sc = SilScenario.build({"": GAINS[0]}, SilRequest(steps=5, spacecraft=sc_path, **kw))
+        p = sc.node_parameters(sc.satellites[0], tmp_path / "r.npz")["simulator"]
+        return tuple(p.get(k, True) for k in keys)  # absent: the node's default (true)
+
+    assert sim() == (False, False, False)
+    assert sim(bag=tmp_path / "bag") == (True, True, True)
+    assert sim(foxglove=0) == (True, True, True)
+    assert sim(domain_id=42) == (True, True, True)
+    own = tmp_path / "spacecraft.yaml"
+    own.write_text(DEFAULT_SPACECRAFT.read_text() + "/**/simulator:\n  ros__parameters:\n    publish_tf: true\n")
+    assert sim(own) == (True, False, False)

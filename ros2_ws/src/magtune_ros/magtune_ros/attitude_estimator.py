@@ -304,11 +304,11 @@ class AttitudeEstimator(ManagedNode):
         if self.sensor_watch is not None:
             self.watch_sensors(ns, out, valid)
         q = self.models.to_orbital(out.state.q, t, r, v)
-        if self.torquer_watch is not None:
+        self.publish(ns, out.state, q, valid)
+        if self.torquer_watch is not None:  # after the estimate: the controller waits for it, not for the watch
             watching, self.torquer_armed = watch_mode(self.mode, self.torquer_armed)
             active = valid and watching and b is not None
             self.watch_torquers(self.commands.sample(ns, (self.w_prev - out.state.b, b, q, active)))
-        self.publish(ns, out.state, q, valid)
 
     def watch_sensors(self, ns, out, valid: bool):
         """The magnetometer and gyro watch (onboard.sensor_watch.SensorWatch) on this sample (in POINTING, or without a

@@ -25,11 +25,13 @@ Publishes (stamp = truth stamp):
                          sun_out_of_fov); covariance sun_noise_std^2 (I - s s^T), not carried
   sensors/position       nav_msgs/Odometry, frame and child 'eci': position fix r [m] and v [m/s] with
                          pose/twist covariance diag(std^2) (rotational entries -1: not measured)
-  /diagnostics           counters: samples, rejected_nonfinite, rejected_quaternion, rejected_stamp,
-                         stale_inputs, sun_samples, sun_eclipse, sun_out_of_fov, faulted_samples, mag_dropped
+  /diagnostics           counters: samples, rejected_malformed, rejected_nonfinite, rejected_quaternion,
+                         rejected_stamp, stale_inputs, sun_samples, sun_eclipse, sun_out_of_fov, faulted_samples, mag_dropped
 Faults (parameter ``faults``, magtune_core.design.faults): the magnetometer and gyro faults act on
 the samples of their sim time (``faults.measure``); a dropped magnetometer sample is not published,
 nor a sun sample while ``sun_loss`` acts (``faults.sun_lost``).
+The inputs are taken serialized (raw subscriptions) and only the fields used are read (magtune_ros.raw):
+building a nav_msgs/Odometry costs 0.13-0.15 ms, more than this node's models (bench/sil_hops.py).
 QoS: magtune_ros.qos.LOCKSTEP_QOS. Noise: one row of design.sensors.NORMALS_PER_STEP standard
 normals per sample from numpy default_rng(seed), drawn only when some noise or bias is set (so
 zero-noise runs pass the truth through bit for bit); sun and position from sensors.aux_rng(seed).
@@ -65,11 +67,12 @@ from magtune_core.design.node_params import FAULTS, SENSOR_FIELDS, check_sensors
 from magtune_core.onboard.params import TORQUER_FIELDS
 from magtune_core.onboard.torquers import Torquers
 
-from .inputs import PairSync, StampGate, finite, sec_to_ns, stamp_to_ns
+from .inputs import PairSync, StampGate, finite, ns_to_stamp, sec_to_ns
 from .lifecycle import ManagedNode
 from .main import run
 from .params import check, param_error, parse_fields
 from .qos import LOCKSTEP_QOS
+from .raw import raw_magnetic_field, raw_odometry, raw_odometry_attitude, raw_vector3_stamped
 
 
 def _cov3(var: float) -> list:
@@ -82,7 +85,7 @@ class AttitudeSensors(ManagedNode):
     NODE_NAME = "attitude_sensors"
 
     def __init__(self):
-        super().__init__(self.NODE_NAME, ["samples", "rejected_nonfinite", "rejected_quaternion", "rejected_stamp",
+        super().__init__(self.NODE_NAME, ["samples", "rejected_malformed", "rejected_nonfinite", "rejected_quaternion", "rejected_stamp",
                                           "stale_inputs", "sun_samples", "sun_eclipse", "sun_out_of_fov", "faulted_samples",
                                           "mag_dropped"])
 
@@ -116,13 +119,13 @@ class AttitudeSensors(ManagedNode):
         self.pub_att = self.data_publisher(Imu, TOPIC_ATTITUDE, LOCKSTEP_QOS)
         self.pub_sun = self.data_publisher(Vector3Stamped, TOPIC_SUN, LOCKSTEP_QOS)
         self.pub_pos = self.data_publisher(Odometry, TOPIC_POSITION, LOCKSTEP_QOS)
-        self.data_subscription(Odometry, TOPIC_TRUTH, self.on_truth, LOCKSTEP_QOS)
-        self.data_subscription(MagneticField, TOPIC_TRUE_FIELD, self.on_field, LOCKSTEP_QOS)
-        self.data_subscription(Vector3Stamped, TOPIC_INERTIAL_RATE, self.on_rate, LOCKSTEP_QOS)
-        self.data_subscription(Odometry, TOPIC_ORBIT, self.on_orbit, LOCKSTEP_QOS)
-        self.data_subscription(Vector3Stamped, TOPIC_TRUE_SUN, self.on_sun, LOCKSTEP_QOS)
+        self.data_subscription(Odometry, TOPIC_TRUTH, self.on_truth, LOCKSTEP_QOS, raw=True)
+        self.data_subscription(MagneticField, TOPIC_TRUE_FIELD, self.on_field, LOCKSTEP_QOS, raw=True)
+        self.data_subscription(Vector3Stamped, TOPIC_INERTIAL_RATE, self.on_rate, LOCKSTEP_QOS, raw=True)
+        self.data_subscription(Odometry, TOPIC_ORBIT, self.on_orbit, LOCKSTEP_QOS, raw=True)
+        self.data_subscription(Vector3Stamped, TOPIC_TRUE_SUN, self.on_sun, LOCKSTEP_QOS, raw=True)
         if self.coupled:
-            self.data_subscription(MagneticField, TOPIC_TORQUER_FIELD, self.on_torquer_field, LOCKSTEP_QOS)
+            self.data_subscription(MagneticField, TOPIC_TORQUER_FIELD, self.on_torquer_field, LOCKSTEP_QOS, raw=True)
 
     def make_messages(self):
         """Preallocated messages with their frames and (constant) covariances."""
@@ -147,90 +150,96 @@ class AttitudeSensors(ManagedNode):
         self.msg_pos.twist.covariance = np.diag([v2, v2, v2, -1.0, -1.0, -1.0]).ravel().tolist()
 
     # ---------------------------------------------------------------- inputs
-    def on_truth(self, msg: Odometry):
-        """sim/truth: rejects and counts a non-finite state or a non-unit quaternion; else stamp-gated and paired for both measurement sets."""
-        o, w = msg.pose.pose.orientation, msg.twist.twist.angular
-        if not finite(o.w, o.x, o.y, o.z, w.x, w.y, w.z):
+    def on_truth(self, data: bytes):
+        """sim/truth (raw): rejects and counts a malformed message, a non-finite state or a non-unit quaternion; else
+        stamp-gated and paired for both measurement sets."""
+        f = raw_odometry_attitude(data)
+        if f is None:
+            return self.diag.count("rejected_malformed", "malformed sim/truth message")
+        ns, q, w = f
+        if not finite(*q, *w):
             return self.diag.count("rejected_nonfinite", "non-finite truth state")
-        if abs(math.sqrt(o.w * o.w + o.x * o.x + o.y * o.y + o.z * o.z) - 1.0) > 1e-6:
+        if abs(math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]) - 1.0) > 1e-6:
             return self.diag.count("rejected_quaternion", "truth quaternion not unit")
-        if self._accept(1, msg):
-            self._pair(self.sync, 1, msg, self.publish)
-            self._pair(self.sync_orbit, 0, msg, self.publish_orbit)
+        if self._accept(1, ns):
+            self._pair(self.sync, 1, ns, q, self.publish)
+            self._pair(self.sync_orbit, 0, ns, q, self.publish_orbit)
 
-    def on_rate(self, msg: Vector3Stamped):
-        """sim/inertial_rate (the gyro's input): rejects and counts a non-finite rate; else stamp-gated and paired by stamp."""
-        w = msg.vector
-        if not finite(w.x, w.y, w.z):
-            return self.diag.count("rejected_nonfinite", "non-finite inertial rate")
-        if self._accept(2, msg):
-            self._pair(self.sync, 2, msg, self.publish)
+    def on_rate(self, data: bytes):
+        """sim/inertial_rate (raw; the gyro's input): rejects and counts a malformed message or a non-finite rate; else stamp-gated
+        and paired by stamp."""
+        self._vector(data, 2, self.sync, 2, self.publish, "inertial rate")
 
-    def on_field(self, msg: MagneticField):
-        """sim/magnetic_field (the magnetometer's input): rejects and counts a non-finite field; else stamp-gated and paired by stamp."""
-        b = msg.magnetic_field
-        if not finite(b.x, b.y, b.z):
-            return self.diag.count("rejected_nonfinite", "non-finite true field")
-        if self._accept(0, msg):
-            self._pair(self.sync, 0, msg, self.publish)
+    def on_field(self, data: bytes):
+        """sim/magnetic_field (raw; the magnetometer's input): rejects and counts a malformed message or a non-finite field; else
+        stamp-gated and paired by stamp."""
+        self._vector(data, 0, self.sync, 0, self.publish, "true field", raw_magnetic_field)
 
-    def on_torquer_field(self, msg: MagneticField):
-        """sim/torquer_field (coupled torquers only): rejects and counts a non-finite field; else stamp-gated and paired, added to
-        the field the magnetometer reads."""
-        b = msg.magnetic_field
-        if not finite(b.x, b.y, b.z):
-            return self.diag.count("rejected_nonfinite", "non-finite torquer field")
-        if self._accept(5, msg):
-            self._pair(self.sync, 3, msg, self.publish)
+    def on_torquer_field(self, data: bytes):
+        """sim/torquer_field (raw; coupled torquers only): rejects and counts a malformed message or a non-finite field; else
+        stamp-gated and paired, added to the field the magnetometer reads."""
+        self._vector(data, 5, self.sync, 3, self.publish, "torquer field", raw_magnetic_field)
 
-    def on_orbit(self, msg: Odometry):
-        """sim/orbit (full environment): rejects and counts a non-finite r, v; else stamp-gated and paired with truth and Sun for the
-        sun sensor and the position fix."""
-        p, v = msg.pose.pose.position, msg.twist.twist.linear
-        if not finite(p.x, p.y, p.z, v.x, v.y, v.z):
+    def on_orbit(self, data: bytes):
+        """sim/orbit (raw; full environment): rejects and counts a malformed message or a non-finite r, v; else stamp-gated and
+        paired with truth and Sun for the sun sensor and the position fix."""
+        f = raw_odometry(data)
+        if f is None:
+            return self.diag.count("rejected_malformed", "malformed sim/orbit message")
+        ns, r, v = f
+        if not finite(*r, *v):
             return self.diag.count("rejected_nonfinite", "non-finite orbit state")
-        if self._accept(3, msg):
-            self._pair(self.sync_orbit, 1, msg, self.publish_orbit)
+        if self._accept(3, ns):
+            self._pair(self.sync_orbit, 1, ns, (r, v), self.publish_orbit)
 
-    def on_sun(self, msg: Vector3Stamped):
-        """sim/sun (full environment): rejects and counts a non-finite or zero Sun position; else stamp-gated and paired with truth and orbit."""
-        u = msg.vector
-        if not finite(u.x, u.y, u.z) or u.x == u.y == u.z == 0.0:
+    def on_sun(self, data: bytes):
+        """sim/sun (raw; full environment): rejects and counts a malformed message or a non-finite or zero Sun position; else
+        stamp-gated and paired with truth and orbit."""
+        f = raw_vector3_stamped(data)
+        if f is not None and f[1] == (0.0, 0.0, 0.0):
             return self.diag.count("rejected_nonfinite", "non-finite or zero Sun position")
-        if self._accept(4, msg):
-            self._pair(self.sync_orbit, 2, msg, self.publish_orbit)
+        self._vector(data, 4, self.sync_orbit, 2, self.publish_orbit, "Sun position", parsed=f)
 
-    def _accept(self, slot, msg) -> bool:
-        bad = self.gate.check(slot, stamp_to_ns(msg.header.stamp))
+    def _vector(self, data, gate_slot, sync, slot, then, what, reader=raw_vector3_stamped, parsed=None):
+        """A stamped 3-vector input: malformed or non-finite counted, else stamp-gated and paired."""
+        f = parsed if parsed is not None else reader(data)
+        if f is None:
+            return self.diag.count("rejected_malformed", f"malformed {what} message")
+        ns, u = f
+        if not finite(*u):
+            return self.diag.count("rejected_nonfinite", f"non-finite {what}")
+        if self._accept(gate_slot, ns):
+            self._pair(sync, slot, ns, u, then)
+
+    def _accept(self, slot, ns: int) -> bool:
+        bad = self.gate.check(slot, ns)
         if bad:
             self.diag.count(*bad)
         return not bad
 
     @staticmethod
-    def _pair(sync, slot, msg, then):
-        pair = sync.add(slot, stamp_to_ns(msg.header.stamp), msg)
+    def _pair(sync, slot, ns, value, then):
+        pair = sync.add(slot, ns, value)
         if pair:
-            then(*pair)
+            then(ns, *pair)
 
     # ---------------------------------------------------------------- outputs
-    def publish(self, field: MagneticField, truth: Odometry, rate: Vector3Stamped, torquer: MagneticField = None):
-        """Magnetometer, gyro and attitude of t_k (one row of normals when anything is noisy)."""
-        su, stamp = self.suite, truth.header.stamp
-        f, o, w = field.magnetic_field, truth.pose.pose.orientation, rate.vector
+    def publish(self, ns: int, field, q_true, rate, torquer=None):
+        """Magnetometer, gyro and attitude of t_k = ``ns`` from the true field, attitude (w, x, y, z) and inertial rate (one row
+        of normals when anything is noisy)."""
+        su, stamp = self.suite, ns_to_stamp(ns)
         n = s.draw(self.rng) if su.noisy else np.zeros(s.NORMALS_PER_STEP)
-        b_at = np.array([f.x, f.y, f.z])
+        b_at = np.array(field)
         if torquer is not None:  # the field at the magnetometer: the geomagnetic one plus the torquers'
-            g = torquer.magnetic_field
-            b_at = b_at + np.array([g.x, g.y, g.z])
+            b_at = b_at + np.array(torquer)
         b = s.magnetometer(su.magnetometer, b_at, n[s.MAG])
-        wm, beta = s.gyro(su.gyro, [[w.x, w.y, w.z]], su.ts, self.beta, n[None, s.GYRO_V], n[None, s.GYRO_U])
+        wm, beta = s.gyro(su.gyro, [rate], su.ts, self.beta, n[None, s.GYRO_V], n[None, s.GYRO_U])
         self.beta = beta[-1]
-        q = s.noisy_attitude([o.w, o.x, o.y, o.z], su.attitude_std, n[s.ATT])
+        q = s.noisy_attitude(list(q_true), su.attitude_std, n[s.ATT])
         w_out = wm[0]
         if self.faults:
             b0, w0 = b, w_out
-            b, w_out, self.fault_state = fl.measure(self.faults, stamp_to_ns(stamp) * 1e-9, su.ts, b, w_out,
-                                                    self.fault_state)
+            b, w_out, self.fault_state = fl.measure(self.faults, ns * 1e-9, su.ts, b, w_out, self.fault_state)
             if b is None or np.any(b != b0) or np.any(w_out != w0):
                 self.diag.count("faulted_samples")
         m, imu, att = self.msg_mag, self.msg_imu, self.msg_att
@@ -250,13 +259,12 @@ class AttitudeSensors(ManagedNode):
         self.pub_att.publish(att)
         self.pub_imu.publish(imu)
 
-    def publish_orbit(self, truth: Odometry, orbit: Odometry, sun: Vector3Stamped):
-        """Sun sensor (when lit and in view) and position fix of t_k."""
-        su, stamp = self.suite, truth.header.stamp
-        o, p, v, u = truth.pose.pose.orientation, orbit.pose.pose.position, orbit.twist.twist.linear, sun.vector
-        r, vel, sun_eci = np.array([p.x, p.y, p.z]), np.array([v.x, v.y, v.z]), np.array([u.x, u.y, u.z])
+    def publish_orbit(self, ns: int, q_true, orbit, sun):
+        """Sun sensor (when lit and in view) and position fix of t_k = ``ns`` from the true attitude, orbit (r, v) and Sun (ECI)."""
+        su, stamp = self.suite, ns_to_stamp(ns)
+        r, vel, sun_eci = np.array(orbit[0]), np.array(orbit[1]), np.array(sun)
         n = s.draw(self.aux, width=s.AUX_NORMALS)
-        s_true = s.sun_direction_body([o.w, o.x, o.y, o.z], r, vel, sun_eci)
+        s_true = s.sun_direction_body(list(q_true), r, vel, sun_eci)
         lit = s.illuminated(r, sun_eci)
         s_m, valid, _ = s.sun_sensor(su.sun, s_true, lit, n[s.SUN])
         rm, vm = s.position_fix(su.position, r, vel, n[s.FIX])
@@ -268,7 +276,7 @@ class AttitudeSensors(ManagedNode):
         self.pub_pos.publish(pos)
         if not valid:
             return self.diag.count("sun_out_of_fov" if lit else "sun_eclipse")
-        if self.faults and fl.sun_lost(self.faults, stamp_to_ns(stamp) * 1e-9):  # injected: nothing comes out
+        if self.faults and fl.sun_lost(self.faults, ns * 1e-9):  # injected: nothing comes out
             return self.diag.count("faulted_samples")
         m = self.msg_sun
         m.header.stamp = stamp

@@ -28,10 +28,11 @@ Publishes:
   controller/dipole_command  geometry_msgs/Vector3Stamped [A m^2], stamped with the input stamp;
                              one per input pair; recomputed every ``ts`` of sim time, held between.
   /diagnostics  counters: samples, commands, weak_field, saturated, rejected_nonfinite, rejected_implausible,
-                rejected_quaternion, rejected_stamp, stale_inputs, stale_data, mode_changes, rejected_mode,
+                rejected_quaternion, rejected_malformed, rejected_stamp, stale_inputs, stale_data, mode_changes, rejected_mode,
                 no_attitude, no_field, late_field;
                 state (lifecycle), mode
-Inputs are paired by identical stamps. Bad inputs are rejected with a logged reason and
+The two sensor inputs are taken serialized and only the fields used are read (magtune_ros.raw: building the
+messages cost more than the law). Inputs are paired by identical stamps. Bad inputs are rejected with a logged reason and
 counted; |b| < min_field gives a zero dipole (counted as weak_field); if no valid input for
 more than 2 ts of sim time, the held dipole is zeroed (stale_data).
 
@@ -75,6 +76,7 @@ from .lifecycle import ManagedNode
 from .main import run
 from .params import check_ts, declare_overrides, from_schema, param_error, parse_fields
 from .qos import LOCKSTEP_QOS, MODE_QOS
+from .raw import raw_imu, raw_magnetic_field
 
 #: Largest plausible magnetometer reading per axis [T]: the geomagnetic field is below 7e-5 T,
 #: the spacecraft schema bounds constant_field the same way; a larger (finite) value is rejected
@@ -89,8 +91,8 @@ class Controller(ManagedNode):
 
     def __init__(self):
         super().__init__(self.NODE_NAME, ["samples", "commands", "weak_field", "saturated", "rejected_nonfinite",
-                                          "rejected_implausible", "rejected_quaternion", "rejected_stamp",
-                                          "stale_inputs", "stale_data", "mode_changes", "rejected_mode", "no_attitude",
+                                          "rejected_implausible", "rejected_quaternion", "rejected_malformed",
+                                          "rejected_stamp", "stale_inputs", "stale_data", "mode_changes", "rejected_mode", "no_attitude",
                                           "no_field", "late_field"])
         self.m = np.zeros(3)
         self.last_input_ns = None
@@ -140,8 +142,8 @@ class Controller(ManagedNode):
         self.m = np.zeros(3)
         self.pub = self.data_publisher(Vector3Stamped, TOPIC_DIPOLE, LOCKSTEP_QOS)
         self.data_subscription(Mode, TOPIC_MODE, self.on_mode, MODE_QOS)
-        self.data_subscription(MagneticField, TOPIC_MAG, self.on_mag, LOCKSTEP_QOS)
-        self.data_subscription(Imu, TOPIC_ATTITUDE, self.on_attitude, LOCKSTEP_QOS)
+        self.data_subscription(MagneticField, TOPIC_MAG, self.on_mag, LOCKSTEP_QOS, raw=True)
+        self.data_subscription(Imu, TOPIC_ATTITUDE, self.on_attitude, LOCKSTEP_QOS, raw=True)
 
     # ---------------------------------------------------------------- inputs
     def on_mode(self, msg: Mode):
@@ -156,38 +158,45 @@ class Controller(ManagedNode):
             self.mode = mode
         self.diag.extra["mode"] = mode
 
-    def on_mag(self, msg: MagneticField):
-        """sensors/magnetic_field: rejects and counts a non-finite or implausible (> MAX_FIELD) field; else stamp-gated and paired."""
-        self.field_seen_ns = max(self.field_seen_ns, stamp_to_ns(msg.header.stamp))
-        b = msg.magnetic_field
-        if not finite(b.x, b.y, b.z):
+    def on_mag(self, data: bytes):
+        """sensors/magnetic_field (raw): rejects and counts a malformed message or a non-finite or implausible (> MAX_FIELD) field;
+        else stamp-gated and paired."""
+        f = raw_magnetic_field(data)
+        if f is None:
+            return self.diag.count("rejected_malformed", "malformed sensors/magnetic_field message")
+        ns, b = f
+        self.field_seen_ns = max(self.field_seen_ns, ns)
+        if not finite(*b):
             return self.diag.count("rejected_nonfinite", "non-finite magnetic field")
-        if max(abs(b.x), abs(b.y), abs(b.z)) > MAX_FIELD:  # e.g. 1e308 T: finite, not physical
+        if max(abs(b[0]), abs(b[1]), abs(b[2])) > MAX_FIELD:  # e.g. 1e308 T: finite, not physical
             return self.diag.count("rejected_implausible", f"|b| component above {MAX_FIELD:g} T")
-        self._input(0, msg)
+        self._input(0, ns, b)
 
-    def on_attitude(self, msg: Imu):
-        """sensors/attitude: rejects and counts a non-finite attitude/rate or a quaternion norm off 1 by > 1e-3; else stamp-gated and paired."""
-        o, w = msg.orientation, msg.angular_velocity
-        if not finite(o.w, o.x, o.y, o.z, w.x, w.y, w.z):
+    def on_attitude(self, data: bytes):
+        """sensors/attitude (raw): rejects and counts a malformed message, a non-finite attitude/rate or a quaternion norm off 1 by
+        > 1e-3; else stamp-gated and paired (orientation_covariance[0] = -1: no attitude yet, REP-145)."""
+        f = raw_imu(data)
+        if f is None:
+            return self.diag.count("rejected_malformed", "malformed sensors/attitude message")
+        ns, q, w, known = f
+        if not finite(*q, *w):
             return self.diag.count("rejected_nonfinite", "non-finite attitude/rate")
-        if abs(math.sqrt(o.w * o.w + o.x * o.x + o.y * o.y + o.z * o.z) - 1.0) > 1e-3:
+        if abs(math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]) - 1.0) > 1e-3:
             return self.diag.count("rejected_quaternion", "attitude quaternion norm differs from 1 by > 1e-3")
-        self._input(1, msg)
+        self._input(1, ns, (q, w, known))
 
-    def _input(self, slot, msg):
+    def _input(self, slot, ns, value):
         if self.diag.extra.get("state") != "active":
             # a message the executor hands over after a peer's deactivate destroyed the topics: dropped (its command
             # would go to the destroyed publisher, which raises and ended the node)
             return
-        ns = stamp_to_ns(msg.header.stamp)
         bad = self.gate.check(slot, ns)
         if bad:
             return self.diag.count(*bad)
         if slot == 0 and self.answered_ns is not None and ns <= self.answered_ns:
             return self.diag.count("late_field", f"field of t={ns * 1e-9:.3f} s came after its sample was answered "
                                                  "without it: dropped")
-        pair = self.sync.add(slot, ns, msg)
+        pair = self.sync.add(slot, ns, value)
         if pair:
             self.command(ns, *pair)
         elif slot == 1 and self.answered_ns is not None and self.field_seen_ns < ns:
@@ -202,19 +211,19 @@ class Controller(ManagedNode):
         self.answered_ns = ns
         self.publish(ns)
 
-    def command(self, ns, mag: MagneticField, att: Imu):
-        """A stamp-paired sample: recompute the dipole with the mode's law when a sample period ``ts`` is due (else hold it), then
-        publish it stamped ``ns``."""
+    def command(self, ns, b, att):
+        """A stamp-paired sample (the field ``b`` and ``att`` = (q, rate, attitude known)): recompute the dipole with the mode's
+        law when a sample period ``ts`` is due (else hold it), then publish it stamped ``ns``."""
         self.last_input_ns = self.answered_ns = ns
         if self.next_sample_ns is None or ns >= self.next_sample_ns:
-            o, w, b = att.orientation, att.angular_velocity, mag.magnetic_field
-            bv = np.array([b.x, b.y, b.z])
+            q, w, known = att
+            bv = np.array(b)
             self.fstate, bdot = self.filter.step(self.fstate, bv)  # every sample: warm when DETUMBLE starts
-            if self.mode in (ACQUISITION, POINTING) and att.orientation_covariance[0] < 0:
+            if self.mode in (ACQUISITION, POINTING) and not known:
                 self.m = np.zeros(3)  # no attitude yet (the estimator before its coarse fix): torquers off
                 self.diag.count("no_attitude")
             elif self.mode in (ACQUISITION, POINTING):
-                x = linear_state((o.w, o.x, o.y, o.z), (w.x, w.y, w.z), self.w0)
+                x = linear_state(q, w, self.w0)
                 out = self.law(x, bv)
                 self.m = self.torquers.drive(out.m, self.ts)
                 if out.weak_field:

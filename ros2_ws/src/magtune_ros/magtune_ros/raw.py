@@ -22,6 +22,9 @@ _UINT = {o: struct.Struct(o + "I") for o in "<>"}
 #: twist linear x y z
 _ODOM = {o: struct.Struct(o + "3d32x288x3d") for o in "<>"}
 _ODOM_SIZE = 24 + 32 + 288 + 24 + 24 + 288  # pose .. twist covariance [bytes]
+#: nav_msgs/Odometry after child_frame_id: position skipped, orientation x y z w, 36 covariances and twist linear
+#: skipped, twist angular x y z
+_ODOM_ATT = {o: struct.Struct(o + "24x4d288x24x3d") for o in "<>"}
 
 
 def _raw_header(data: bytes, strings: int = 0):
@@ -79,3 +82,14 @@ def raw_odometry(data: bytes):
     order, ns, at = h
     px, py, pz, vx, vy, vz = _ODOM[order].unpack_from(data, at)
     return ns, (px, py, pz), (vx, vy, vz)
+
+
+def raw_odometry_attitude(data: bytes):
+    """(stamp [ns], pose orientation (qw, qx, qy, qz), twist angular (x, y, z)) of a serialized
+    nav_msgs/Odometry (sim/truth: attitude and relative rate), or None if malformed."""
+    h = _raw_header(data, strings=1)
+    if h is None or len(data) < h[2] + _ODOM_SIZE:
+        return None
+    order, ns, at = h
+    x, y, z, w, ax, ay, az = _ODOM_ATT[order].unpack_from(data, at)
+    return ns, (w, x, y, z), (ax, ay, az)

@@ -342,12 +342,12 @@ class Simulator(Node):
             self.pub_tqf.publish(g)
         if self.pub_orbit is not None:
             self.publish_orbit(k, stamp)
-        if self.pub_tf is not None:
-            self.publish_tf(k, stamp, o)
         # /clock right after the step's data: the nodes' clock callbacks then run off the
         # lockstep critical path (their inputs are accepted up to 2 Ts from their clock)
         self.msg_clock.clock = stamp
         self.pub_clock.publish(self.msg_clock)
+        if self.pub_tf is not None:  # for viewers only: after what the chain waits for
+            self.publish_tf(k, stamp, o)
 
     def on_command(self, msg: Vector3Stamped):
         """controller/dipole_command: rejects and counts non-finite, out-of-order, future and (lockstep) late commands; saturates and
@@ -401,8 +401,6 @@ class Simulator(Node):
                 self.publish_markers(k, m)
             self.finish_run()
             return
-        if self.pub_markers is not None:
-            self.publish_markers(k, m)
         S = self.rule.at(self.y)
         self.y = self.dyn.step(k * self.ts, self.y, self.ts, m, S, self.weights[S])
         self.m_last = m
@@ -422,8 +420,12 @@ class Simulator(Node):
                 # outran a 1 s recorder flush by 60 steps at rtf 20 (tests/ros/test_faults.py)
                 self.pace0 -= lag
         self.publish_state()
-        if self.pub_torques:  # torques of the step just applied, off the lockstep critical path
+        # the torques and markers of the step just applied, off the lockstep critical path (bench/sil_hops.py:
+        # a MarkerArray costs 0.16-0.24 ms to publish, more than the three messages the sensors wait for)
+        if self.pub_torques:
             self.publish_torques(k, m)
+        if self.pub_markers is not None:
+            self.publish_markers(k, m)
 
     # ---------------------------------------------------------------- visualization
     def _make_tf(self) -> TFMessage:
