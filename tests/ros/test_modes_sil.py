@@ -95,6 +95,18 @@ def test_lifecycle_state_and_set_mode_while_running(gains60, tmp_path):
             ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
             ex.add_node(node)
 
+            from rclpy.qos import QoSProfile, ReliabilityPolicy
+            from rosgraph_msgs.msg import Clock
+
+            clock = [-1.0]
+            node.create_subscription(Clock, "/clock", lambda m: clock.__setitem__(0, m.clock.sec + m.clock.nanosec * 1e-9),
+                                     QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+            # the run must be flying before SAFE is asked: the controller is active before the simulator's first step,
+            # and a SAFE before it left the dipole zero from step 0 (seen once on a loaded CI machine)
+            end = time.monotonic() + 60.0
+            while clock[0] < 30.0 and time.monotonic() < end:
+                ex.spin_once(timeout_sec=0.02)
+
             def call(srv, name, req, timeout=20.0):
                 cli = node.create_client(srv, name)
                 assert cli.wait_for_service(timeout_sec=timeout), name
@@ -121,13 +133,14 @@ def test_lifecycle_state_and_set_mode_while_running(gains60, tmp_path):
                 os.environ["ROS_DOMAIN_ID"] = old
 
     # paced at 150x (20 s of wall time): the probe's discovery and three service calls must land before the end even when the
-    # suite's other worker loads the machine (at 300x it missed the run once under `pytest -n 2`)
+    # suite's other worker loads the machine
     run = sil.run_sil(gains60, steps=3000, ts=1.0, modes=True, initial_mode=POINTING, real_time_factor=150.0,
                       log_dir=tmp_path, timeout=120, on_start=on_start)
     assert seen["state"] == "active"
     assert not seen["bad"].success and seen["bad"].mode == 2 and "unknown mode id 7" in seen["bad"].message
     assert seen["safe"].success and seen["safe"].mode == 3
     moving = np.nonzero(np.any(run.result.m != 0.0, axis=1))[0]
+    assert len(moving), "the dipole was zero from the first step: SAFE came before the run flew"
     # sticky: zero from the first SAFE sample to the end (the default logic's recovery would leave after 10 s
     # and fly B-dot); the request comes within the first seconds of wall time, hundreds of steps before the end
     assert len(moving) and len(run.result.m) - 1 - moving[-1] >= 100, (moving[-1], len(run.result.m))
