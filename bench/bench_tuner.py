@@ -9,7 +9,10 @@ Prints, with the machine's load average (the machine is shared: read every time 
    the gain's resolved Magnus steps (``design.resolution``: 64 for the paper-method gain, the
    issue's reference point; 256 for the stiff optimum shipped since), the discretization error of
    each against 4x the resolved steps, and the per-gain time in a batch of 500 gains
-   (HinfObjective, one process and ``--workers`` processes) at the resolved steps;
+   (HinfObjective, one process and ``--workers`` processes) at the resolved steps; next to it the
+   hard requirements' cost for a population of 8 gains at Ts = 1 s: the held loop's spectral radius
+   and the dipole budget's peak (``design.dipole``, the design spec's case; exact and with the
+   screen's early exit);
 2. per method, sigma and seed: evaluations and wall time until the best J is within 1 % and
    0.2 % of the best known J (the shipped gains' J; with ``--gain-margin 0``, the unconstrained
    problem, also the issue's values below), the
@@ -30,12 +33,14 @@ from pathlib import Path
 import numpy as np
 
 from magtune_core.design.cmaes import CmaSettings, tune_cma
+from magtune_core.design.dipole import peak_dipole
 from magtune_core.design.gains import load_gains
 from magtune_core.design.lq import lq_gain
 from magtune_core.design.model import AttitudeLTP
 from magtune_core.design.objective import HinfObjective
 from magtune_core.design.params import SpacecraftParams
 from magtune_core.design.problem import performance_system
+from magtune_core.design.requirements import load_requirements, spacecraft_dipole_limit
 from magtune_core.design.sampled import HoldConstraint, SampledLoop, feasible_start
 from magtune_core.design.tuner import TunerSettings, tune
 from magtune_core.ltp import hinfnorm
@@ -119,12 +124,40 @@ def bench_norm(model, sigma, workers, path):
     print(f"\nHold constraint at Ts = 1 s ({loop.intervals} intervals): build {1e3 * t_build:.0f} ms once; "
           f"a population of 8 gains {1e3 * t_pop:.1f} ms compiled ({1e3 * t_pop / 8:.2f} ms/gain), the same product "
           f"in batched numpy {1e3 * t_np:.0f} ms: ratio {t_np / t_pop:.1f} ({load()})")
+    bench_dipole(loop, Ks[:8])
     if workers > 1:
         with HinfObjective(model, sigma, steps=r, rtol=1e-4, workers=workers) as obj:
             obj(Ks[:2 * workers])  # start the workers
             t = time.perf_counter()
             obj(Ks, guess=ref, spread=1.05)
             print(f"batch of 500, {r} steps, {workers} processes: {1e3 * (time.perf_counter() - t) / len(Ks):.1f} ms/gain ({load()})")
+
+
+def median_ms(f, reps: int = 5) -> float:
+    """Median wall time of ``f()`` over ``reps`` calls after one untimed call (compile / load cached kernels) [ms]."""
+    f()
+    ts = []
+    for _ in range(reps):
+        t = time.perf_counter()
+        f()
+        ts.append(time.perf_counter() - t)
+    return 1e3 * float(np.median(ts))
+
+
+def bench_dipole(loop, pop):
+    """The dipole budget's cost (design/dipole.py, the feasibility screen's costliest check) for one population
+    at the loop's Ts with the design spec's case (config/design.yaml, the spacecraft's limit), exact and with the
+    screen's early exit at the budget, next to the held-loop spectral radius of the same population."""
+    req = load_requirements(ROOT / "config/design.yaml", spacecraft_dipole_limit(ROOT / "config/spacecraft.yaml"))
+    case = req.dipole_case()
+    t_rho = median_ms(lambda: loop.spectral_radius(pop))
+    t_exact = median_ms(lambda: peak_dipole(loop, pop, case))
+    t_screen = median_ms(lambda: peak_dipole(loop, pop, case, stop_above=req.dipole_budget))
+    over = int(np.sum(peak_dipole(loop, pop, case).max(axis=-1) > req.dipole_budget))
+    steps = int(round(case.orbits * loop.intervals))
+    print(f"Dipole peak at Ts = {loop.ts:.4g} s ({case.orbits:g} orbits, {steps} steps; the design spec's case): a population "
+          f"of {len(pop)} gains {t_exact:.1f} ms exact, {t_screen:.1f} ms with the screen's early exit at {req.dipole_budget:g} A m^2 "
+          f"({over} of {len(pop)} above); held-loop spectral radius {t_rho:.1f} ms (medians of 5; {load()})")
 
 
 def run_method(model, sigma, method, seed, max_evals, workers, max_seconds=None, hold=None):

@@ -21,11 +21,17 @@ Conventions (docs/numerics.md, tested in tests/design/test_objective.py):
 The parts of a population go to the local worker pool or, given an ``executor`` (e.g. a Dask
 cluster's, built by ``studies.cluster``), to it; the split is the same for the same number of
 parts, and each gain's J does not depend on where it is computed, so a tune on a cluster of N
-workers gives the gain of a local ``workers=N`` tune with the same seed.
+workers gives the gain of a local ``workers=N`` tune with the same seed. The objective's
+constants (models and screens: 7 MB pickled under the default design spec, mostly the held
+loops' interval maps) reach each worker once, when it starts (the local pool's initializer;
+an executor's ``share``), not with every part: sent with every part they cost ~13 ms of a
+~85-ms generation of the tuner (bench/README.md).
 """
 from __future__ import annotations
 
+import uuid
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -48,6 +54,30 @@ def one_thread_per_worker() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     threadpool_limits(limits=1)
     numba.set_num_threads(1)
+
+
+#: The constants of the objectives whose pool this worker process belongs to, by key; filled only in
+#: pool workers, by :func:`_start_worker` (a read-only cache of what the parent sent at start).
+_IN_WORKER: dict = {}
+
+
+@dataclass(frozen=True)
+class _WorkerConstants:
+    """Stands for an objective's (models, screens) in a job sent to its local pool: the workers
+    received them when they started (:func:`_start_worker`), so a part carries only this key."""
+
+    key: str
+
+
+def _start_worker(key: str, shared) -> None:
+    """Local pool initializer: :func:`one_thread_per_worker`, then keep the objective's constants."""
+    one_thread_per_worker()
+    _IN_WORKER[key] = shared
+
+
+def _constants(shared):
+    """(models, screens) of a job: as sent, or this worker's copy when a key was sent."""
+    return _IN_WORKER[shared.key] if isinstance(shared, _WorkerConstants) else shared
 
 
 def model_feasible(model: AttitudeLTP, Ks: np.ndarray, steps: int, hold=None) -> np.ndarray:
@@ -133,8 +163,8 @@ def model_norms(model: AttitudeLTP, sigma: float, Ks: np.ndarray, steps: int, rt
 
 def _norms_job(shared, sigma, Ks, steps, rtol, guess, spread):
     """Worker body: the (n, n_models) matrix of norms of one slice of the population; ``shared`` =
-    (models, their screens or None), the objective's constants."""
-    models, holds = shared
+    (models, their screens or None), the objective's constants (or their key, :func:`_constants`)."""
+    models, holds = _constants(shared)
     cols = [model_norms(m, sigma, Ks, steps, rtol, None if guess is None else guess[:, i], spread,
                         None if holds is None else holds[i])
             for i, m in enumerate(models)]
@@ -144,7 +174,7 @@ def _norms_job(shared, sigma, Ks, steps, rtol, guess, spread):
 def _feasible_job(shared, Ks, steps):
     """Worker body of :meth:`HinfObjective.feasible`: every model's screen, in turn, on the gains
     still feasible (n,)."""
-    models, holds = shared
+    models, holds = _constants(shared)
     ok = np.ones(len(Ks), dtype=bool)
     for i, m in enumerate(models):
         if ok.any():
@@ -193,7 +223,7 @@ class HinfObjective:
         self.executor = executor
         self.workers = max(1, int(executor.workers if executor is not None else workers))
         self.evaluations = 0
-        self._pool = None
+        self._pool, self._key = None, None
         self.hold = hold
         self._holds = None if hold is None else [hold.screen(m) for m in self.models]
         self._shared = (self.models, self._holds)
@@ -217,12 +247,15 @@ class HinfObjective:
         if self.executor is not None:
             return self.executor
         if self._pool is None:
-            self._pool = worker_pool(self.workers, initializer=one_thread_per_worker)
+            self._key = uuid.uuid4().hex
+            self._pool = worker_pool(self.workers, initializer=_start_worker, initargs=(self._key, self._shared))
         return self._pool
 
     def _shared_handle(self):
-        """(models, screens) as the pool's jobs take them: as is for the local pool, the executor's
-        handle (sent once) when it shares."""
+        """(models, screens) as the pool's jobs take them: their key for the local pool (each worker
+        has them from its start), the executor's handle (sent once) when it shares, else as is."""
+        if self.executor is None:
+            return _WorkerConstants(self._key)
         share = getattr(self.executor, "share", None)
         if share is None:
             return self._shared

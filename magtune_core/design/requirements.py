@@ -402,9 +402,9 @@ class FlightScreen:
             for g, rho in hold_ends(self.gain_margin, self.max_multiplier):
                 if ok.any():
                     ok[ok] = loop.spectral_radius(g * Ks[ok]) < rho
-        for loop in self.dipole_loops:
+        for loop in self.dipole_loops:  # a gain may stop once above the budget: only the verdict is used
             if ok.any():
-                ok[ok] = peak_dipole(loop, Ks[ok], self.case).max(axis=-1) <= self.budget
+                ok[ok] = peak_dipole(loop, Ks[ok], self.case, stop_above=self.budget).max(axis=-1) <= self.budget
         return ok
 
     def checks(self, K) -> list:

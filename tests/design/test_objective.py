@@ -79,3 +79,18 @@ def test_workers_give_the_same_values(population):
     with HinfObjective(model, SIGMA, steps=8, rtol=1e-8, workers=2) as obj:
         two = obj(Ks)
     assert np.array_equal(one, two)  # same arithmetic on each slice
+
+
+def test_pool_workers_hold_the_constants(population):
+    """The local pool's parts carry a key, not the models and screens (sent once per worker when it
+    starts: 7 MB per part under the default design spec), and give the values of one process."""
+    import pickle
+
+    model, Ks = population
+    with HinfObjective(model, SIGMA, steps=8, rtol=1e-8, workers=2) as obj:
+        two = obj(Ks)
+        handle = obj._shared_handle()
+        assert len(pickle.dumps(handle)) < 200 < len(pickle.dumps(obj._shared))
+        again = obj(Ks)
+    assert np.array_equal(two, again)
+    assert np.array_equal(two, HinfObjective(model, SIGMA, steps=8, rtol=1e-8)(Ks))
