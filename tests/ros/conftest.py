@@ -44,3 +44,14 @@ def gains60(tmp_path_factory):
     path = tmp_path_factory.mktemp("gains") / "sigma_60.yaml"
     save_gains(path, lq_gains(AttitudeLTP.from_params(SpacecraftParams()), 60.0, 1.0))
     return path
+
+
+@pytest.fixture
+def domain(monkeypatch):
+    """A free ROS_DOMAIN_ID, locked for the test; the test process discovers on LOCALHOST only."""
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    lock = process.DomainLock()
+    try:
+        yield lock.domain_id
+    finally:
+        lock.release()

@@ -74,17 +74,6 @@ class Peer:
         rclpy.shutdown(context=self.ctx)
 
 
-@pytest.fixture
-def domain(monkeypatch):
-    """A free ROS_DOMAIN_ID, locked for the test; the peer discovers on LOCALHOST only."""
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    lock = process.DomainLock()
-    try:
-        yield lock.domain_id
-    finally:
-        lock.release()
-
-
 def _start(name: str, domain_id: int, log_dir, *ros_args):
     env = process.child_env(domain_id, process.package_prefix())
     return process.start_node(name, process.resolve_executable(name), ["--params-file", str(scenario.DEFAULT_SPACECRAFT),

@@ -125,3 +125,46 @@ def test_bad_sensor_parameter_exits_2_with_one_line(arg, name):
         r = subprocess.run([str(exe), "--ros-args", "-p", arg], env=env, capture_output=True, text=True, timeout=30)
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1 and name in lines[0], r.stderr
+
+
+def test_sun_input_refuses_zero_nonfinite_and_malformed(domain):
+    """The node's sim/sun callback (in this process, configured and active on its own domain): a zero or
+    non-finite Sun position counts rejected_nonfinite and a byte string that is not a Vector3Stamped
+    rejected_malformed, neither reaching the pairing; a good one is stamp-gated and paired (no count)."""
+    import sys
+
+    import rclpy
+    from geometry_msgs.msg import Vector3Stamped
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState
+    from rclpy.serialization import serialize_message
+
+    sys.path.insert(0, str(process.package_prefix() / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}"
+                           / "site-packages"))
+    from magtune_ros.attitude_sensors import AttitudeSensors
+
+    def sun(stamp, x, y, z):
+        m = Vector3Stamped()
+        m.header.stamp = stamp
+        m.vector.x, m.vector.y, m.vector.z = x, y, z
+        return serialize_message(m)
+
+    rclpy.init(domain_id=domain)
+    try:
+        node = AttitudeSensors()
+        (srv,) = [s for s in node.services if s.srv_type is ChangeState]
+        for tid in (Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_ACTIVATE):
+            assert srv.callback(ChangeState.Request(transition=Transition(id=tid)), ChangeState.Response()).success
+        counts = node.diag.counts
+        now = node.get_clock().now().to_msg()  # the node's clock (no /clock here: wall time), within the gate's age limit
+        node.on_sun(sun(now, 0.0, 0.0, 0.0))
+        node.on_sun(sun(now, float("nan"), 1.0, 0.0))
+        node.on_sun(b"\x00\x01\x00\x00\x07")
+        assert counts["rejected_nonfinite"] == 2 and counts["rejected_malformed"] == 1
+        # had either passed the stamp gate, the good sample of the same stamp would count as a duplicate
+        node.on_sun(sun(now, 1.5e11, 0.0, 0.0))
+        node.on_sun(sun(now, 1.5e11, 0.0, 0.0))  # ... as this repeat does
+        assert counts["rejected_nonfinite"] == 2 and counts["rejected_malformed"] == 1 and counts["rejected_stamp"] == 1
+        node.destroy_node()
+    finally:
+        rclpy.shutdown()

@@ -195,19 +195,17 @@ class AttitudeSensors(ManagedNode):
     def on_sun(self, data: bytes):
         """sim/sun (raw; full environment): rejects and counts a malformed message or a non-finite or zero Sun position; else
         stamp-gated and paired with truth and orbit."""
-        f = raw_vector3_stamped(data)
-        if f is not None and f[1] == (0.0, 0.0, 0.0):
-            return self.diag.count("rejected_nonfinite", "non-finite or zero Sun position")
-        self._vector(data, 4, self.sync_orbit, 2, self.publish_orbit, "Sun position", parsed=f)
+        self._vector(data, 4, self.sync_orbit, 2, self.publish_orbit, "Sun position", reject_zero=True)
 
-    def _vector(self, data, gate_slot, sync, slot, then, what, reader=raw_vector3_stamped, parsed=None):
-        """A stamped 3-vector input: malformed or non-finite counted, else stamp-gated and paired."""
-        f = parsed if parsed is not None else reader(data)
+    def _vector(self, data, gate_slot, sync, slot, then, what, reader=raw_vector3_stamped, reject_zero=False):
+        """A stamped 3-vector input: malformed or non-finite (or zero, with ``reject_zero``) counted, else stamp-gated and
+        paired."""
+        f = reader(data)
         if f is None:
             return self.diag.count("rejected_malformed", f"malformed {what} message")
         ns, u = f
-        if not finite(*u):
-            return self.diag.count("rejected_nonfinite", f"non-finite {what}")
+        if not finite(*u) or (reject_zero and u == (0.0, 0.0, 0.0)):
+            return self.diag.count("rejected_nonfinite", f"non-finite or zero {what}" if reject_zero else f"non-finite {what}")
         if self._accept(gate_slot, ns):
             self._pair(sync, slot, ns, u, then)
 
