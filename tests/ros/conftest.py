@@ -11,8 +11,8 @@ from magtune_core.base.errors import SilError
 from magtune_core.design.gains import save_gains
 from magtune_core.design.lq import lq_gains
 from magtune_core.design.model import AttitudeLTP
-from magtune_core.design.params import SpacecraftParams
-from magtune_core.ros import process
+from magtune_core.design.params import SpacecraftParams, load_spacecraft
+from magtune_core.ros import process, sil
 
 
 def _why_not_built() -> str | None:
@@ -55,3 +55,20 @@ def domain(monkeypatch):
         yield lock.domain_id
     finally:
         lock.release()
+
+
+#: The estimator flight's length: 0.5 orbit (2806 steps of 1 s), a lit start (Davenport fix at t = 0)
+#: and eclipse from ~1720 s, where the attitude sigma grows about the field.
+ESTIMATOR_FLIGHT_ORBITS = 0.5
+
+
+@pytest.fixture(scope="session")
+def estimator_flight(tmp_path_factory):
+    """One full-environment SIL run flying on the estimator (sigma = 120), every topic recorded: (bag, orbit
+    period [s]). Shared by the modules that check different things of that flight (test_estimator_sil on
+    its lit first 0.2 orbit, test_report_estimation on the whole): the lockstep is deterministic, so a
+    prefix of this run is the shorter run (the node tests share one pytest worker: tests/conftest.py)."""
+    tmp = tmp_path_factory.mktemp("estimator_flight")
+    sil.run_sil("config/gains/sigma_120.yaml", orbits=ESTIMATOR_FLIGHT_ORBITS, environment="full", attitude="estimator",
+                log_dir=tmp / "logs", bag=tmp / "bag", timeout=600)
+    return tmp / "bag", load_spacecraft("config/spacecraft.yaml").orbit_period

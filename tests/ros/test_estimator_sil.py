@@ -16,24 +16,24 @@ from magtune_core.design.params import load_spacecraft
 from magtune_core.onboard.estimator import FilterModel, MekfStream
 from magtune_core.onboard.mekf import attitude_error
 from magtune_core.onboard.params import ESTIMATOR_FIELDS
-from magtune_core.ros import process, sil
+from magtune_core.ros import process
 
 pytestmark = pytest.mark.ros
-ORBITS = 0.2  # 1123 steps of 1 s at the default orbit, all lit (eclipse from 1720 s): the fix at t = 0
+ORBITS = 0.2  # the shared flight's first 1123 steps of 1 s, all lit (eclipse from 1720 s): the fix at t = 0
 
 
 @pytest.fixture(scope="module")
-def recorded(tmp_path_factory):
-    """One full-environment SIL run flying on the estimator, every topic recorded, decoded by stamp."""
-    tmp = tmp_path_factory.mktemp("estimator")
-    bag = tmp / "bag"
-    sil.run_sil("config/gains/sigma_120.yaml", orbits=ORBITS, environment="full", attitude="estimator",
-                log_dir=tmp / "logs", bag=bag, timeout=180)
+def recorded(estimator_flight):
+    """The shared full-environment SIL run flying on the estimator (tests/ros/conftest.py), its first 0.2 orbit
+    decoded by stamp: the lit part, where no sun sample meets a shadow boundary."""
+    bag, period = estimator_flight
+    end_ns = int(ORBITS * period * 1e9)
     dec, topics = Decoder(), {}
     for msg in baglib.iter_messages(bag):
         if msg.topic.startswith(("/sensors/", "/sim/truth", "/estimate/")):
             o = dec.decode(msg.data, msg.type)
-            topics.setdefault(msg.topic, {})[stamp_ns(o)] = o
+            if stamp_ns(o) <= end_ns:
+                topics.setdefault(msg.topic, {})[stamp_ns(o)] = o
     return topics
 
 

@@ -12,22 +12,16 @@ from scipy.spatial.transform import Rotation
 
 from magtune_core import bags as baglib
 from magtune_core.bags.decode import Decoder, stamp_ns
-from magtune_core.ros import sil
 from magtune_core.studies import report, report_estimation
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
-#: 0.5 orbit (2806 steps of 1 s): lit start (Davenport fix at t = 0), eclipse from ~1720 s, where the
-#: attitude sigma grows about the field; ~40-60 s of SIL under load.
-ORBITS = 0.5
 
 
 @pytest.fixture(scope="module")
-def reported(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("est_report")
-    bag = tmp / "bag"
-    sil.run_sil("config/gains/sigma_120.yaml", orbits=ORBITS, environment="full", attitude="estimator",
-                log_dir=tmp / "logs", bag=bag, timeout=600)
-    out = tmp / "report"
+def reported(estimator_flight, tmp_path_factory):
+    """The report of the shared 0.5-orbit estimator flight (tests/ros/conftest.py)."""
+    bag, _ = estimator_flight
+    out = tmp_path_factory.mktemp("est_report") / "report"
     report.make_report([bag], out)
     return bag, out
 
@@ -40,7 +34,7 @@ def test_report_draws_the_estimation_and_states_the_fractions(reported):
     assert (out / report_estimation.FIGURE).stat().st_size > 10_000
     res = json.loads((out / "estimation.json").read_text())
     (name, r), = res.items()
-    assert r["unknown"] == 0 and r["all"]["samples"] >= int(ORBITS * 5600)  # full-environment T ~ 5612 s
+    assert r["unknown"] == 0 and r["all"]["samples"] >= 2800  # the shared 0.5-orbit flight of 1-s samples (T ~ 5612 s)
     assert all(f >= 0.95 for f in r["all"]["inside_3sigma"]), r["all"]
     assert 1.0 < r["all"]["nees_mean"] < 6.0 and r["windows"] >= 2
     md = (out / "summary.md").read_text()
