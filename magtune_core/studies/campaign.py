@@ -607,6 +607,8 @@ def _failed_row(spec: CampaignSpec, g: int, i: int, exc: BaseException) -> dict:
         row.update({k: math.nan for k, _ in MODE_FIGURES}, transitions=-1, final_mode="", reached_pointing=False)
     if spec.campaign["attitude"] == "estimator":
         row.update({k: math.nan for k, _ in ESTIMATION_FIGURES}, est_mag_rejected=-1, est_sun_rejected=-1)
+        if spec.batch_estimator().sensor_watch:  # the columns of _rows' sensor-watch verdict, none reached
+            row.update(fdir_unit="", fdir_time=math.nan, fdir_verdicts=-1)
         if spec.estimator.get("torquer_watch"):
             row.update(zip(TORQUER_COLUMNS, ("", math.nan, "", -1) + (math.nan,) * 3 + ("",) * 3))
     return row

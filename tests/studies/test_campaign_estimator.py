@@ -108,6 +108,17 @@ def test_estimator_campaign_rows_have_the_estimation_figures(est_campaign):
     assert "| est_rms_x_deg | deg |" in md and "| est_nees_mean | - |" in md
 
 
+def test_failed_run_row_has_every_column_of_a_flown_one(est_campaign):
+    """A run that fails (its row made without flying) carries every column a flown run of the same campaign
+    has (the estimation figures, the sensor watch's verdict), as "no value" (NaN, "", -1), so the runs
+    table keeps one schema and no column turns null for the failed run alone."""
+    spec, out = est_campaign
+    flown = set(campaign.read_runs(out)) - {"passed", "fail_reasons", "batch"}  # set by run_batch and the writer
+    failed = campaign._failed_row(spec, 0, 1, RuntimeError("injected"))
+    assert flown <= set(failed), sorted(flown - set(failed))
+    assert failed["fdir_unit"] == "" and math.isnan(failed["fdir_time"]) and failed["fdir_verdicts"] == -1
+
+
 def test_estimator_figures_are_the_batched_runs(est_campaign):
     """Run 1 of the campaign equals simulate_batch on its drawn parameters (the campaign adds nothing but the
     windowing): same estimation error and sigma, hence the same figures. Alone, the run's orbit is the single-run
