@@ -24,8 +24,8 @@ parts, and each gain's J does not depend on where it is computed, so a tune on a
 workers gives the gain of a local ``workers=N`` tune with the same seed. The objective's
 constants (models and screens: 7 MB pickled under the default design spec, mostly the held
 loops' interval maps) reach each worker once, when it starts (the local pool's initializer;
-an executor's ``share``), not with every part: sent with every part they cost ~13 ms of a
-~85-ms generation of the tuner (bench/README.md).
+an executor's ``share``), not with every part: sent with every part they cost ~20 ms of an
+~80-ms generation of the tuner (8.9 ms to pickle, 3.9 ms to unpickle, and the pipe; bench/README.md).
 """
 from __future__ import annotations
 
