@@ -9,7 +9,7 @@ import numpy as np
 from ..base import jsonout
 from ..base.errors import ConfigError
 from ..design.gains import load_gains
-from ..design.pipeline import ANALYSIS_STEPS, analyze_gains, gain_sensitivity, requirement_provenance
+from ..design.pipeline import ANALYSIS_STEPS, analyze_gains, gain_sensitivity, hold_gap_note, requirement_provenance
 from ..design.resolution import resolved_steps
 from .common import CommandError, add_spec_argument, field_model_argument, load_design_spec, load_model
 
@@ -80,6 +80,9 @@ def run(args) -> int:
               f"(K and K x margin checked at every scanned period); largest held-loop |multiplier| "
               f"{rp['hold_multiplier_max']:.3g} at Ts = {rp['hold_multiplier_ts']:g} s; peak-dipole proxy "
               f"{rp['dipole_peak_proxy']:.4g} of {rp['dipole_budget']:.4g} A m^2")
+        gap = hold_gap_note(rp, req.gain_margin)
+        if gap:
+            print(f"    {gap}")
     if sens:
         print(f"  worst-case disturbance: multiplier angle {sens['worst_multiplier_angle']:.4f} rad, i.e. frequency "
               f"{sens['worst_frequency_mod_orbit']:.4g} rad/s modulo the orbital rate {sens['orbit_rate']:.4g} rad/s")

@@ -345,6 +345,31 @@ def requirement_provenance(model, K, req: Requirements, cache: dict | None = Non
             "dipole_peak_proxy": round(float(peak), 3), "dipole_budget": round(req.dipole_budget, 3)}
 
 
+def hold_gap_note(prov: dict, gain_margin: float) -> str | None:
+    """One line for a gain that meets the hold requirement at its two ends only: the held loop is stable
+    with K and with K x ``gain_margin`` at every scanned period, but unstable somewhere between (the
+    dense scan's margin from K up, ``hold_margin_min``, is below ``gain_margin``; near the nutation limit
+    stability is not monotone in the gain's scale, docs/decisions.md). None when there is no such gap.
+
+    Parameters
+    ----------
+    prov : dict
+        :func:`requirement_provenance` of the gain (or a gains file's provenance holding its keys).
+    gain_margin : float
+        The requirement's gain margin (factor).
+
+    Returns
+    -------
+    str or None
+        The note, naming the margin from K up and its period.
+    """
+    low = prov.get("hold_margin_min")
+    if not prov.get("requirements_met") or low is None or not gain_margin or low >= gain_margin:
+        return None
+    return (f"note: met at the margin's two ends only: the held loop is unstable between {low:.3f} x K and "
+            f"{gain_margin:g} x K at Ts = {prov['hold_tightest_ts']:g} s (docs/decisions.md, \"both ends\")")
+
+
 def tune_robust_gains(model, models, sigma: float, *, seed: int = 0, start_K=None, start_name: str | None = None,
                       workers: int = 1, ts: float = TS_DEFAULT, gain_margin: float = 2.0, cma: CmaSettings | None = None,
                       spec_name: str = "", requirements: Requirements | None = None, executor=None) -> TuneOutcome:
