@@ -5,6 +5,8 @@ ROS_DOMAIN_ID (``process.DomainLock``) with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALH
 (``process.child_env``), and is stopped in a ``finally``."""
 from __future__ import annotations
 
+import sys
+
 import pytest
 
 from magtune_core.base.errors import SilError
@@ -44,6 +46,13 @@ def gains60(tmp_path_factory):
     path = tmp_path_factory.mktemp("gains") / "sigma_60.yaml"
     save_gains(path, lq_gains(AttitudeLTP.from_params(SpacecraftParams()), 60.0, 1.0))
     return path
+
+
+@pytest.fixture
+def built_package(monkeypatch):
+    """magtune_ros as colcon installed it (what the node processes run) importable in this test."""
+    monkeypatch.syspath_prepend(str(process.package_prefix() / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}"
+                                    / "site-packages"))
 
 
 @pytest.fixture

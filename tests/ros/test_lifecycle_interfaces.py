@@ -14,7 +14,6 @@ rclpy node of this process on a discovery range of LOCALHOST.
 """
 from __future__ import annotations
 
-import sys
 import time
 
 import pytest
@@ -26,11 +25,6 @@ pytestmark = pytest.mark.ros
 
 GAINS = "config/gains/sigma_60.yaml"
 
-
-def _built_package():
-    """magtune_ros as colcon installed it (what the node processes run)."""
-    sys.path.insert(0, str(process.package_prefix() / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}"
-                           / "site-packages"))
 
 
 class Peer:
@@ -213,7 +207,7 @@ def test_set_mode_reason_is_one_bounded_line(domain, tmp_path):
     assert len(long_line) < LIMIT + 150
 
 
-def test_change_state_guard_and_rclpys_private_state_machine(domain):
+def test_change_state_guard_and_rclpys_private_state_machine(domain, built_package):
     """In process, no DDS peer: ``lifecycle.state_machine`` reads rclpy's private ``_state_machine``
     (this fails if rclpy renames it or changes the shape of ``current_state`` / ``available_transitions``),
     and ManagedNode's ``~/change_state`` callback refuses what rclpy's own would raise on."""
@@ -222,7 +216,6 @@ def test_change_state_guard_and_rclpys_private_state_machine(domain):
     from lifecycle_msgs.srv import ChangeState
     from rclpy.lifecycle import LifecycleNode
 
-    _built_package()
     from magtune_ros.lifecycle import ManagedNode, state_machine
 
     class Probe(ManagedNode):

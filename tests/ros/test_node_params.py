@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 import time
 
 import pytest
@@ -27,10 +26,6 @@ def _controller(gains, log, domain_id, *extra):
                              str(gains), *extra], env=env, stdout=log, stderr=subprocess.STDOUT,
                             start_new_session=True, preexec_fn=process.die_with_parent())
 
-
-def _built_package():
-    sys.path.insert(0, str(process.package_prefix() / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}"
-                           / "site-packages"))
 
 
 def test_describe_parameters_shows_the_schema_bounds(gains60, tmp_path):
@@ -108,14 +103,13 @@ def test_controller_alone_refuses_with_the_schema_line(gains60, tmp_path, case):
         assert out[0].endswith(f"parameter 'min_field': {exc.value.expected}"), out
 
 
-def test_parameter_overrides_reads_rclpys_private_store():
+def test_parameter_overrides_reads_rclpys_private_store(built_package):
     """rclpy has no public reader of the parameters a node was started with; magtune_ros.params
     reads ``Node._parameter_overrides`` in one place. This fails if rclpy renames or retypes it."""
     import rclpy
     from rclpy.node import Node
     from rclpy.parameter import Parameter
 
-    _built_package()
     from magtune_ros.params import parameter_overrides
 
     lock = process.DomainLock()

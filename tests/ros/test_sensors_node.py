@@ -127,20 +127,16 @@ def test_bad_sensor_parameter_exits_2_with_one_line(arg, name):
     assert r.returncode == 2 and len(lines) == 1 and name in lines[0], r.stderr
 
 
-def test_sun_input_refuses_zero_nonfinite_and_malformed(domain):
+def test_sun_input_refuses_zero_nonfinite_and_malformed(domain, built_package):
     """The node's sim/sun callback (in this process, configured and active on its own domain): a zero or
     non-finite Sun position counts rejected_nonfinite and a byte string that is not a Vector3Stamped
     rejected_malformed, neither reaching the pairing; a good one is stamp-gated and paired (no count)."""
-    import sys
-
     import rclpy
     from geometry_msgs.msg import Vector3Stamped
     from lifecycle_msgs.msg import Transition
     from lifecycle_msgs.srv import ChangeState
     from rclpy.serialization import serialize_message
 
-    sys.path.insert(0, str(process.package_prefix() / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}"
-                           / "site-packages"))
     from magtune_ros.attitude_sensors import AttitudeSensors
 
     def sun(stamp, x, y, z):
