@@ -62,3 +62,13 @@ if [ "$(cat "$kstamp" 2>/dev/null)" != "$kwant" ] || ! ls "$root"/magtune_core/l
   (cd "$root" && "$venv/bin/python" -c "from magtune_core.ltp import hinf_kernel, hinf_levels; hinf_kernel.compile_all(); hinf_levels.compile_all()")
   echo "$kwant" > "$kstamp"
 fi
+
+# The hold certificate's kernel (design/hold_certificate.py), compiled once per change of its file (~8 s): a
+# certificate's reported seconds are then its scan's
+cstamp="$venv/.magtune-certificate"
+cwant=$(sha1sum "$root"/magtune_core/design/hold_certificate.py | cut -d' ' -f1)
+if [ "$(cat "$cstamp" 2>/dev/null)" != "$cwant" ]; then
+  echo "bootstrap: compiling the hold certificate's kernel (numba)" >&2
+  (cd "$root" && "$venv/bin/python" -c "from magtune_core.design import hold_certificate; hold_certificate.compile_all()")
+  echo "$cwant" > "$cstamp"
+fi

@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
 
 from ..base import jsonout
 from ..base.errors import ConfigError
 from ..design.gains import load_gains
-from ..design.pipeline import ANALYSIS_STEPS, analyze_gains, gain_sensitivity, hold_gap_note, requirement_provenance
+from ..design.pipeline import ANALYSIS_STEPS, analyze_gains, gain_sensitivity, requirement_lines, requirement_provenance
+from ..design.requirements import claim_contradictions
 from ..design.resolution import resolved_steps
 from .common import CommandError, add_spec_argument, field_model_argument, load_design_spec, load_model
 
@@ -32,6 +35,14 @@ def register(sub) -> None:
                    help="also check the hard requirements of the design spec (--spec; default config/design.yaml): "
                         "hold margin over the sample-period range (dense scan), peak-dipole budget; exit 3 if one "
                         "is not met")
+    a.add_argument("--record", action="store_true",
+                   help="with --requirements: write the recomputed requirement figures and hold certificate into "
+                        "the gains file's provenance (atomic; its requirements_met then says what was proven)")
+    a.add_argument("--margin-plot", metavar="PNG", default=None,
+                   help="with --requirements: plot the held loop's first unstable gain scale at every admissible "
+                        "sample period, on a grid up to twice the required margin (step 0.01; an existing file is "
+                        "kept unless --force)")
+    a.add_argument("--force", action="store_true", help="overwrite an existing --margin-plot")
     add_spec_argument(a)
     field_model_argument(a)
     a.set_defaults(func=run)
@@ -45,6 +56,12 @@ def run(args) -> int:
                           "check no requirement), or verify under dispersions with magtune verify")
     if args.spec and not args.requirements:
         raise ConfigError("--spec", None, "is read with --requirements only; add --requirements")
+    if args.record and not args.requirements:
+        raise ConfigError("--record", None, "records the requirement figures: add --requirements")
+    if args.margin_plot and not args.requirements:
+        raise ConfigError("--margin-plot", None, "plots the hold requirement: add --requirements")
+    if args.margin_plot and Path(args.margin_plot).exists() and not args.force:
+        raise ConfigError(args.margin_plot, None, "exists; choose another --margin-plot or add --force")
     model = load_model(args)
     g = load_gains(args.path)
     req = load_design_spec(args) if args.requirements else None
@@ -59,10 +76,17 @@ def run(args) -> int:
             raise CommandError(f"--sensitivity: the gradient of J could not be computed ({exc})") from None
     d = fig.as_dict()
     rp = requirement_provenance(model, g.K, req) if req is not None else None
-    status = 0 if rp is None or rp["requirements_met"] else 3
+    contradicted = claim_contradictions(g.provenance)  # the file's claim against its own figures
+    if args.margin_plot:
+        _margin_plot(args, model, g, req)
+    if rp is not None and args.record:  # the file now says what the recomputation proved
+        _record(args.path, rp)
+        contradicted = []
+    status = 0 if (rp is None or rp["requirements_met"]) and not (req is not None and contradicted) else 3
     if args.json:
+        reqs = {"requirements": {**rp, "claim_contradictions": contradicted}} if rp else {}
         print(jsonout.dumps({**{k: d[k] for k in ("J", "c1", "c2", "rho", "stable")}, "ts": g.ts,
-                          "hold_gain_margin": margin, **(sens or {}), **({"requirements": rp} if rp else {})}))
+                          "hold_gain_margin": margin, **(sens or {}), **reqs}))
         return status
     print(f"{args.path}: sigma={g.sigma:g}, field model {model.field.name}, {args.steps} Magnus steps")
     for key, label in (("J", "H-inf T_d -> z"), ("c1", "H-inf T_d -> dq"), ("c2", "H2 T_d -> m"), ("rho", "max |multiplier|")):
@@ -76,13 +100,10 @@ def run(args) -> int:
     print(f"  {held}")
     if rp:
         print(f"  requirements ({rp['requirements']}): {'met' if rp['requirements_met'] else 'NOT MET'}")
-        print(f"    smallest hold margin of the dense scan {rp['hold_margin_min']:.3f} at Ts = {rp['hold_tightest_ts']:g} s "
-              f"(K and K x margin checked at every scanned period); largest held-loop |multiplier| "
-              f"{rp['hold_multiplier_max']:.3g} at Ts = {rp['hold_multiplier_ts']:g} s; peak-dipole proxy "
-              f"{rp['dipole_peak_proxy']:.4g} of {rp['dipole_budget']:.4g} A m^2")
-        gap = hold_gap_note(rp, req.gain_margin)
-        if gap:
-            print(f"    {gap}")
+        for line in requirement_lines(rp, req.gain_margin):
+            print(f"    {line}")
+    for line in contradicted:
+        print(f"  the file claims requirements_met, contradicted by {line}")
     if sens:
         print(f"  worst-case disturbance: multiplier angle {sens['worst_multiplier_angle']:.4f} rad, i.e. frequency "
               f"{sens['worst_frequency_mod_orbit']:.4g} rad/s modulo the orbital rate {sens['orbit_rate']:.4g} rad/s")
@@ -91,6 +112,32 @@ def run(args) -> int:
         for i, row in enumerate(sens["elasticity"]):
             print(f"    u_{'xyz'[i]}    " + " ".join(f"{v:8.3f}" for v in row))
     return status
+
+
+def _margin_plot(args, model, g, req) -> None:
+    """The first unstable scale per admissible period up to twice the margin (studies.hold_margin)."""
+    from ..design.hold_certificate import certify_hold
+    from ..studies.hold_margin import margin_figure
+
+    if not req.gain_margin:
+        raise CommandError("--margin-plot: the design spec has no hold requirement (gain_margin 0)")
+    s = req.sampling
+    cert = certify_hold(model, g.K, s["ts_min"], s["ts_max"], 2.0 * req.gain_margin, step=0.01, guard=0.0)
+    margin_figure(cert, args.margin_plot, req.gain_margin, float(s["guard"]),
+                  f"{Path(args.path).name}: held-loop margin against the sample period ({len(cert.periods)} periods, "
+                  "k step 0.01)")
+    print(f"wrote {args.margin_plot} ({cert.seconds:.0f} s)", file=sys.stderr)
+
+
+def _record(path, rp: dict) -> None:
+    """The recomputed requirement figures into the gains file (the margin at ts_min alone, ``hold_gain_margin``,
+    goes: the certificate covers the range), under the file's lock."""
+    from ..base.atomic import output_lock
+    from ..design.gains import update_provenance
+
+    with output_lock(path, "magtune analyze --record", directory=False, option="PATH"):
+        update_provenance(path, rp, drop=("hold_gain_margin",))
+    print(f"recorded the requirement figures in {path}", file=sys.stderr)
 
 
 def run_robust(args, model, g) -> int:

@@ -10,7 +10,7 @@ from ..base.atomic import output_lock
 from ..base.errors import ConfigError
 from ..design.cmaes import CmaSettings
 from ..design.gains import load_gains, save_gains
-from ..design.pipeline import METHODS, InfeasibleStart, hold_gap_note, tune_gains, tune_robust_gains
+from ..design.pipeline import METHODS, InfeasibleStart, requirement_lines, tune_gains, tune_robust_gains
 from ..design.tuner import TunerSettings
 from ..onboard.params import TS_DEFAULT
 from .common import (
@@ -185,13 +185,9 @@ def _tune(args, model, out, req, start_K, executor) -> int:
           f"{r.evaluations} evaluations, {r.seconds:.1f} s, {res.state}; c1={g['c1']:.3f} c2={g['c2']:.2f} "
           f"rho={g['rho']:.5f} ({res.analysis_steps} steps); wrote {out}")
     if req is not None:
-        print(f"requirements ({req.describe()}): {'met' if g['requirements_met'] else 'NOT met'}; smallest hold margin "
-              f"{g['hold_margin_min']:.3g} at Ts = {g['hold_tightest_ts']:.4g} s, largest held-loop |multiplier| "
-              f"{g['hold_multiplier_max']:.3g} at Ts = {g['hold_multiplier_ts']:.4g} s, peak dipole (linear) "
-              f"{g['dipole_peak_proxy']:.3g} of {g['dipole_budget']:.3g} A m^2")
-        gap = hold_gap_note(g, req.gain_margin)
-        if gap:
-            print(gap)
+        print(f"requirements ({req.describe()}): {'met' if g['requirements_met'] else 'NOT met'}")
+        for line in requirement_lines(g, req.gain_margin):
+            print(f"  {line}")
     return 130 if res.interrupted else 0
 
 

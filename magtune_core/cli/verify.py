@@ -100,9 +100,9 @@ def _verify(args, sched, tls) -> int:
                           "widen sampling.ts_min/ts_max or drop it")
     tightest = gains.provenance.get("hold_tightest_ts")
     if tightest is None and req.gain_margin:
-        from ..design.pipeline import requirement_provenance
+        from ..design.requirements import tightest_period
 
-        tightest = requirement_provenance(load_model(args), gains.K, req)["hold_tightest_ts"]
+        tightest = tightest_period(load_model(args), gains.K, req)
     periods = verify.verify_periods(req, tightest, args.also_ts)
     print(f"verify {args.gains}: {args.runs} runs at Ts = {', '.join(f'{t:g}' for t in periods)} s "
           f"(ends of {lo:g}-{hi:g} s and the tightest hold margin" + (", asked" if args.also_ts else "") + "), "
@@ -132,12 +132,8 @@ def _verify(args, sched, tls) -> int:
 
 
 def _record(path, record: dict) -> None:
-    """The verdict into the gains file's provenance, the file's header kept (save_gains writes atomically)."""
-    from ..design.gains import load_gains, save_gains
+    """The verdict into the gains file's provenance, the file's header kept (written atomically)."""
+    from ..design.gains import update_provenance
 
-    g = load_gains(path)
-    g.provenance["verification"] = record
-    comments = [line[2:] for line in Path(path).read_text().splitlines() if line.startswith("# ")]
-    header = "\n".join(comments[2:])  # save_gains writes the first two (what K is) itself
-    save_gains(path, g, header=header)
+    update_provenance(path, {"verification": record})
     print(f"recorded the verdict in {path}")

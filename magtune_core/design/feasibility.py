@@ -41,8 +41,11 @@ def violation(screen, Ks) -> np.ndarray:
     v = np.zeros(len(Ks))
     with np.errstate(divide="ignore", invalid="ignore"):
         for loop in screen.loops:
-            for g, bound in hold_ends(screen.gain_margin, screen.max_multiplier):
+            for g, bound in hold_ends(screen.top or screen.gain_margin, screen.max_multiplier):
                 v += np.maximum(0.0, np.log(loop.spectral_radius(g * Ks) / bound))
+        for loop, scales in screen.points:
+            for g in scales:
+                v += np.maximum(0.0, np.log(loop.spectral_radius(g * Ks)))
         for loop in screen.dipole_loops:
             v += np.maximum(0.0, np.log(peak_dipole(loop, Ks, screen.case).max(axis=-1) / screen.budget))
     return np.where(np.isnan(v), np.inf, v)

@@ -57,7 +57,8 @@ class Gains:
                   "robust_spec", "robust_models", "robust_worst_model", "worst_J", "worst_c1", "worst_c2", "worst_rho",
                   "hold_gain_margin_required", "hold_gain_margin",
                   "requirements", "requirements_source", "requirements_met", "hold_margin_min", "hold_tightest_ts",
-                  "hold_multiplier_max", "hold_multiplier_ts", "hold_ts_range", "dipole_peak_proxy", "dipole_budget", "verification")
+                  "hold_multiplier_max", "hold_multiplier_ts", "hold_rho_max", "hold_certificate",
+                  "hold_ts_range", "dipole_peak_proxy", "dipole_budget", "verification")
 
     @classmethod
     def from_mapping(cls, params: dict, where="gains") -> "Gains":
@@ -130,8 +131,14 @@ def save_gains(path, gains: Gains, header: str = "") -> None:
     Raises
     ------
     ValueError
-        If a provenance key is not in :attr:`Gains.PROVENANCE`.
+        If a provenance key is not in :attr:`Gains.PROVENANCE`, or the provenance claims
+        ``requirements_met`` against its own figures (:func:`.requirements.claim_contradictions`).
     """
+    from .requirements import claim_contradictions
+
+    bad = claim_contradictions(gains.provenance)
+    if bad:  # a certificate that contradicts its own figures is never written
+        raise ValueError(f"{path}: requirements_met contradicted by its figures: {'; '.join(bad)}")
     params = {
         "gain": [float(v) for v in np.asarray(gains.K).ravel()],
         "sigma": float(gains.sigma),
@@ -148,6 +155,34 @@ def save_gains(path, gains: Gains, header: str = "") -> None:
     lines += [f"# {h}" for h in header.splitlines() if h]
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     atomic_write(path, "\n".join(lines) + "\n" + text)  # the old file survives a failed write
+
+
+def update_provenance(path, updates: dict, drop=()) -> Gains:
+    """Rewrite a gains file's provenance keys (``updates`` set, ``drop`` removed), K and the file's
+    header comments kept; atomic, and refused like :func:`save_gains` when the claim would contradict
+    its figures.
+
+    Parameters
+    ----------
+    path : str or Path
+        Gains parameter file.
+    updates : dict
+        Provenance keys to set.
+    drop : iterable of str
+        Provenance keys to remove.
+
+    Returns
+    -------
+    Gains
+        The gains as written.
+    """
+    g = load_gains(path)
+    for k in drop:
+        g.provenance.pop(k, None)
+    g.provenance.update(updates)
+    comments = [line[2:] for line in Path(path).read_text().splitlines() if line.startswith("# ")]
+    save_gains(path, g, header="\n".join(comments[2:]))  # save_gains writes the first two (what K is) itself
+    return g
 
 
 def _plain(v):

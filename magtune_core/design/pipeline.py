@@ -41,13 +41,14 @@ from ..onboard.params import TS_DEFAULT
 from .cmaes import CmaSettings
 from .gains import Gains
 from .problem import Figures, cost_gradient, figures
-from .requirements import Requirements, held_radii, hold_ends, scan_hold
+from .requirements import Requirements, scan_hold
 from .resolution import resolved_steps, start_gain
 from .sampled import HoldConstraint, SampledLoop, feasible_start, hold_gain_margin, hold_provenance
 from .tuner import TunerSettings
 
-#: Rounds of the dense scan (a failing period is added to the checked set and the search resumed).
-SCAN_ROUNDS = 3
+#: Rounds after the first search: a period failing the quick scan, or the (period, scale) points a failing hold
+#: certificate found, are added to the checked set and the search resumed.
+SCAN_ROUNDS = 4
 #: Magnus steps of the final figures (at least; doubled while J moves, :func:`.resolution.resolved_steps`):
 #: ~1e-5 relative for the paper's satellite (bench/README.md).
 ANALYSIS_STEPS = 128
@@ -184,6 +185,7 @@ def tune_gains(model, sigma: float, *, method: str = "cma", seed: int = 0, start
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    cert = None
     if executor is not None and method != "cma":
         raise ValueError("an executor evaluates CMA-ES candidates only (method 'cma')")
     if requirements is not None:
@@ -196,18 +198,27 @@ def tune_gains(model, sigma: float, *, method: str = "cma", seed: int = 0, start
     else:
         hold = requirements if requirements is not None and requirements.constrained else (
             HoldConstraint(ts, gain_margin) if gain_margin and requirements is None else None)
-        res, steps = _constrained_search(model, sigma, K0, label, steps, hold, seed=seed, workers=workers, cma=cma,
-                                         progress=progress, notes=notes, executor=executor, cache=loops)
+        res, steps, cert = _constrained_search(model, sigma, K0, label, steps, hold, seed=seed, workers=workers,
+                                               cma=cma, progress=progress, notes=notes, executor=executor, cache=loops)
         label = notes.pop(0)
+    analysis_steps, prov = _tuned_provenance(model, sigma, res, label, method, requirements, cert, ts, gain_margin)
+    return TuneOutcome(Gains(res.K, sigma, ts, prov), res, label, steps, analysis_steps, notes)
+
+
+def _tuned_provenance(model, sigma, res, label, method, requirements, cert, ts, gain_margin):
+    """(analysis steps, provenance) of a tuned gain: its figures at resolved steps, the optimizer's record, and
+    the requirement figures with the hold certificate (under a design spec) or the margin at ``ts``."""
     analysis_steps, _ = resolved_steps(model, res.K, sigma, ANALYSIS_STEPS)
     fig = figures(model, res.K, sigma, steps=analysis_steps)
     prov = {**fig.as_dict(), **res.provenance(), "start": label, "design_field": model.field.name,
             "analysis_steps": analysis_steps, "tune_seconds": round(res.seconds, 1)}
     prov.pop("stable", None)
-    prov.update(hold_provenance(model, res.K, ts, gain_margin if method == "cma" else 0.0))
-    if requirements is not None and method == "cma":
-        prov.update(requirement_provenance(model, res.K, requirements, cache=loops))
-    return TuneOutcome(Gains(res.K, sigma, ts, prov), res, label, steps, analysis_steps, notes)
+    if requirements is not None and method == "cma":  # the certificate says what holds over the range
+        prov.update(requirement_provenance(model, res.K, requirements, certificate=cert,
+                                           certify=getattr(res, "stop", None) != "interrupted"))
+    else:
+        prov.update(hold_provenance(model, res.K, ts, gain_margin if method == "cma" else 0.0))
+    return analysis_steps, prov
 
 
 def _constrained_search(model, sigma, K0, label, steps, hold, *, seed, workers, cma, progress, notes, executor=None,
@@ -216,7 +227,7 @@ def _constrained_search(model, sigma, K0, label, steps, hold, *, seed, workers, 
     any failing period to the checked set and resumes from the gain (at most SCAN_ROUNDS times).
     The start's label goes first in ``notes``."""
     seconds = evaluations = 0
-    J0 = None
+    J0 = cert = None
     for round_ in range(SCAN_ROUNDS + 1):
         if hold is not None:
             try:
@@ -233,16 +244,27 @@ def _constrained_search(model, sigma, K0, label, steps, hold, *, seed, workers, 
         J0 = res.J0 if J0 is None else J0
         if not isinstance(hold, Requirements) or not hold.gain_margin or res.stop == "interrupted":
             break
-        periods, ok = scan_hold(model, res.K, hold, cache=cache)
-        if ok.all():
-            break
-        hold = hold.with_periods(periods[~ok])
         K0 = res.K
-        notes.append(f"dense scan: the gain fails the hold margin at Ts = "
-                     f"{', '.join(f'{t:.4g}' for t in periods[~ok])} s; added to the checked periods, search resumed")
+        periods, ok = scan_hold(model, res.K, hold, cache=cache)  # quick: ~100 periods, the margin's two ends
+        if not ok.all():
+            hold = hold.with_periods(periods[~ok])
+            notes.append(f"dense scan: the gain fails the hold margin at Ts = "
+                         f"{', '.join(f'{t:.4g}' for t in periods[~ok])} s; added to the checked periods, search resumed")
+            continue
+        try:
+            cert = hold.certify(model, res.K, workers=max(1, workers))
+        except KeyboardInterrupt:  # a stop request during the certificate: the gain, uncertified
+            res.stop = "interrupted"
+            break
+        if cert.met or round_ == SCAN_ROUNDS:
+            break
+        hold = hold.with_points(cert.unstable)
+        notes.append(f"hold certificate: unstable at {len(cert.unstable)} (period, scale) points, the first at "
+                     f"Ts = {cert.unstable[0][0]:.4g} s, {cert.unstable[0][1]:.4g} x K; added to the checked points, "
+                     "search resumed")
     res.seconds, res.evaluations, res.J0 = seconds, evaluations, J0
     notes.insert(0, label)
-    return res, steps
+    return res, steps, cert
 
 
 def _restored_start(model, K0, hold, seed: int, reason: str):
@@ -300,10 +322,12 @@ def binding_message(model, K0, req, reason: str) -> str:
     return f"{reason}; binding: " + "; ".join(words(c, f) for c, f in bind[:2]) + more
 
 
-def requirement_provenance(model, K, req: Requirements, cache: dict | None = None) -> dict:
-    """What a gains file records about its requirements: the spec in one line, the smallest hold
-    margin of the dense scan and its period (where ``verify`` also flies), the peak-dipole proxy.
-    ``cache``: the scan's loops already built (:meth:`.sampled.SampledLoop.at`).
+def requirement_provenance(model, K, req: Requirements, cache: dict | None = None, certificate=None,
+                           certify: bool = True) -> dict:
+    """What a gains file records about its requirements: the spec in one line, the hold certificate's
+    figures (:mod:`.hold_certificate`: the certified margin and its period, where ``verify`` also flies,
+    the largest multiplier over the certified grid, rho(K)), the peak-dipole proxy, and whether every
+    requirement holds.
 
     Parameters
     ----------
@@ -314,60 +338,75 @@ def requirement_provenance(model, K, req: Requirements, cache: dict | None = Non
     req : Requirements
         The design spec.
     cache : dict or None
-        {ts: SampledLoop} of this model, read and filled.
+        Unused (kept for callers that share the quick scan's loops).
+    certificate : HoldCertificate or None
+        The gain's certificate when already computed; None: computed here (every admissible period).
+    certify : bool
+        False: no certificate (an interrupted tune), so the hold requirement is not claimed met.
 
     Returns
     -------
     dict
-        ``requirements`` (one line), ``requirements_met`` (bool), ``hold_margin_min`` and
-        ``hold_tightest_ts`` [s] (dense scan), ``hold_multiplier_max`` and its ``hold_multiplier_ts``
-        [s] (the held loop's slowest decay over the scan), ``dipole_peak_proxy`` [A m^2] and
+        ``requirements`` (one line), ``requirements_met`` (bool: the certificate holds and the dipole
+        proxy is within the budget), the certificate's keys (:meth:`.hold_certificate.HoldCertificate.provenance`)
+        when a hold margin is required, ``hold_gain_margin_required``, ``dipole_peak_proxy`` [A m^2] and
         ``dipole_budget``; also ``requirements_source`` and ``hold_ts_range`` [s].
     """
-    loops = SampledLoop.at(model, req.periods(req.sampling["scan_periods"]), cache)
-    margins = np.array([hold_gain_margin(loop, K) for loop in loops])
-    radii = np.array([held_radii(loop, K, req.gain_margin) for loop in loops])  # (scan, 2): margin end, K
-    rhos = radii[:, 1]
-    i, j = int(np.argmin(margins)), int(np.argmax(rhos))
     screen = req.screen(model)
-    checks = [c for c in screen.checks(K) if c.name.startswith("peak |m_")]
+    checks = [c for c in screen.checks(K, hold=False) if c.name.startswith("peak |m_")]
     peak = max((c.value for c in checks), default=float("nan"))
-    # met as the tuner decides it (the held loop stable with K and K x margin at every scanned period);
-    # hold_gain_margin's first crossing (the margin from K up) is reported beside it: between the two
-    # ends stability need not be monotone (the shipped gains: 3.95-3.98 against 4)
-    bounds = [b for _, b in hold_ends(req.gain_margin, req.max_multiplier)]
-    held_ok = not req.gain_margin or bool(np.all(radii < bounds))
+    out = {"requirements": req.describe(), "requirements_source": req.source,
+           "hold_gain_margin_required": float(req.gain_margin)}
+    held_ok = True
+    if req.gain_margin and (certify or certificate is not None):
+        cert = certificate if certificate is not None else req.certify(model, K)
+        out.update(cert.provenance())
+        held_ok = cert.met
+    elif req.gain_margin:
+        held_ok = False
     met = bool(held_ok and (not req.dipole_budget or peak <= req.dipole_budget))
-    return {"requirements": req.describe(), "requirements_source": req.source, "requirements_met": met,
-            "hold_margin_min": round(float(margins[i]), 3), "hold_tightest_ts": round(float(loops[i].ts), 4),
-            "hold_multiplier_max": float(f"{rhos[j]:.4g}"), "hold_multiplier_ts": round(float(loops[j].ts), 4),
-            "hold_ts_range": [float(req.sampling["ts_min"]), float(req.sampling["ts_max"])],
-            "dipole_peak_proxy": round(float(peak), 3), "dipole_budget": round(req.dipole_budget, 3)}
+    out.update({"requirements_met": met, "hold_ts_range": [float(req.sampling["ts_min"]), float(req.sampling["ts_max"])],
+                "dipole_peak_proxy": round(float(peak), 3), "dipole_budget": round(req.dipole_budget, 3)})
+    return out
 
 
-def hold_gap_note(prov: dict, gain_margin: float) -> str | None:
-    """One line for a gain that meets the hold requirement at its two ends only: the held loop is stable
-    with K and with K x ``gain_margin`` at every scanned period, but unstable somewhere between (the
-    dense scan's margin from K up, ``hold_margin_min``, is below ``gain_margin``; near the nutation limit
-    stability is not monotone in the gain's scale, docs/decisions.md). None when there is no such gap.
+def requirement_lines(prov: dict, gain_margin: float) -> list:
+    """Each hard requirement of a gain in one line, with how far it is from failing (what ``tune`` and
+    ``analyze --requirements`` print).
 
     Parameters
     ----------
     prov : dict
         :func:`requirement_provenance` of the gain (or a gains file's provenance holding its keys).
     gain_margin : float
-        The requirement's gain margin (factor).
+        The requirement's gain margin (factor; 0: no hold requirement).
 
     Returns
     -------
-    str or None
-        The note, naming the margin from K up and its period.
+    list of str
+        The hold certificate's lines (when a margin is required) and the dipole budget's.
     """
-    low = prov.get("hold_margin_min")
-    if not prov.get("requirements_met") or low is None or not gain_margin or low >= gain_margin:
-        return None
-    return (f"note: met at the margin's two ends only: the held loop is unstable between {low:.3f} x K and "
-            f"{gain_margin:g} x K at Ts = {prov['hold_tightest_ts']:g} s (docs/decisions.md, \"both ends\")")
+    out = []
+    cert = prov.get("hold_certificate")
+    if gain_margin and cert:
+        margin, top = float(prov["hold_margin_min"]), float(cert["scale_top"])
+        span = (f"{cert['periods']} admissible periods {cert['ts_first']:.4g}-{cert['ts_last']:.4g} s, "
+                f"k step {cert['scale_step']:g}")
+        if margin >= top:
+            out.append(f"hold margin: held loop stable for every k in [1, {top:g}] x K ({gain_margin:g} + "
+                       f"{cert['guard']:.1%} guard) at all {span}; largest multiplier on that grid "
+                       f"{prov['hold_rho_max']:.3g} (1 fails), at Ts = {prov['hold_tightest_ts']:g} s")
+        else:
+            out.append(f"hold margin: FAILS: stable up to {margin:g} x K only (needs [1, {top:g}]), first unstable at "
+                       f"Ts = {prov['hold_tightest_ts']:g} s; checked {span}")
+        out.append(f"held loop with K: largest multiplier {prov['hold_multiplier_max']:.3g} per orbit at "
+                   f"Ts = {prov['hold_multiplier_ts']:g} s; certificate computed in {cert['seconds']:g} s")
+    budget = prov.get("dipole_budget")
+    if budget:
+        peak = float(prov["dipole_peak_proxy"])
+        out.append(f"dipole: peak proxy {peak:.4g} of {float(budget):.4g} A m^2 "
+                   + (f"({1 - peak / float(budget):.0%} to spare)" if peak <= float(budget) else "(FAILS)"))
+    return out
 
 
 def tune_robust_gains(model, models, sigma: float, *, seed: int = 0, start_K=None, start_name: str | None = None,
@@ -434,9 +473,10 @@ def tune_robust_gains(model, models, sigma: float, *, seed: int = 0, start_K=Non
             "robust_spec": str(spec_name), "robust_models": len(models), "robust_worst_model": rf.worst_name,
             **{f"worst_{k}": v for k, v in worst.items()}}
     prov.pop("stable", None)
-    prov.update(hold_provenance(model, res.K, ts, gain_margin))
     if requirements is not None:
         prov.update(requirement_provenance(model, res.K, requirements))
+    else:
+        prov.update(hold_provenance(model, res.K, ts, gain_margin))
     label = "LQ start"
     if start_K is not None:
         label = prov["start"] = str(start_name or "gain")

@@ -3,13 +3,14 @@
 J (paper eq. 21) is the soft goal; the hard requirements are what the flight needs and J does
 not see (docs/requirements.md):
 
-* ``sampling``: the sample-and-hold loop (:mod:`.sampled`) stays stable with the gain and with
-  the gain times ``gain_margin`` at every sample period of [ts_min, ts_max] (paper section 5: no
-  significant degradation up to Ts = 20 s; both ends, since near the nutation limit stability is
-  not monotone in the gain's scale: a gain tuned to ts_max 30 s on the K x margin end alone was
-  unstable itself at some periods). The tuner checks ``check_periods`` periods (geometric, both ends
-  included); the final gain is scanned at ``scan_periods`` periods, and a period that fails the
-  scan is added to the checked set and the search resumed (:func:`scan_hold`, ``design.pipeline``);
+* ``sampling``: the sample-and-hold loop (:mod:`.sampled`) stays stable with the gain times every
+  k in [1, ``gain_margin``] at every admissible sample period of [ts_min, ts_max] (paper section 5:
+  no significant degradation up to Ts = 20 s). Near the nutation limit stability is not monotone in
+  k, so the tuner's screen checks ``check_periods`` periods at both ends of the margin (the top end
+  with the guard band) plus the (period, scale) points a certificate found unstable; the final gain
+  is certified by :func:`.hold_certificate.certify_hold` (every admissible period, k step
+  ``scale_step``, ``guard`` past the margin), and a failing certificate adds its unstable points
+  to the screen and resumes the search (``design.pipeline``);
 * ``dipole``: the worst-case peak commanded dipole per axis of the held loop at ts_min and ts_max
   (:mod:`.dipole`) from the requirement's initial states and residual dipoles stays within the
   budget ``budget_fraction`` x ``limit`` (default: the spacecraft file's ``dipole_limit``);
@@ -28,6 +29,7 @@ import yaml
 from ..base.errors import ConfigError
 from ..base.schema import Field, parse
 from .dipole import DipoleCase, peak_dipole
+from .hold_certificate import GUARD, STEP, HoldCertificate, certify_hold
 from .model import AttitudeLTP
 from .node_params import INITIAL_RATE_ERROR
 from .sampled import SampledLoop, hold_gain_margin
@@ -42,7 +44,12 @@ SAMPLING_FIELDS = (
           "orbit, at every Ts of the range (the slowest mode's decay per orbit; 1: stable only, the default)", 1.0,
           positive=True, bounds=(0.0, 1.0)),
     Field("check_periods", "int", "sample periods the tuner checks (geometric in [ts_min, ts_max])", 8, positive=True),
-    Field("scan_periods", "int", "sample periods of the final gain's dense scan", 96, positive=True),
+    Field("scan_periods", "int", "sample periods of the quick scan between search rounds (the certificate checks "
+          "every admissible period)", 96, positive=True),
+    Field("scale_step", "float", "largest step of the certificate's grid of gain scales in [1, gain_margin] (the "
+          "resolution an instability island is found at)", STEP, positive=True, bounds=(0.0, 0.05)),
+    Field("guard", "float", "relative guard band past gain_margin that must be stable too (above the eigenvalue's "
+          "numerical error near the boundary, ~5e-4)", GUARD, nonnegative=True, bounds=(0.0, 0.1)),
 )
 DIPOLE_FIELDS = (
     Field("limit", "float", "per-axis dipole the torquers deliver [A m^2] (default: the spacecraft file's "
@@ -123,6 +130,7 @@ class Requirements:
     dipole_limit: float  # the resolved per-axis limit [A m^2]
     source: str = "defaults"
     extra_periods: tuple = field(default=())  # periods added by the dense scan (cutting planes)
+    extra_points: tuple = field(default=())   # (period, scale) pairs a certificate found unstable (cutting planes)
     #: the hardware file the limit was resolved against (design.hardware.Hardware; verify flies its sensors and
     #: torquer range), None without one
     hardware: object = field(default=None, compare=False)
@@ -261,6 +269,62 @@ class Requirements:
         """
         return replace(self, extra_periods=tuple(sorted(set(self.extra_periods) | {float(t) for t in extra})))
 
+    def with_points(self, points) -> "Requirements":
+        """The same requirements with more (period, scale) points the screen checks (a certificate's
+        unstable points: the cutting planes of an instability island between the margin's ends).
+
+        Parameters
+        ----------
+        points : iterable of (float, float)
+            (sample period [s], gain scale) pairs.
+
+        Returns
+        -------
+        Requirements
+            A copy whose ``extra_points`` are the sorted union of the old and the new.
+        """
+        new = {(float(t), float(k)) for t, k in points}
+        return replace(self, extra_points=tuple(sorted(set(self.extra_points) | new)))
+
+    @property
+    def scale_top(self) -> float:
+        """The largest gain scale that must be stable: gain_margin x (1 + guard).
+
+        Returns
+        -------
+        float
+            The top of the certificate's grid (0 without a hold requirement).
+        """
+        return self.gain_margin * (1.0 + float(self.sampling["guard"]))
+
+    def certify(self, model: AttitudeLTP, K, workers: int = 2) -> HoldCertificate:
+        """The hold requirement's certificate of one gain (:func:`.hold_certificate.certify_hold`).
+
+        Parameters
+        ----------
+        model : AttitudeLTP
+            Design model.
+        K : array_like (3, 6)
+            Gain.
+        workers : int
+            Threads scanning the periods.
+
+        Returns
+        -------
+        HoldCertificate
+            Every admissible period of [ts_min, ts_max], scales 1 .. gain_margin (1 + guard).
+
+        Raises
+        ------
+        ValueError
+            Without a hold requirement (gain_margin 0).
+        """
+        if not self.gain_margin:
+            raise ValueError("no hold requirement to certify (gain_margin 0)")
+        s = self.sampling
+        return certify_hold(model, K, s["ts_min"], s["ts_max"], self.gain_margin, self.max_multiplier,
+                            step=float(s["scale_step"]), guard=float(s["guard"]), workers=workers)
+
     def dipole_case(self) -> DipoleCase:
         """The initial states and residual dipoles of the budget (:class:`.dipole.DipoleCase`).
 
@@ -367,6 +431,8 @@ class FlightScreen:
     dipole_loops: tuple   # SampledLoop at ts_min (and ts_max)
     case: DipoleCase
     budget: float
+    top: float = 0.0      # the margin's top end checked: gain_margin (1 + guard); 0: gain_margin
+    points: tuple = ()    # (SampledLoop, scales) of the cutting planes: rho(scale K) < 1 at each
 
     @classmethod
     def build(cls, model: AttitudeLTP, req: Requirements) -> "FlightScreen":
@@ -387,7 +453,12 @@ class FlightScreen:
         loops = tuple(SampledLoop.build(model, t) for t in req.periods()[::-1]) if req.gain_margin else ()
         lo, hi = req.sampling["ts_min"], req.sampling["ts_max"]
         dl = tuple(SampledLoop.build(model, t) for t in sorted({lo, hi})) if req.dipole_budget else ()
-        return cls(loops, req.gain_margin, req.max_multiplier, dl, req.dipole_case(), req.dipole_budget)
+        by_ts: dict = {}
+        for t, k in (req.extra_points if req.gain_margin else ()):
+            by_ts.setdefault(t, []).append(k)
+        points = tuple((SampledLoop.build(model, t), np.array(sorted(ks))) for t, ks in sorted(by_ts.items()))
+        return cls(loops, req.gain_margin, req.max_multiplier, dl, req.dipole_case(), req.dipole_budget,
+                   req.scale_top, points)
 
     def __call__(self, Ks) -> np.ndarray:
         """Whether each gain meets every hard requirement (n,): hold margins, then the dipole budget.
@@ -399,21 +470,27 @@ class FlightScreen:
         Ks = np.asarray(Ks, dtype=float).reshape(-1, 3, 6)
         ok = np.ones(len(Ks), dtype=bool)
         for loop in self.loops:  # the margin's both ends (hold_ends)
-            for g, rho in hold_ends(self.gain_margin, self.max_multiplier):
+            for g, rho in hold_ends(self.top or self.gain_margin, self.max_multiplier):
                 if ok.any():
                     ok[ok] = loop.spectral_radius(g * Ks[ok]) < rho
+        for loop, scales in self.points:  # the cutting planes: scales a certificate found unstable
+            for g in scales:
+                if ok.any():
+                    ok[ok] = loop.spectral_radius(g * Ks[ok]) < 1.0
         for loop in self.dipole_loops:  # a gain may stop once above the budget: only the verdict is used
             if ok.any():
                 ok[ok] = peak_dipole(loop, Ks[ok], self.case, stop_above=self.budget).max(axis=-1) <= self.budget
         return ok
 
-    def checks(self, K) -> list:
+    def checks(self, K, hold: bool = True) -> list:
         """Every hard requirement of one gain, with its value (what binds and by how much).
 
         Parameters
         ----------
         K : array_like (3, 6)
             Gain.
+        hold : bool
+            Include the hold checks (False: the dipole budget only).
 
         Returns
         -------
@@ -423,10 +500,11 @@ class FlightScreen:
             each dipole period (``<=`` budget).
         """
         K = np.asarray(K, dtype=float).reshape(3, 6)
-        out = [Check(f"hold gain margin at Ts = {loop.ts:.4g} s", hold_gain_margin(loop, K), self.gain_margin, ">=")
-               for loop in self.loops]
+        loops = self.loops if hold else ()
+        out = [Check(f"hold gain margin at Ts = {loop.ts:.4g} s", hold_gain_margin(loop, K), self.top or self.gain_margin,
+                     ">=") for loop in loops]
         out += [Check(f"held-loop |multiplier| at Ts = {loop.ts:.4g} s", float(loop.spectral_radius(K[None])[0]),
-                      self.max_multiplier, "<=") for loop in self.loops if self.max_multiplier < 1.0]
+                      self.max_multiplier, "<=") for loop in loops if self.max_multiplier < 1.0]
         for loop in self.dipole_loops:
             pk = peak_dipole(loop, K[None], self.case)[0]
             i = int(np.argmax(pk))
@@ -462,6 +540,29 @@ def scan_hold(model: AttitudeLTP, K, req: Requirements, points: int | None = Non
     loops = SampledLoop.at(model, ts, cache)
     return np.array([loop.ts for loop in loops]), np.array([held_margin_ok(loop, K, req.gain_margin, req.max_multiplier)
                                                             for loop in loops])
+
+
+def tightest_period(model: AttitudeLTP, K, req: Requirements) -> float:
+    """The scanned period where the hold margin from K up is smallest: where ``verify`` flies a gains file
+    that records none (``hold_tightest_ts``), found in seconds instead of the certificate's minutes.
+
+    Parameters
+    ----------
+    model : AttitudeLTP
+        Design model.
+    K : array_like (3, 6)
+        Gain.
+    req : Requirements
+        Sampling requirements (range, ``scan_periods``).
+
+    Returns
+    -------
+    float
+        The interval actually used there, T / round(T / Ts) [s].
+    """
+    loops = SampledLoop.at(model, req.periods(req.sampling["scan_periods"]))
+    margins = [hold_gain_margin(loop, np.asarray(K, dtype=float).reshape(3, 6)) for loop in loops]
+    return float(loops[int(np.argmin(margins))].ts)
 
 
 def hold_ends(gain_margin: float, max_multiplier: float = 1.0) -> tuple:
@@ -526,3 +627,41 @@ def held_margin_ok(loop, K, gain_margin: float, max_multiplier: float = 1.0) -> 
     """
     bounds = [b for _, b in hold_ends(gain_margin, max_multiplier)]
     return bool(np.all(held_radii(loop, K, gain_margin) < bounds))
+
+
+def claim_contradictions(prov: dict) -> list:
+    """What a gains file's own figures say against its claim ``requirements_met: true`` (empty: none).
+
+    A certificate claims only what was proven: the hold requirement needs a hold certificate
+    (:mod:`.hold_certificate`; files written before it checked the margin's two ends only) whose
+    certified margin reaches the required one and whose grid found no multiplier >= 1, and the
+    dipole proxy must be within the budget.
+
+    Parameters
+    ----------
+    prov : dict
+        A gains file's provenance.
+
+    Returns
+    -------
+    list of str
+        One line per contradiction, naming the field and the figure.
+    """
+    if prov.get("requirements_met") is not True:
+        return []
+    out = []
+    need = float(prov.get("hold_gain_margin_required") or 0.0)
+    if need:
+        if "hold_certificate" not in prov:
+            out.append("hold_certificate: missing (the claim was made on the margin's two ends only; re-certify "
+                       "with magtune analyze --requirements --record, or re-tune)")
+        low = prov.get("hold_margin_min")
+        if low is not None and float(low) < need:
+            out.append(f"hold_margin_min: {float(low):g} below hold_gain_margin_required {need:g}")
+        top = prov.get("hold_rho_max")
+        if top is not None and float(top) >= 1.0:
+            out.append(f"hold_rho_max: {float(top):g} >= 1 (unstable somewhere on the certified grid)")
+    peak, budget = prov.get("dipole_peak_proxy"), prov.get("dipole_budget")
+    if peak is not None and budget and float(peak) > float(budget):
+        out.append(f"dipole_peak_proxy: {float(peak):g} above dipole_budget {float(budget):g} A m^2")
+    return out

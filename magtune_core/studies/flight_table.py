@@ -550,7 +550,8 @@ def document(table: FlightTable, shown, vectors: dict, files: dict, version: str
     prov = dict(table.gains.provenance) if table.gains else {}
     design = {"sigma": table.gains.sigma if table.gains else None, **{k: prov.get(k) for k in (
         "J", "c1", "c2", "rho", "method", "seed", "design_field", "requirements", "requirements_source",
-        "requirements_met", "hold_gain_margin", "hold_margin_min", "dipole_budget", "written")},
+        "requirements_met", "hold_gain_margin", "hold_gain_margin_required", "hold_margin_min", "hold_tightest_ts",
+        "hold_rho_max", "hold_certificate", "dipole_budget", "written")},
               "verification": prov.get("verification")}
     doc = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "tool": {"name": "magtune", "version": version},
            "sources": {role: {"path": shown(path), "sha256": file_sha256(path)} for role, path in table.files.items()},
