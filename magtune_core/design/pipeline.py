@@ -322,8 +322,7 @@ def binding_message(model, K0, req, reason: str) -> str:
     return f"{reason}; binding: " + "; ".join(words(c, f) for c, f in bind[:2]) + more
 
 
-def requirement_provenance(model, K, req: Requirements, cache: dict | None = None, certificate=None,
-                           certify: bool = True) -> dict:
+def requirement_provenance(model, K, req: Requirements, certificate=None, certify: bool = True) -> dict:
     """What a gains file records about its requirements: the spec in one line, the hold certificate's
     figures (:mod:`.hold_certificate`: the certified margin and its period, where ``verify`` also flies,
     the largest multiplier over the certified grid, rho(K)), the peak-dipole proxy, and whether every
@@ -337,8 +336,6 @@ def requirement_provenance(model, K, req: Requirements, cache: dict | None = Non
         Gain.
     req : Requirements
         The design spec.
-    cache : dict or None
-        Unused (kept for callers that share the quick scan's loops).
     certificate : HoldCertificate or None
         The gain's certificate when already computed; None: computed here (every admissible period).
     certify : bool
