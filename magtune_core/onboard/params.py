@@ -223,6 +223,9 @@ MANAGER_FIELDS = (
           "[s, steady wall-clock time] -> SAFE", 3.0, positive=True, bounds=(1.5, 3600.0), unit="s"),
     Field("stale_timeout", "float", "sensor data older than this [s, sim time] is stale -> SAFE", 3.0,
           positive=True, bounds=(1e-3, 1e6), unit="s"),
-    Field("transition_timeout", "float", "wall seconds to wait for a node's lifecycle service", 30.0,
-          positive=True, bounds=(0.1, 3600.0), unit="s"),
+    Field("transition_timeout", "float", "bring-up: a managed node with no sign of life (no heartbeat, no lifecycle "
+          "reply) this long is not answering [s, steady wall-clock time]", 30.0, positive=True, bounds=(0.1, 3600.0),
+          unit="s"),
+    Field("bringup_limit", "float", "bring-up: a bring-up (configure, then activate every managed node) not done "
+          "this long, its nodes answering, is too slow [s, steady wall-clock time]", 300.0, positive=True, bounds=(1.0, 86400.0), unit="s"),
 )

@@ -567,21 +567,21 @@ class SilScenario:
             params["tle"] = ([tle.name] if tle.name else []) + [tle.line1, tle.line2]
         return params
 
-    def _startup_timeout(self) -> float:
-        """The simulator's wait for its peers [wall s]: with the mode manager, longer by the manager's wait for one
-        node's lifecycle service, so a node that does not come up is named by the manager's bring-up error
-        rather than by the simulator's "no subscriber/controller matched"."""
+    def peer_wait(self) -> float:
+        """The simulator's wait for its peers [wall s]: with the mode manager, longer by the manager's bring-up limit
+        (the longest it waits for nodes that answer), so a node that does not come up is named by the manager's
+        bring-up error rather than by the simulator's "no subscriber/controller matched"."""
         if not self.modes:
             return float(self.startup_timeout)
         manager = {f.name: f.default for f in MANAGER_FIELDS}
-        return float(self.startup_timeout) + float(self.mode_params.get("transition_timeout", manager["transition_timeout"]))
+        return float(self.startup_timeout) + float(self.mode_params.get("bringup_limit", manager["bringup_limit"]))
 
     def node_parameters(self, sat: Satellite, results_path: Path) -> dict[str, dict]:
         """The ROS parameters of each node of ``sat``: node name -> {name: value}."""
         common = {"use_sim_time": True, "ts": float(sat.ts)}
         sim = dict(common, time_origin_ns=int(self.time_origin_ns), substeps=int(self.substeps),
                    lockstep=bool(self.lockstep), lockstep_timeout=float(self.lockstep_timeout),
-                   startup_timeout=self._startup_timeout(), real_time_factor=float(self.real_time_factor),
+                   startup_timeout=self.peer_wait(), real_time_factor=float(self.real_time_factor),
                    results_path=str(results_path.resolve()))
         if self.bag:
             sim["min_truth_subscribers"] = 2  # the recorder must be listening before step 0

@@ -236,8 +236,11 @@ def _wait(scenario: SilScenario, procs: list[NodeProcess], sims: dict, res_paths
     ``progress(k, n)``: summed step lines; ``kills`` namespace -> :class:`KillWatch` (its victim's
     exit is the fault, not a failure)."""
     kills = kills or {}
+    # without a user's timeout, a guard against a hung run only: the simulators' own wait for their peers (with the
+    # mode manager, its bring-up limit too), then 20 steps/s per satellite, 7x below the slowest loaded rate
+    # measured (the full environment's 11,000 steps at >135 steps/s with two CPU hogs, scripts/load_test.sh)
     deadline = time.monotonic() + (scenario.timeout if scenario.timeout else
-                                   scenario.startup_timeout + 60.0 + 0.05 * scenario.n_steps * len(sims))
+                                   scenario.peer_wait() + 60.0 + 0.05 * scenario.n_steps * len(sims))
     watches = {ns: LogProgress(p.log, (lambda k, n: None) if progress else None) for ns, p in sims.items()}
     shown = [-1]
 

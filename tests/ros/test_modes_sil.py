@@ -154,3 +154,16 @@ def test_bad_controller_parameter_reported_by_the_manager(gains60, tmp_path):
                     log_dir=tmp_path, timeout=60)
     line = str(exc.value)
     assert "\n" not in line and "controller: parameter 'min_field'" in line, line
+
+
+def test_a_managed_node_that_never_answers_is_named_silent(gains60, tmp_path):
+    """A managed node that does not exist ("ghost", after the two real ones): no lifecycle reply, no heartbeat, so
+    after transition_timeout the manager names it as not answering (exit 2, one line) instead of waiting for the
+    whole bring-up limit. 20 s: the real nodes, started on a busy machine, show their first heartbeat well within it
+    (their imports take ~5 s with two CPU hogs beside them, scripts/load_test.sh)."""
+    with pytest.raises(ConfigError) as exc:
+        sil.run_sil(gains60, steps=50, ts=1.0, modes=True, log_dir=tmp_path, timeout=180,
+                    mode_params={"managed_nodes": ["attitude_sensors", "controller", "ghost"],
+                                 "transition_timeout": 20.0})
+    line = str(exc.value)
+    assert "\n" not in line and "ghost: no answer for 2" in line and "is it running?" in line, line

@@ -1,9 +1,12 @@
 """mode_manager node: lifecycle bring-up of the flight nodes, the mode logic, health monitoring.
 
 Bring-up (lifecycle_msgs services ``<node>/change_state``, in ``managed_nodes`` order, default
-attitude_sensors then controller): configure every node, then activate them in order; a failed
-configure leaves that node *unconfigured*: the manager prints ``mode_manager: <node>: <reason>``
-(the node's one line, read from its ERROR status on /diagnostics) and exits 2. On shutdown
+attitude_sensors then controller): configure every node, then activate them in order, each transition
+waited for on the node's progress, not a fixed wall time (magtune_core.onboard.bringup: a lost or late
+reply is found by ``get_state``; a node that answers is waited for up to ``bringup_limit``, one that gives
+no sign of life for ``transition_timeout`` is named as not answering). A failed configure leaves that node
+*unconfigured*: the manager prints ``mode_manager: <node>: <reason>`` (the node's one line, read from its
+ERROR status on /diagnostics) and exits 2; a silent or too slow node gets its own line, and exit 2. On shutdown
 (SIGINT/SIGTERM) it deactivates them in reverse order, then shuts them down (their processes end).
 The manager itself is a plain node: it manages, as Nav2's lifecycle_manager does.
 
@@ -88,6 +91,7 @@ from magtune_core.base.errors import ConfigError
 from magtune_core.base.text import printable
 from magtune_core.base.topics import SERVICE_SET_MODE, TOPIC_ATTITUDE, TOPIC_DIAGNOSTICS, TOPIC_MAG, TOPIC_MODE
 from magtune_core.onboard.bdot import FieldDerivativeFilter, FilterState
+from magtune_core.onboard.bringup import ASK, DONE, FAILED, SEND, SILENT, SLOW, TransitionWait
 from magtune_core.onboard.modes import MODES, SAFE, Measurements, ModeLogic, ModeParams, ModeState
 from magtune_core.onboard.params import BDOT_FIELDS, MANAGER_FIELDS, MODE_FIELDS
 
@@ -106,6 +110,9 @@ STREAMS = ("sensors/magnetic_field", "sensors/attitude")
 STALE_CONFIRM = 0.5
 #: Name suffix of a managed node's fault statuses (diagnostics.Diagnostics.unit_fault: ``magtune/<node>/fdir``).
 FDIR_SUFFIX = "/fdir"
+#: A transition not done after this long [steady s] is logged once as slow (the bring-up goes on waiting while the
+#: node answers, up to bringup_limit).
+SLOW_NOTICE = 10.0
 #: Period of the liveness check [steady s].
 CHECK_PERIOD = 0.25
 #: A gap between two liveness checks above this [steady s] (4 periods) means the manager itself did not run
@@ -148,6 +155,7 @@ class ModeManager(Node):
         self.ts_ns = sec_to_ns(v["ts"])
         self.nodes = list(v["managed_nodes"])
         self.heartbeat_timeout, self.transition_timeout = v["heartbeat_timeout"], v["transition_timeout"]
+        self.bringup_limit = v["bringup_limit"]
         self.stale_ns = sec_to_ns(v["stale_timeout"])
         self.filter, self.fstate = FieldDerivativeFilter(v["ts"], bd["bdot_cutoff"]), FilterState()
         self.state = ModeState(v["initial_mode"], 0.0, "start")
@@ -156,6 +164,8 @@ class ModeManager(Node):
         self.b_prev = None          # last magnetometer sample (the frozen-sensor guard's |b_k - b_(k-1)|)
         self.beats: dict[str, float] = {}      # node -> steady time [s] its silence counts from (stalled)
         self.errors: dict[str, str] = {}       # node -> its ERROR status message (failed configure)
+        self.heard: dict[str, float] = {}      # node -> steady time of its last heartbeat (bring-up's sign of life)
+        self.events_at: dict[str, float] = {}  # node -> steady time of its last transition event
         self.silent: set[str] = set()          # nodes whose heartbeat is missing
         self.left: dict[str, str] = {}         # node -> why it left active (its transition event)
         self.why: dict[str, str] = {}          # node -> why it is lost (the ERROR status)
@@ -206,27 +216,56 @@ class ModeManager(Node):
         return bool(r and r.success)
 
     def bring_up(self, executor, stop) -> None:
-        """Configure every node (in order), then activate each (in order); BringUpError naming a failing node."""
-        for n in self.nodes:
-            if not self._transition(executor, n, Transition.TRANSITION_CONFIGURE, self.transition_timeout):
-                raise BringUpError(f"{n}: {self._reason(executor, n)}")
-            self.get_logger().info(f"{n}: configured")
-        for n in self.nodes:
-            if not self._transition(executor, n, Transition.TRANSITION_ACTIVATE, self.transition_timeout):
-                raise BringUpError(f"{n}: activation failed")
-            self.get_logger().info(f"{n}: active")
+        """Configure every node (in order), then activate each (in order), each waited for on its progress
+        (:meth:`wait_transition`); BringUpError naming a node that failed, is silent or too slow."""
+        end = time.monotonic() + self.bringup_limit  # the whole bring-up's limit
+        for name, tid in (("configure", Transition.TRANSITION_CONFIGURE), ("activate", Transition.TRANSITION_ACTIVATE)):
+            for n in self.nodes:
+                self.wait_transition(executor, stop, n, name, tid, end)
         now = time.monotonic()
         self.beats = {n: max(self.beats.get(n, now), now) for n in self.nodes}
         self.monitoring = True
 
-    def _reason(self, executor, node: str) -> str:
-        """Why ``node`` did not configure: its ERROR status on /diagnostics (waited for up to 3 s)."""
-        end = time.monotonic() + 3.0
-        while node not in self.errors and time.monotonic() < end:
+    def wait_transition(self, executor, stop, node: str, name: str, tid: int, end: float) -> None:
+        """Ask ``node`` for one transition and wait on its progress (magtune_core.onboard.bringup: its replies,
+        its state, its heartbeats and transition events) until the bring-up's steady deadline ``end``, not on a
+        fixed wall time; BringUpError with one line."""
+        t0 = time.monotonic()
+        wait = TransitionWait(node, name, t0, self.transition_timeout, max(end - t0, 0.0))
+        change, ask = self.change[node], self.get_state[node]
+        pending = {}  # "change" / "state" -> future
+        slow_logged = False
+        while rclpy.ok() and not stop.is_set():
+            now = time.monotonic()
+            wait.alive(self.heard.get(node, wait.t0))
+            if self.events_at.get(node, -1.0) > wait.started:
+                wait.event(self.events_at[node])
+            verdict, line = wait.verdict(now, self.errors.get(node))
+            if verdict == DONE:
+                self.get_logger().info(f"{node}: {wait.goal} after {now - wait.t0:.1f} s")
+                return
+            if verdict in (FAILED, SILENT, SLOW):
+                raise BringUpError(f"{node}: {line}")
+            if verdict == SEND and change.service_is_ready():
+                pending["change"] = change.call_async(ChangeState.Request(transition=Transition(id=tid)))
+                wait.sending(now)
+            elif verdict == ASK and "state" not in pending and ask.service_is_ready():
+                pending["state"] = ask.call_async(GetState.Request())
+                wait.asking(now)
+            if not slow_logged and now - wait.t0 > SLOW_NOTICE:
+                slow_logged = True
+                self.get_logger().warning(f"{node}: {name} not done after {SLOW_NOTICE:g} s; waiting while it answers "
+                                          f"(bringup_limit {self.bringup_limit:g} s)")
             executor.spin_once(timeout_sec=0.1)
-        r = self._call(executor, self.get_state[node], GetState.Request(), 2.0)
-        where = f" (node {r.current_state.label})" if r else " (no answer from its lifecycle services)"
-        return self.errors.get(node, "configure failed" + where).removeprefix("configure failed: ")
+            for key, fut in list(pending.items()):
+                if fut.done():
+                    del pending[key]
+                    r = fut.result()
+                    if r is not None and key == "change":
+                        wait.reply(time.monotonic(), bool(r.success))
+                    elif r is not None:
+                        wait.answer(time.monotonic(), r.current_state.label)
+        raise BringUpError(f"{node}: bring-up stopped before {name} was done")
 
     def bring_down(self, executor) -> None:
         """Deactivate the nodes in reverse order, then shut them down (best effort, 2 s per call)."""
@@ -260,6 +299,7 @@ class ModeManager(Node):
             if ns is not None and ns != self.get_namespace():
                 continue
             self.beats[node] = max(now, self.beats.get(node, now))  # not before a listening period's end
+            self.heard[node] = now
             if st.level == DiagnosticStatus.ERROR:
                 self.errors[node] = printable(st.message, 500)  # a peer's string, printed on a failed bring-up
             if node in self.silent:
@@ -282,7 +322,9 @@ class ModeManager(Node):
 
     def on_transition(self, node: str, msg: TransitionEvent):
         """``<node>/transition_event``: while monitoring, a node leaving active is lost (the cause from the state it
-        goes to: LEFT_ACTIVE, else that state's label as one bounded line); entering active again, it is back."""
+        goes to: LEFT_ACTIVE, else that state's label as one bounded line); entering active again, it is back.
+        At bring-up, its time is the node's progress (wait_transition)."""
+        self.events_at[node] = time.monotonic()
         if not self.monitoring:
             return
         active = State.PRIMARY_STATE_ACTIVE
