@@ -8,7 +8,7 @@
 # mode managers' bring-up times found there are summarized (per node and transition: count, median, max).
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
-busy=${BUSY:-2}; runs=${RUNS:-1}; out=${LOAD_DIR:-$(mktemp -d /tmp/magtune-load.XXXXXX)}
+busy=${BUSY:-2}; runs=${RUNS:-1}; out=${LOAD_DIR:-$(mktemp -d /tmp/magtune-load.XXXXXX)}; mkdir -p "$out"
 [ "$#" -gt 0 ] || set -- tests/ros
 cd "$root"
 . scripts/env.sh
