@@ -40,6 +40,9 @@ class Field:
     #: spacecraft can have; a value outside is a typo or a unit error (e.g. nT written as T)
     bounds: tuple[float, float] | None = None
     unit: str = ""
+    #: null (YAML ``~``) has a stated meaning for this field (its description says which) and is taken as None;
+    #: for every other field a null is refused (:func:`parse`)
+    nullable: bool = False
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -116,12 +119,17 @@ def parse(mapping: dict, fields, where, allowed=None) -> dict:
 
     With ``allowed`` (a sequence, possibly empty) every other key of ``mapping`` must be a field
     or listed there (:func:`check_names`); with None other keys are ignored here (the caller
-    decides, e.g. other nodes' parameters). A missing required field raises ConfigError naming it.
+    decides, e.g. other nodes' parameters). A missing required field raises ConfigError naming it; so does a
+    null (YAML ``~``, an empty value) of a field that is not ``nullable``: a user's null never means a default
+    silently (a spacecraft file's ``tle_file: null`` flew the default circular orbit).
     """
     if allowed is not None:
         check_names(mapping, fields, where, allowed)
     out = {}
     for f in fields:
+        if f.name in mapping and mapping[f.name] is None and not f.nullable:
+            raise ConfigError(where, f.name, "null: give it a value" + ("" if f.required else
+                                                                        ", or remove the key for its default"))
         if f.name in mapping and mapping[f.name] is not None:
             out[f.name] = parse_value(f, mapping[f.name], where)
         elif f.required:

@@ -432,6 +432,10 @@ class SpacecraftParams:
         from .node_params import NODE_PARAMETERS  # below law/model, which import this module
 
         v = parse(params, cls.FIELDS, where, allowed=NODE_PARAMETERS if strict else None)
+        for key in ("tle", "tle_file"):  # given but empty would fly the default circular orbit, silently
+            if key in params and not len(params[key]):
+                raise ConfigError(where, key, "empty: give the element set, or remove the key for the circular orbit "
+                                              "of altitude, inclination and raan")
         check_inertia(v["inertia"], where)
         tle, name = read_tle(v, where, base_dir)
         orbit = _circular_orbit(v, where) if tle is None else _tle_orbit(tle, name, v, where)

@@ -162,8 +162,8 @@ def test_node_parameters_come_from_the_schemas():
     # magnetometer-bias states of issue 31 (initial_mag_bias_std, mag_bias_rw), plus the simulator's
     # max_substeps (the sub-steps re-chosen from the rate), plus issue 44's full stack: the mode logic's
     # attitude_loss_time, the estimator's 5 validity fields and its sun_loss_samples, its 5 sensor-watch fields and
-    # its torquer_watch switch
-    assert len(NODE_PARAMETERS) == 37 + 8 + 12 + 2 + 1 + 4 + 1 + 4 + 2 + 4 + 2 + 1 + 1 + 5 + 1 + 5 + 1
+    # its torquer_watch switch, plus issue 60's bringup_limit of the mode manager
+    assert len(NODE_PARAMETERS) == 37 + 8 + 12 + 2 + 1 + 4 + 1 + 4 + 2 + 4 + 2 + 1 + 1 + 5 + 1 + 5 + 1 + 1
     assert {"initial_quaternion", "mag_quantum", "min_field", "seed"} <= names
 
 

@@ -147,6 +147,12 @@ def test_orbit_overrides_turn_the_tle_state():
     (dict(tle=list(ISS), arg_latitude=0.0), "arg_latitude", "remove arg_latitude"),
     (dict(tle=list(ISS), tle_file="x.tle"), "tle_file", "given together with tle: keep one of them"),
     (dict(tle_file="missing.tle"), "tle_file", "missing.tle: file not found"),
+    # given but empty or null: refused, not the default circular orbit (issue 57)
+    (dict(tle_file=None), "tle_file", "null: give it a value"),
+    (dict(tle_file=""), "tle_file", "empty: give the element set, or remove the key"),
+    (dict(tle=[]), "tle", "empty: give the element set, or remove the key"),
+    (dict(tle=None), "tle", "null: give it a value"),
+    (dict(altitude=None), "altitude", "null: give it a value"),
     (dict(tle=[ISS[0], ISS[1][:68] + "0"]), "tle", "line 2 checksum: column 69 holds '0', the line tallies to 7"),
     (dict(tle=[ISS[0]]), "tle", "expected the 2 lines of a TLE"),
     (dict(tle=[ISS[0], _fix(ISS[1][:52] + "16.60000000" + ISS[1][63:])]), "tle", "below 150 km (decayed or re-entering"),
