@@ -32,7 +32,7 @@ from ..design.fitfield import field_for_spacecraft
 from ..design.gains import CONTROLLER_NODE, Gains
 from ..design.hardware import check_spacecraft_agrees, load_hardware
 from ..design.node_params import INITIAL_RATE_ERROR
-from ..design.params import SpacecraftParams, check_sample_period, warn_tle
+from ..design.params import SpacecraftParams, check_field_epoch, check_sample_period, warn_tle
 from ..design.sensors import default_suite
 from ..onboard.modes import DETUMBLE, POINTING, ModeParams
 from ..onboard.params import BDOT_FIELDS, ESTIMATOR_FIELDS, MANAGER_FIELDS, MODE_FIELDS, MODE_NAMES, TORQUER_FIELDS
@@ -498,6 +498,10 @@ class SilScenario:
             sat_list.append(Satellite(ns, g, gains[ns], gains_params[ns], sat_ts))
         check_outputs(req)
         opts, sc = check_environment(req, sc)
+        if opts is not None:  # IGRF along the whole run: its last step inside the field model's years, before any node
+            last = max(s.ts for s in sat_list) * (req.steps if req.steps else math.ceil(req.orbits * sc.orbit_period))
+            check_field_epoch(sc.epoch + _dt.timedelta(seconds=float(last)), req.spacecraft,
+                              "epoch (the run's last step, --orbits/--steps after it)")
         faults = check_fault_arguments(req.faults, req.epoch_time, steps=req.steps, orbits=req.orbits,
                                        ts=[s.ts for s in sat_list], period=sc.orbit_period)
         time_origin_ns = epoch_ns(sc.epoch) if req.epoch_time else 0

@@ -1,0 +1,60 @@
+"""What a user types, refused before any work (issue 57): a table of inputs, the exit status and the one line.
+
+Each row failed before its change: a null or empty ``tle_file`` flew the default circular orbit with exit 0; an
+epoch outside IGRF-14's years passed validation and ended a full-environment SIL with a traceback after its
+nodes started (fit-field printed one); ``fit-field --harmonics 100000`` computed without end and
+``--harmonics 300 --days 0.1`` fitted 601 unknowns to 433 samples with a residual of 0.00. The rows run in
+this process (``magtune`` main): no node is started, so a row that got past the checks would fail on its time or
+its exit status, not hang.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+from cli_errors import one_line_exit2  # tests/support
+
+from magtune_core.base.ament import ROOT
+
+GAINS = str(ROOT / "config" / "gains" / "sigma_60.yaml")
+SPACECRAFT = ROOT / "config" / "spacecraft.yaml"
+
+
+def spacecraft(tmp_path: Path, **orbit) -> str:
+    """config/spacecraft.yaml with ``orbit`` set in its ``/**`` section (None: a YAML null)."""
+    doc = yaml.safe_load(SPACECRAFT.read_text())
+    doc["/**"]["ros__parameters"].update(orbit)
+    out = tmp_path / "sc.yaml"
+    out.write_text(yaml.safe_dump(doc))
+    return str(out)
+
+
+#: (spacecraft file keys or None, the command after ``--config FILE``, the field or option named, words of the line)
+ROWS = [
+    (dict(tle_file=None), ["analyze", GAINS], "tle_file", "null: give it a value"),
+    (dict(tle_file=""), ["analyze", GAINS], "tle_file", "empty: give the element set"),
+    (dict(tle=[]), ["analyze", GAINS], "tle", "empty: give the element set"),
+    (dict(altitude=None), ["analyze", GAINS], "altitude", "null: give it a value"),
+    (dict(epoch="2031-01-01T00:00:00"), ["analyze", GAINS], "epoch", "outside the years of the field model, IGRF-14"),
+    (dict(epoch="1899-06-01T00:00:00"), ["sil", "--gains", GAINS, "--environment", "full", "--steps", "10"], "epoch",
+     "outside the years of the field model"),
+    # inside the years at the start, outside at the run's end: refused before a node starts
+    (dict(epoch="2029-12-31T12:00:00"), ["sil", "--gains", GAINS, "--environment", "full", "--orbits", "20"],
+     "epoch (the run's last step", "2030-01-01T19:10:25 is outside"),
+    (None, ["fit-field", "--harmonics", "100000"], "--harmonics 100000", "resolves at most 70 harmonics"),
+    (None, ["fit-field", "--harmonics", "60", "--days", "0.05"], "--harmonics 60",
+     "121 unknowns per axis need at least 242 samples, --days 0.05 every --step 20 s gives 217"),
+    (None, ["fit-field", "--epoch", "2031-01-01"], "--epoch", "outside the years of the field model"),
+    (None, ["fit-field", "--epoch", "2029-12-30"], "--days (the fit's last sample)", "2030-01-02T00:00:00 is outside"),
+]
+
+
+@pytest.mark.parametrize("keys, command, named, words", ROWS, ids=[f"{r[1][0]}-{r[2]}" for r in ROWS])
+def test_refused_with_one_line_and_exit_2(tmp_path, capsys, keys, command, named, words):
+    argv = (["--config", spacecraft(tmp_path, **keys)] if keys is not None else []) + command
+    if command[0] == "fit-field":
+        argv += ["--out", str(tmp_path / "field.yaml")]
+    line = one_line_exit2(capsys, argv)
+    assert named in line and words in line, line
+    assert not (tmp_path / "field.yaml").exists()
