@@ -3,7 +3,8 @@
 Each row failed before its change: a null or empty ``tle_file`` flew the default circular orbit with exit 0; an
 epoch outside IGRF-14's years passed validation and ended a full-environment SIL with a traceback after its
 nodes started (fit-field printed one); ``fit-field --harmonics 100000`` computed without end and
-``--harmonics 300 --days 0.1`` fitted 601 unknowns to 433 samples with a residual of 0.00. The rows run in
+``--harmonics 300 --days 0.1`` fitted 601 unknowns to 433 samples with a residual of 0.00; ``campaign --workers
+1000`` on 2 cores started hundreds of processes (load 57) and no run finished. The rows run in
 this process (``magtune`` main): no node is started, so a row that got past the checks would fail on its time or
 its exit status, not hang.
 """
@@ -18,6 +19,7 @@ from cli_errors import one_line_exit2  # tests/support
 from magtune_core.base.ament import ROOT
 
 GAINS = str(ROOT / "config" / "gains" / "sigma_60.yaml")
+CAMPAIGN = str(ROOT / "config" / "campaigns" / "example.yaml")
 SPACECRAFT = ROOT / "config" / "spacecraft.yaml"
 
 
@@ -47,14 +49,21 @@ ROWS = [
      "121 unknowns per axis need at least 242 samples, --days 0.05 every --step 20 s gives 217"),
     (None, ["fit-field", "--epoch", "2031-01-01"], "--epoch", "outside the years of the field model"),
     (None, ["fit-field", "--epoch", "2029-12-30"], "--days (the fit's last sample)", "2030-01-02T00:00:00 is outside"),
+    # more local workers than cores: campaign --workers 1000 started hundreds of processes on 2 cores (load 57)
+    (None, ["campaign", CAMPAIGN, "--runs", "1", "--out", "{tmp}/c", "--workers", "1000"], "--workers",
+     "1000 local workers on"),
+    (None, ["verify", GAINS, "--runs", "1", "--out", "{tmp}/v", "--workers", "1000"], "--workers", "--oversubscribe"),
+    (None, ["tune", "--sigma", "60", "--out", "{tmp}/g.yaml", "--workers", "1000"], "--workers", "--oversubscribe"),
+    (None, ["sampling", "--out-dir", "{tmp}/s", "--workers", "1000"], "--workers", "--oversubscribe"),
 ]
 
 
 @pytest.mark.parametrize("keys, command, named, words", ROWS, ids=[f"{r[1][0]}-{r[2]}" for r in ROWS])
 def test_refused_with_one_line_and_exit_2(tmp_path, capsys, keys, command, named, words):
+    command = [a.replace("{tmp}", str(tmp_path)) for a in command]
     argv = (["--config", spacecraft(tmp_path, **keys)] if keys is not None else []) + command
     if command[0] == "fit-field":
         argv += ["--out", str(tmp_path / "field.yaml")]
     line = one_line_exit2(capsys, argv)
     assert named in line and words in line, line
-    assert not (tmp_path / "field.yaml").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) in ([], ["sc.yaml"]), "work was done before the refusal"
