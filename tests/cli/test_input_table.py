@@ -49,6 +49,12 @@ ROWS = [
      "121 unknowns per axis need at least 242 samples, --days 0.05 every --step 20 s gives 217"),
     (None, ["fit-field", "--epoch", "2031-01-01"], "--epoch", "outside the years of the field model"),
     (None, ["fit-field", "--epoch", "2029-12-30"], "--days (the fit's last sample)", "2030-01-02T00:00:00 is outside"),
+    # a file given is a file read and validated, whether or not the command uses it this time
+    (None, ["analyze", GAINS, "--hardware", "/nonexistent.yaml"], "--hardware", "is read with --requirements only"),
+    (None, ["analyze", GAINS, "--requirements", "--hardware", "{tmp}/empty.yaml"], "empty.yaml",
+     "expected a mapping with at least one of the sections"),
+    (None, ["analyze", GAINS, "--requirements", "--hardware", "{tmp}/null_section.yaml"], "field 'gyro'",
+     "null: give the section's fields"),
     # more local workers than cores: campaign --workers 1000 started hundreds of processes on 2 cores (load 57)
     (None, ["campaign", CAMPAIGN, "--runs", "1", "--out", "{tmp}/c", "--workers", "1000"], "--workers",
      "1000 local workers on"),
@@ -60,10 +66,13 @@ ROWS = [
 
 @pytest.mark.parametrize("keys, command, named, words", ROWS, ids=[f"{r[1][0]}-{r[2]}" for r in ROWS])
 def test_refused_with_one_line_and_exit_2(tmp_path, capsys, keys, command, named, words):
+    (tmp_path / "empty.yaml").write_text("")
+    (tmp_path / "null_section.yaml").write_text("gyro:\n")
     command = [a.replace("{tmp}", str(tmp_path)) for a in command]
     argv = (["--config", spacecraft(tmp_path, **keys)] if keys is not None else []) + command
     if command[0] == "fit-field":
         argv += ["--out", str(tmp_path / "field.yaml")]
     line = one_line_exit2(capsys, argv)
     assert named in line and words in line, line
-    assert sorted(p.name for p in tmp_path.iterdir()) in ([], ["sc.yaml"]), "work was done before the refusal"
+    made = sorted(p.name for p in tmp_path.iterdir() if p.name not in ("empty.yaml", "null_section.yaml", "sc.yaml"))
+    assert made == [], f"work was done before the refusal: {made}"
