@@ -336,6 +336,9 @@ def check_output(path, *, force: bool = False, option: str = "--out", directory:
     """
     path = Path(path)
     check_path(path)  # a symbolic link loop: one line, the same in every command
+    if path.is_symlink() and not path.exists():  # dangling: mkdir or open would fail after the work (a traceback)
+        raise ConfigError(path, None, f"is a symbolic link to {os.readlink(path)!r}, which does not exist: remove it "
+                                      f"or choose another {option}")
     if directory:
         if path.exists() and not path.is_dir():
             raise ConfigError(path, None, f"exists and is not a directory (choose another {option})")

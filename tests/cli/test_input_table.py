@@ -55,6 +55,8 @@ ROWS = [
      "expected a mapping with at least one of the sections"),
     (None, ["analyze", GAINS, "--requirements", "--hardware", "{tmp}/null_section.yaml"], "field 'gyro'",
      "null: give the section's fields"),
+    # an output that is a dangling symbolic link: export made its directory after the work and died on it
+    (None, ["export", GAINS, "--out", "{tmp}/dangling"], "dangling", "is a symbolic link to"),
     # more local workers than cores: campaign --workers 1000 started hundreds of processes on 2 cores (load 57)
     (None, ["campaign", CAMPAIGN, "--runs", "1", "--out", "{tmp}/c", "--workers", "1000"], "--workers",
      "1000 local workers on"),
@@ -68,11 +70,12 @@ ROWS = [
 def test_refused_with_one_line_and_exit_2(tmp_path, capsys, keys, command, named, words):
     (tmp_path / "empty.yaml").write_text("")
     (tmp_path / "null_section.yaml").write_text("gyro:\n")
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere" / "out")
     command = [a.replace("{tmp}", str(tmp_path)) for a in command]
     argv = (["--config", spacecraft(tmp_path, **keys)] if keys is not None else []) + command
     if command[0] == "fit-field":
         argv += ["--out", str(tmp_path / "field.yaml")]
     line = one_line_exit2(capsys, argv)
     assert named in line and words in line, line
-    made = sorted(p.name for p in tmp_path.iterdir() if p.name not in ("empty.yaml", "null_section.yaml", "sc.yaml"))
+    made = sorted(p.name for p in tmp_path.iterdir() if p.name not in ("empty.yaml", "null_section.yaml", "sc.yaml", "dangling"))
     assert made == [], f"work was done before the refusal: {made}"
