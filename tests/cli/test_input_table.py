@@ -57,6 +57,9 @@ ROWS = [
      "null: give the section's fields"),
     # an output that is a dangling symbolic link: export made its directory after the work and died on it
     (None, ["export", GAINS, "--out", "{tmp}/dangling"], "dangling", "is a symbolic link to"),
+    # export-check of a vectors file with its header and no row: a traceback (numpy's min of nothing)
+    (None, ["export-check", "{tmp}/header_only.csv", "{tmp}/one_row.csv"], "VECTORS: field 'step'", "no rows"),
+    (None, ["export-check", "{tmp}/one_row.csv", "{tmp}/header_only.csv"], "header_only.csv: field 'step'", "no rows"),
     # more local workers than cores: campaign --workers 1000 started hundreds of processes on 2 cores (load 57)
     (None, ["campaign", CAMPAIGN, "--runs", "1", "--out", "{tmp}/c", "--workers", "1000"], "--workers",
      "1000 local workers on"),
@@ -66,16 +69,22 @@ ROWS = [
 ]
 
 
+#: The input files the rows name (made by the test), not outputs.
+INPUTS = ("empty.yaml", "null_section.yaml", "sc.yaml", "dangling", "header_only.csv", "one_row.csv")
+
+
 @pytest.mark.parametrize("keys, command, named, words", ROWS, ids=[f"{r[1][0]}-{r[2]}" for r in ROWS])
 def test_refused_with_one_line_and_exit_2(tmp_path, capsys, keys, command, named, words):
     (tmp_path / "empty.yaml").write_text("")
     (tmp_path / "null_section.yaml").write_text("gyro:\n")
     (tmp_path / "dangling").symlink_to(tmp_path / "nowhere" / "out")
+    (tmp_path / "header_only.csv").write_text("step,t,m_x\n")
+    (tmp_path / "one_row.csv").write_text("step,t,m_x\n0,0,1\n")
     command = [a.replace("{tmp}", str(tmp_path)) for a in command]
     argv = (["--config", spacecraft(tmp_path, **keys)] if keys is not None else []) + command
     if command[0] == "fit-field":
         argv += ["--out", str(tmp_path / "field.yaml")]
     line = one_line_exit2(capsys, argv)
     assert named in line and words in line, line
-    made = sorted(p.name for p in tmp_path.iterdir() if p.name not in ("empty.yaml", "null_section.yaml", "sc.yaml", "dangling"))
+    made = sorted(p.name for p in tmp_path.iterdir() if p.name not in INPUTS)
     assert made == [], f"work was done before the refusal: {made}"
