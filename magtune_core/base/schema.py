@@ -57,6 +57,19 @@ def _number(v) -> bool:
     return not isinstance(v, bool) and isinstance(v, (int, float, np.integer, np.floating))
 
 
+def _yaml_text_hint(v) -> str:
+    """Why a number arrived as text: YAML 1.1 (PyYAML, rclpy's parameter files) reads ``1e2`` or ``1.e-3`` as a string,
+    a number only with a dot and a signed exponent (``1.0e+2``); '' when ``v`` is not such a string."""
+    if isinstance(v, str):
+        try:
+            x = float(v)
+        except ValueError:
+            return ""
+        if math.isfinite(x):
+            return f" (YAML reads {v} as text: write {x!r})"
+    return ""
+
+
 def parse_value(f: Field, v, where):
     """Validate one value against its field; return it as float / int / bool / str / ndarray."""
     if f.kind == "float[]":
@@ -81,7 +94,7 @@ def parse_value(f: Field, v, where):
     if f.kind in ("float", "int"):
         if not _number(v) or (f.kind == "int" and float(v) != int(v)):
             what = "an integer" if f.kind == "int" else "a finite number"
-            raise ConfigError(where, f.name, f"expected {what}, got {v!r}")
+            raise ConfigError(where, f.name, f"expected {what}, got {v!r}" + _yaml_text_hint(v))
         if not math.isfinite(v):
             raise ConfigError(where, f.name, f"expected a finite number, got {v!r}")
         if f.positive and v <= 0:

@@ -29,7 +29,8 @@ def test_defaults_and_types():
     ({"mass": math.nan}, "mass", "expected a finite number, got nan"),
     ({"mass": 1e400}, "mass", "expected a finite number, got inf"),
     ({"mass": True}, "mass", "expected a finite number, got True"),
-    ({"mass": "2"}, "mass", "expected a finite number, got '2'"),
+    ({"mass": "2"}, "mass", "expected a finite number, got '2' (YAML reads 2 as text: write 2.0)"),
+    ({"mass": "1e2"}, "mass", "got '1e2' (YAML reads 1e2 as text: write 100.0)"),  # YAML 1.1: no dot, no sign
     ({"mass": 1.0, "axes": [1.0, 2.0]}, "axes", "expected a list of 3 numbers, got [1.0, 2.0]"),
     ({"mass": 1.0, "axes": [1.0, math.inf, 2.0]}, "axes", "expected finite numbers"),
     ({"mass": 1.0, "mode": "c"}, "mode", "expected one of a, b, got 'c'"),
