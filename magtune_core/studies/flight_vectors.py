@@ -310,7 +310,7 @@ def read_columns(path, what: str = "VECTORS") -> dict:
         except (pa.ArrowException, ValueError, TypeError) as exc:
             raise ConfigError(path, None, f"{what}: not a readable Parquet table of numbers ({exc})") from None
     try:
-        rows = list(csv.reader(io.StringIO(data.decode("utf-8"))))
+        rows = list(csv.reader(io.StringIO(data.decode("utf-8-sig"))))
     except (UnicodeDecodeError, csv.Error) as exc:
         raise ConfigError(path, None, f"{what}: not a CSV text file ({exc})") from None
     rows = [r for r in rows if r]

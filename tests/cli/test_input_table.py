@@ -88,3 +88,13 @@ def test_refused_with_one_line_and_exit_2(tmp_path, capsys, keys, command, named
     assert named in line and words in line, line
     made = sorted(p.name for p in tmp_path.iterdir() if p.name not in INPUTS)
     assert made == [], f"work was done before the refusal: {made}"
+
+
+def test_a_byte_order_mark_before_the_header_is_read_as_nothing(tmp_path, capsys):
+    """A spreadsheet's CSV starts with a UTF-8 BOM: its header read as "no 'step' column" (issue 57); now the same
+    rows with and without it compare equal (export-check exit 0)."""
+    from magtune_core.cli import main as cli_main
+
+    (tmp_path / "v.csv").write_text("step,t,m_x\n0,0,1\n1,1,2\n")
+    (tmp_path / "o.csv").write_bytes(b"\xef\xbb\xbfstep,t,m_x\n0,0,1\n1,1,2\n")
+    assert cli_main(["export-check", str(tmp_path / "v.csv"), str(tmp_path / "o.csv")]) == 0, capsys.readouterr().err
