@@ -60,6 +60,13 @@ ROWS = [
     # export-check of a vectors file with its header and no row: a traceback (numpy's min of nothing)
     (None, ["export-check", "{tmp}/header_only.csv", "{tmp}/one_row.csv"], "VECTORS: field 'step'", "no rows"),
     (None, ["export-check", "{tmp}/one_row.csv", "{tmp}/header_only.csv"], "header_only.csv: field 'step'", "no rows"),
+    # a stuck torquer beyond its rod's limit, and two overlapping faults of one kind on one unit, passed
+    (None, ["sil", "--gains", GAINS, "--steps", "50", "--fault", "torquer_stuck@10,axis=x,value=5000"], "field 'value'",
+     "5000 A m^2 is beyond the rod's dipole_limit 50 A m^2"),
+    (None, ["sil", "--gains", GAINS, "--steps", "50", "--fault", "torquer_stuck@10,axis=x,value=5", "--fault",
+            "torquer_stuck@20,axis=x,value=3"], "torquer_stuck@20.0", "overlaps torquer_stuck@10.0"),
+    (None, ["sil", "--gains", GAINS, "--steps", "50", "--fault", "mag_spike@10,axis=y", "--fault", "mag_spike@10,axis=y"],
+     "mag_spike@10.0", "overlaps mag_spike@10.0"),
     # more local workers than cores: campaign --workers 1000 started hundreds of processes on 2 cores (load 57)
     (None, ["campaign", CAMPAIGN, "--runs", "1", "--out", "{tmp}/c", "--workers", "1000"], "--workers",
      "1000 local workers on"),
