@@ -107,7 +107,7 @@ def parse_epoch(text: str, where="spacecraft parameters", name="epoch") -> datet
     Raises
     ------
     ConfigError
-        If ``text`` is not an ISO 8601 date/time.
+        If ``text`` is not an ISO 8601 date/time, or is outside the field model's years (:func:`check_field_epoch`).
     """
     try:
         d = datetime.fromisoformat(str(text).replace("Z", "+00:00"))
