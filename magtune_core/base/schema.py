@@ -40,6 +40,9 @@ class Field:
     #: spacecraft can have; a value outside is a typo or a unit error (e.g. nT written as T)
     bounds: tuple[float, float] | None = None
     unit: str = ""
+    #: null (YAML ``~``) has a stated meaning for this field (its description says which) and is taken as None;
+    #: for every other field a null is refused (:func:`parse`)
+    nullable: bool = False
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -52,6 +55,19 @@ class Field:
 
 def _number(v) -> bool:
     return not isinstance(v, bool) and isinstance(v, (int, float, np.integer, np.floating))
+
+
+def _yaml_text_hint(v) -> str:
+    """Why a number arrived as text: YAML 1.1 (PyYAML, rclpy's parameter files) reads ``1e2`` or ``1.e-3`` as a string,
+    a number only with a dot and a signed exponent (``1.0e+2``); '' when ``v`` is not such a string."""
+    if isinstance(v, str):
+        try:
+            x = float(v)
+        except ValueError:
+            return ""
+        if math.isfinite(x):
+            return f" (YAML reads {v} as text: write {x!r})"
+    return ""
 
 
 def parse_value(f: Field, v, where):
@@ -78,7 +94,7 @@ def parse_value(f: Field, v, where):
     if f.kind in ("float", "int"):
         if not _number(v) or (f.kind == "int" and float(v) != int(v)):
             what = "an integer" if f.kind == "int" else "a finite number"
-            raise ConfigError(where, f.name, f"expected {what}, got {v!r}")
+            raise ConfigError(where, f.name, f"expected {what}, got {v!r}" + _yaml_text_hint(v))
         if not math.isfinite(v):
             raise ConfigError(where, f.name, f"expected a finite number, got {v!r}")
         if f.positive and v <= 0:
@@ -116,12 +132,17 @@ def parse(mapping: dict, fields, where, allowed=None) -> dict:
 
     With ``allowed`` (a sequence, possibly empty) every other key of ``mapping`` must be a field
     or listed there (:func:`check_names`); with None other keys are ignored here (the caller
-    decides, e.g. other nodes' parameters). A missing required field raises ConfigError naming it.
+    decides, e.g. other nodes' parameters). A missing required field raises ConfigError naming it; so does a
+    null (YAML ``~``, an empty value) of a field that is not ``nullable``: a user's null never means a default
+    silently (a spacecraft file's ``tle_file: null`` flew the default circular orbit).
     """
     if allowed is not None:
         check_names(mapping, fields, where, allowed)
     out = {}
     for f in fields:
+        if f.name in mapping and mapping[f.name] is None and not f.nullable:
+            raise ConfigError(where, f.name, "null: give it a value" + ("" if f.required else
+                                                                        ", or remove the key for its default"))
         if f.name in mapping and mapping[f.name] is not None:
             out[f.name] = parse_value(f, mapping[f.name], where)
         elif f.required:

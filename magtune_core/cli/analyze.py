@@ -54,8 +54,9 @@ def run(args) -> int:
     if args.robust and args.requirements:  # the robust figures do not evaluate the design spec's requirements
         raise ConfigError("--requirements", None, "is checked on the nominal model: leave out --robust (its figures "
                           "check no requirement), or verify under dispersions with magtune verify")
-    if args.spec and not args.requirements:
-        raise ConfigError("--spec", None, "is read with --requirements only; add --requirements")
+    for opt, given in (("--spec", args.spec), ("--hardware", args.hardware)):  # a file given is a file read
+        if given and not args.requirements:
+            raise ConfigError(opt, None, "is read with --requirements only; add --requirements")
     if args.record and not args.requirements:
         raise ConfigError("--record", None, "records the requirement figures: add --requirements")
     if args.margin_plot and not args.requirements:

@@ -1,6 +1,7 @@
 """``magtune bag info|recover``: inspect a recorded bag, or repair one left unfinished.
 
-``magtune bag info bags/NAME`` prints topics, counts, times and integrity (JSON with --json).
+``magtune bag info bags/NAME`` prints topics, counts, times and integrity (JSON with --json); exit status 1 when the bag
+is not complete (damaged or unfinished: ``magtune bag recover`` it), 0 when it is.
 ``magtune bag recover bags/NAME`` rebuilds a bag left unfinished by a crash (SIGKILL, power
 loss) or damaged on disk into ``bags/NAME_recovered`` (the input is never modified unless
 ``--in-place``): every chunk whose CRC is good is kept, the summary and ``metadata.yaml`` are
@@ -46,9 +47,10 @@ def run_info(args) -> int:
         inf = bags.info(args.bag, ts=args.ts)
     except OSError as exc:
         raise ConfigError(args.bag, None, f"cannot read the bag: {exc.strerror or exc}") from None
+    damaged = 0 if inf["complete"] else 1  # exit status: a script must not take a damaged bag for a good one
     if args.json:
         print(jsonout.dumps(inf, indent=1))
-        return 0
+        return damaged
     integ, timing = inf["integrity"], inf["timing"]
     state = "complete" if inf["complete"] else "DAMAGED/UNFINISHED: run magtune bag recover"
     print(f"bag:      {inf['path']} ({inf['size_bytes']} bytes, {state})")
@@ -69,7 +71,7 @@ def run_info(args) -> int:
         print(f"warning: {line}")
     for line in timing["warnings"]:
         print(f"warning: {line}")
-    return 0
+    return damaged
 
 
 #: Write errors that more space (or a larger quota or file-size limit) cures.

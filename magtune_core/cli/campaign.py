@@ -10,7 +10,15 @@ from ..base.atomic import output_entries, output_lock
 from ..base.errors import ConfigError
 from ..base.paramfile import check_user_file
 from ..studies import campaign, campaign_report, cluster
-from .common import CAMPAIGN_SCHEDULER_HELP, CommandError, add_scheduler_arguments, plain_summary, scheduler_options
+from .common import (
+    CAMPAIGN_SCHEDULER_HELP,
+    CommandError,
+    add_oversubscribe_argument,
+    add_scheduler_arguments,
+    check_workers,
+    plain_summary,
+    scheduler_options,
+)
 
 #: What ``--force`` removes from an existing output directory (our own outputs only).
 OUTPUTS = ("runs.parquet", "campaign.json", "spec.yaml", "summary.md", "envelopes.png", "histograms.png")
@@ -24,6 +32,7 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, help="output directory (must be empty or new, unless --force)")
     p.add_argument("--force", action="store_true", help="write into a non-empty --out (replaces earlier campaign outputs)")
     p.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: one per core)")
+    add_oversubscribe_argument(p)
     p.add_argument("--dashboard", action="store_true",
                    help=f"serve the LocalCluster's Dask dashboard on {cluster.DASHBOARD_ADDRESS} (read-only, "
                         "unauthenticated; default: none)")
@@ -64,8 +73,7 @@ def _cluster_options(args):
 def run(args) -> int:
     if args.runs < 1:
         raise ConfigError("--runs", None, f"expected a positive number of runs, got {args.runs}")
-    if args.workers is not None and args.workers < 1:
-        raise ConfigError("--workers", None, f"expected at least 1, got {args.workers}")
+    check_workers(args)
     sched, tls = _cluster_options(args)
     spec = campaign.load_spec(args.spec)  # ConfigError -> one line, exit 2, nothing started
     out = Path(args.out)

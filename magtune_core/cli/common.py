@@ -256,6 +256,39 @@ def add_force_argument(p: argparse.ArgumentParser) -> None:
                         "before any work, so a tracked file is never replaced by accident)")
 
 
+def add_oversubscribe_argument(p: argparse.ArgumentParser) -> None:
+    """``--oversubscribe``: allow more local ``--workers`` than the machine has cores (:func:`check_workers`)."""
+    p.add_argument("--oversubscribe", action="store_true",
+                   help="allow more local --workers than this machine's cores (without it such a request is refused: "
+                        "every worker would share a core and the run would only get slower)")
+
+
+def check_workers(args) -> None:
+    """ConfigError (exit 2, before any work) for ``--workers`` below 1, or above this machine's cores for local
+    workers unless ``--oversubscribe`` (``campaign --workers 1000`` on 2 cores started hundreds of processes, load
+    57, and no run finished). Workers of an existing cluster (``--scheduler``) are that cluster's: not checked here.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        With ``workers`` (int or None: the default), optionally ``oversubscribe`` and ``scheduler``.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``--workers`` and the fix.
+    """
+    n = getattr(args, "workers", None)
+    if n is None:
+        return
+    if n < 1:
+        raise ConfigError("--workers", None, f"expected at least 1, got {n}")
+    cores = os.cpu_count() or 1
+    if n > cores and getattr(args, "scheduler", None) is None and not getattr(args, "oversubscribe", False):
+        raise ConfigError("--workers", None, f"{n} local workers on {cores} cores: give at most {cores}, or "
+                                             "--oversubscribe if that is what you want")
+
+
 def _nearest_existing(path: Path) -> Path:
     while not path.exists() and path != path.parent:
         path = path.parent
@@ -303,6 +336,9 @@ def check_output(path, *, force: bool = False, option: str = "--out", directory:
     """
     path = Path(path)
     check_path(path)  # a symbolic link loop: one line, the same in every command
+    if path.is_symlink() and not path.exists():  # dangling: mkdir or open would fail after the work (a traceback)
+        raise ConfigError(path, None, f"is a symbolic link to {os.readlink(path)!r}, which does not exist: remove it "
+                                      f"or choose another {option}")
     if directory:
         if path.exists() and not path.is_dir():
             raise ConfigError(path, None, f"exists and is not a directory (choose another {option})")

@@ -2,12 +2,13 @@
 from __future__ import annotations
 
 import argparse
-from datetime import datetime
+from datetime import datetime, timedelta
 
 from ..base.atomic import output_lock
 from ..base.errors import ConfigError
 from ..design import fitfield
-from ..design.params import check_orbit
+from ..design.params import check_field_epoch, check_orbit
+from ..env.orbit import keplerian_period
 from .common import (
     CommandError,
     add_force_argument,
@@ -25,6 +26,39 @@ def _parse_epoch(text: str) -> datetime:
         return datetime.fromisoformat(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an ISO date/time like 2026-03-20T00:00:00, got {text!r}") from None
+
+
+def check_fit_size(harmonics: int, days: float, step: float, period: float) -> None:
+    """CommandError (exit 2) unless the fit is determined and resolved: at least twice as many samples as the
+    2 H + 1 unknowns per axis (``--harmonics 300 --days 0.1`` fitted 601 unknowns to 433 samples and reported a
+    residual of 0.00), and the step samples the highest harmonic at least 4 times per its period T / H (also what
+    bounds H: ``--harmonics 100000`` computed without end).
+
+    Parameters
+    ----------
+    harmonics : int
+        H.
+    days : float
+        Length of the fitted arc [days].
+    step : float
+        Sampling step [s].
+    period : float
+        Orbit period T [s].
+
+    Raises
+    ------
+    CommandError
+        Naming the option to change.
+    """
+    samples, unknowns = int(days * 86400.0 / step) + 1, 2 * harmonics + 1
+    h_max = int(period / (4.0 * step))
+    if harmonics > h_max:
+        raise CommandError(f"--harmonics {harmonics}: a {step:g}-s step resolves at most {h_max} harmonics of the "
+                           f"{period:.0f}-s orbit (4 samples per period of the highest); lower --harmonics or --step",
+                           code=2)
+    if samples < 2 * unknowns:
+        raise CommandError(f"--harmonics {harmonics}: {unknowns} unknowns per axis need at least {2 * unknowns} samples, "
+                           f"--days {days:g} every --step {step:g} s gives {samples}; raise --days", code=2)
 
 
 def register(sub) -> None:
@@ -62,7 +96,12 @@ def run(args) -> int:
         for k, default in zip(orbit, (450.0, 87.0, 0.0, fitfield.DEFAULT_EPOCH)):
             setattr(args, k, default if getattr(args, k) is None else getattr(args, k))
         check_orbit(args.altitude * 1e3, args.inclination, "command line")
+        check_field_epoch(args.epoch, "command line", "--epoch")
         args.params = None
+    period = float(args.params.orbit_period) if args.params else keplerian_period(args.altitude * 1e3)
+    check_fit_size(args.harmonics, args.days, args.step, period)
+    epoch = args.params.epoch if args.params else args.epoch
+    check_field_epoch(epoch + timedelta(days=args.days), "command line", "--days (the fit's last sample)")
     check_output(args.out, force=args.force)
     with output_lock(args.out, "magtune fit-field", directory=False):  # one writer per output, for the whole run
         return _fit(args)

@@ -23,9 +23,11 @@ from .common import (
     START_SCALES,
     TUNER_SCHEDULER_HELP,
     add_force_argument,
+    add_oversubscribe_argument,
     add_scheduler_arguments,
     add_spec_argument,
     check_outputs,
+    check_workers,
     cluster_executor,
     field_model_argument,
     hold_constraint,
@@ -67,6 +69,7 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed of every run (default 0)")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="processes evaluating each population (default: all cores)")
+    add_oversubscribe_argument(p)
     p.add_argument("--max-evals", type=int, default=30000, help="evaluation budget per sigma (default 30000)")
     p.add_argument("--popsize", type=int, default=8, help="candidates per generation (default 8)")
     p.add_argument("--ts", type=float, default=None,
@@ -101,7 +104,8 @@ def run(args) -> int:
 
 
 def _run(args) -> int:
-    for name in ("workers", "max_evals", "popsize"):
+    check_workers(args)
+    for name in ("max_evals", "popsize"):
         if getattr(args, name) < 1:
             raise ConfigError("--" + name.replace("_", "-"), None, f"must be a positive integer, got {getattr(args, name)}")
     if args.over != "sigma":

@@ -1,6 +1,7 @@
 """``magtune sampling``: the sampling-period study, sigma x Ts grid (:mod:`..studies.sampling`)."""
 from __future__ import annotations
 
+import os
 import sys
 import time
 from pathlib import Path
@@ -10,7 +11,17 @@ from ..base.ament import ROOT
 from ..base.atomic import atomic_write, output_lock
 from ..base.paramfile import read_user_text
 from ..studies import sampling
-from .common import CommandError, add_environment_arguments, add_force_argument, check_outputs, environment_options, plain_summary, positive_floats
+from .common import (
+    CommandError,
+    add_environment_arguments,
+    add_force_argument,
+    add_oversubscribe_argument,
+    check_outputs,
+    check_workers,
+    environment_options,
+    plain_summary,
+    positive_floats,
+)
 
 
 def register(sub) -> None:
@@ -19,7 +30,9 @@ def register(sub) -> None:
     p.add_argument("--sigmas", type=positive_floats, default=list(sampling.DEFAULT_SIGMAS), help="default 60,120,240")
     p.add_argument("--ts", type=positive_floats, default=list(sampling.DEFAULT_TS), help="sample periods [s], default 1,2,5,10,20,30")
     p.add_argument("--orbits", type=float, default=5.0, help="run length [orbits] (default 5)")
-    p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
+    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                   help="worker processes (default 2, or 1 on a one-core machine)")
+    add_oversubscribe_argument(p)
     p.add_argument("--backend", choices=("offline", "sil"), default="offline",
                    help="offline simulate() (default) or the SIL nodes over DDS (identical trajectories, slower)")
     p.add_argument("--gains-dir", default=str(ROOT / "config" / "gains"),
@@ -43,6 +56,7 @@ def _progress(t0: float):
 
 
 def run(args) -> int:
+    check_workers(args)
     opts = environment_options(args)
     conclusion_arg = args.conclusion if args.conclusion.startswith("@") else ("..." if args.conclusion else "")
     if args.conclusion.startswith("@"):

@@ -20,9 +20,11 @@ from .common import (
     TUNER_SCHEDULER_HELP,
     CommandError,
     add_force_argument,
+    add_oversubscribe_argument,
     add_scheduler_arguments,
     add_spec_argument,
     check_output,
+    check_workers,
     cluster_executor,
     field_model_argument,
     hold_constraint,
@@ -45,6 +47,7 @@ def register(sub) -> None:
                    help="start from this gains file (default: the LQ gain of the averaged model, paper 4.2)")
     t.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="processes evaluating candidates (default: all cores)")
+    add_oversubscribe_argument(t)
     c = t.add_argument_group("cma method")
     c.add_argument("--popsize", type=int, default=8, help="candidates per generation (default 8)")
     c.add_argument("--max-evals", type=int, default=30000, help="evaluation budget (default 30000)")
@@ -97,7 +100,8 @@ def _check_args(args):
                                       f"is an option of --method {method}; add --method {method} or drop it")
     if args.verify_runs < 0:
         raise ConfigError("--verify-runs", None, f"must be 0 (none) or a positive number of runs, got {args.verify_runs}")
-    for name in ("workers", "popsize", "max_evals", "restarts", "samples", "max_iter", "patience"):
+    check_workers(args)
+    for name in ("popsize", "max_evals", "restarts", "samples", "max_iter", "patience"):
         if getattr(args, name) < 1:
             raise ConfigError("--" + name.replace("_", "-"), None, f"must be a positive integer, got {getattr(args, name)}")
     if not args.sigma > 0:

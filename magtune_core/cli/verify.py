@@ -13,8 +13,10 @@ from ..studies import verify
 from .common import (
     CAMPAIGN_SCHEDULER_HELP,
     CommandError,
+    add_oversubscribe_argument,
     add_scheduler_arguments,
     add_spec_argument,
+    check_workers,
     load_design_spacecraft,
     load_design_spec,
     load_model,
@@ -45,6 +47,7 @@ def register(sub) -> None:
     p.add_argument("--record", action="store_true",
                    help="also write the verdict into GAINS' provenance (key 'verification'; atomic)")
     p.add_argument("--workers", type=int, default=None, help="LocalCluster worker processes (default: one per core)")
+    add_oversubscribe_argument(p)
     add_scheduler_arguments(p, CAMPAIGN_SCHEDULER_HELP)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -54,8 +57,7 @@ def _check(args):
     """Every option checked before any run (one line naming it, exit 2); returns (scheduler, TlsFiles or None)."""
     if args.runs < 1:
         raise ConfigError("--runs", None, f"expected a positive number of runs, got {args.runs}")
-    if args.workers is not None and args.workers < 1:
-        raise ConfigError("--workers", None, f"expected at least 1, got {args.workers}")
+    check_workers(args)
     try:
         args.also_ts = [float(t) for t in args.also_ts.split(",") if t.strip()]
     except ValueError:

@@ -228,14 +228,17 @@ def from_list(items, where: str = "faults") -> tuple[Fault, ...]:
     Raises
     ------
     ConfigError
-        If ``items`` is not a list or tuple (a single string or mapping included), or an entry is invalid.
+        If ``items`` is not a list or tuple (a single string or mapping included), an entry is invalid, or two
+        faults of one kind on one unit overlap (:func:`check_overlaps`).
     """
     if items is None:
         return ()
     if isinstance(items, (str, dict)) or not isinstance(items, (list, tuple)):
         raise ConfigError(where, None, f"expected a list of faults, got {items!r}")
-    return tuple(f if isinstance(f, Fault) else parse_spec(f, f"{where}[{i}]") if isinstance(f, str)
-                 else from_mapping(f, f"{where}[{i}]") for i, f in enumerate(items))
+    out = tuple(f if isinstance(f, Fault) else parse_spec(f, f"{where}[{i}]") if isinstance(f, str)
+                else from_mapping(f, f"{where}[{i}]") for i, f in enumerate(items))
+    check_overlaps(out, where)
+    return out
 
 
 def run_end(ts, steps: int | None = None, orbits: float | None = None, period: float | None = None) -> float:
@@ -286,6 +289,61 @@ def check_times(faults, end: float, where: str = "fault") -> None:
             raise ConfigError(f"{where} {f.spec}", "t", f"the fault starts at {f.t:g} s, at or after the end of "
                                                         f"the run ({end:g} s): it would never act; give a time "
                                                         f"before {end:g} s or a longer run")
+
+
+def check_overlaps(faults, where: str = "fault") -> None:
+    """Refuse two faults of one kind on one unit whose times overlap: which of them acts would be an accident of
+    the order they were given in (two overlapping ``torquer_stuck`` on x passed without a note).
+
+    Parameters
+    ----------
+    faults : sequence of Fault
+        Injected faults.
+    where : str
+        Context named in the error (``--fault``, ``faults``).
+
+    Raises
+    ------
+    ConfigError
+        Naming both faults.
+    """
+    faults = list(faults)
+
+    def span(f):  # a spike is one sample: it overlaps only a spike of the same time
+        return 0.0 if f.kind == MAG_SPIKE else f.duration
+
+    for i, a in enumerate(faults):
+        for b in faults[i + 1:]:
+            same_unit = a.kind in WHOLE_UNIT or a.axis == b.axis
+            meet = a.t == b.t or (a.t < b.t + span(b) and b.t < a.t + span(a))
+            if a.kind == b.kind and same_unit and meet:
+                raise ConfigError(f"{where} {b.spec}", None, f"overlaps {a.spec} (one kind on one unit at a time): "
+                                                             "give one fault, or times that do not overlap")
+
+
+def check_torquer_values(faults, dipole_limit, where: str = "fault") -> None:
+    """Refuse a ``torquer_stuck`` value beyond its rod's dipole limit: a rod cannot hold more than it delivers (a
+    stuck value 100 times the limit passed).
+
+    Parameters
+    ----------
+    faults : sequence of Fault
+        Injected faults.
+    dipole_limit : array_like (3,)
+        The rods' limits, body x, y, z [A m^2].
+    where : str
+        Context named in the error (``--fault``, ``faults``).
+
+    Raises
+    ------
+    ConfigError
+        Naming the fault, its value and the limit.
+    """
+    limit = np.broadcast_to(np.asarray(dipole_limit, dtype=float), (3,))
+    for f in faults:
+        if f.kind == TORQUER_STUCK and math.isfinite(f.value) and abs(f.value) > limit[f.axis]:
+            raise ConfigError(f"{where} {f.spec}", "value", f"{f.value:g} A m^2 is beyond the rod's dipole_limit "
+                                                            f"{limit[f.axis]:g} A m^2: give at most that")
 
 
 def sun_lost(faults, t: float) -> bool:

@@ -268,8 +268,8 @@ class Hardware:
 
         Parameters
         ----------
-        doc : dict or None
-            Section name -> mapping of fields.
+        doc : dict
+            Section name -> mapping of fields (at least one section).
         where : str or Path
             The file, named in errors and kept as ``source``.
 
@@ -281,18 +281,16 @@ class Hardware:
         Raises
         ------
         ConfigError
-            An unknown section or field, a missing required field, a value out of its bounds, or a rule across
-            fields (one line naming the file and ``section.field``).
+            An empty file, a null section, an unknown section or field, a missing required field, a value out of its
+            bounds, or a rule across fields (one line naming the file and ``section.field``).
         """
-        if doc is None:
-            doc = {}
-        if not isinstance(doc, dict):
-            raise ConfigError(where, None, f"expected a mapping with sections {', '.join(SECTIONS)}")
+        if not doc or not isinstance(doc, dict):  # an empty file describes no hardware: nothing it would change
+            raise ConfigError(where, None, f"expected a mapping with at least one of the sections {', '.join(SECTIONS)}")
         check_names(doc, (), where, allowed=tuple(SECTIONS))
         out = {}
         for name, body in doc.items():
             if body is None:
-                continue
+                raise ConfigError(where, name, "null: give the section's fields, or remove the section")
             if not isinstance(body, dict):
                 raise ConfigError(where, name, f"expected a mapping of {', '.join(f.name for f in SECTIONS[name])}")
             try:

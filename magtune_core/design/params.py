@@ -48,7 +48,8 @@ import numpy as np
 from ..base.errors import ConfigError
 from ..base.paramfile import read_ros_params, read_user_text
 from ..base.schema import Field, parse, parse_value
-from ..env.earth import R_EARTH
+from ..env.earth import R_EARTH, decimal_year, julian_date
+from ..env.igrf import igrf_years
 from ..env.orbit import (
     DEFAULT_EPOCH,
     OrbitConfig,
@@ -106,7 +107,7 @@ def parse_epoch(text: str, where="spacecraft parameters", name="epoch") -> datet
     Raises
     ------
     ConfigError
-        If ``text`` is not an ISO 8601 date/time.
+        If ``text`` is not an ISO 8601 date/time, or is outside the field model's years (:func:`check_field_epoch`).
     """
     try:
         d = datetime.fromisoformat(str(text).replace("Z", "+00:00"))
@@ -115,7 +116,38 @@ def parse_epoch(text: str, where="spacecraft parameters", name="epoch") -> datet
             from None
     if d.tzinfo is not None:  # express in UTC, drop the offset (the orbit code takes naive UTC)
         d = (d - d.utcoffset()).replace(tzinfo=None)
-    return d
+    return check_field_epoch(d, where, name)
+
+
+def check_field_epoch(epoch: datetime, where="spacecraft parameters", name="epoch") -> datetime:
+    """``epoch`` if the field model (IGRF-14) is defined there, else ConfigError naming ``name``: an epoch outside
+    its years passed validation and ended a full-environment SIL run with a traceback after its nodes started.
+
+    Parameters
+    ----------
+    epoch : datetime
+        Naive UTC.
+    where : str
+        File or context named in the error message.
+    name : str
+        Field name named in the error message.
+
+    Returns
+    -------
+    datetime
+        ``epoch``, unchanged.
+
+    Raises
+    ------
+    ConfigError
+        If its decimal year is outside :func:`magtune_core.env.igrf.igrf_years` (1900-2030).
+    """
+    first, last = igrf_years()
+    year = float(decimal_year(julian_date(epoch)))
+    if not first <= year <= last:
+        raise ConfigError(where, name, f"{epoch.isoformat()} is outside the years of the field model, IGRF-14 "
+                                       f"({first:.0f}-01-01 .. {last:.0f}-01-01)")
+    return epoch
 
 
 def check_orbit(altitude: float, inclination_deg: float, where="command line") -> None:
@@ -234,7 +266,7 @@ def _circular_orbit(v: dict, where) -> dict:
 def _tle_orbit(tle: TLE, name: str, v: dict, where) -> dict:
     """SpacecraftParams' orbit keywords of a TLE: SGP4's state at the simulation epoch (the TLE's by default)
     and the elements that describe it (module docstring)."""
-    epoch = tle.epoch if v["epoch"] is None else parse_epoch(v["epoch"], where)
+    epoch = check_field_epoch(tle.epoch, where, name) if v["epoch"] is None else parse_epoch(v["epoch"], where)
     r, vel = tle.state((epoch - tle.epoch).total_seconds(), where, name)
     return dict(altitude=tle.semi_major_axis - R_EARTH, inclination_deg=float(np.degrees(inclination(r, vel))),
                 raan_deg=float(np.degrees(raan(r, vel)) % 360.0),
@@ -432,6 +464,10 @@ class SpacecraftParams:
         from .node_params import NODE_PARAMETERS  # below law/model, which import this module
 
         v = parse(params, cls.FIELDS, where, allowed=NODE_PARAMETERS if strict else None)
+        for key in ("tle", "tle_file") if strict else ():  # a user's file: given but empty flew the circular orbit
+            if key in params and not len(params[key]):  # (a node's declared parameters hold the empty defaults)
+                raise ConfigError(where, key, "empty: give the element set, or remove the key for the circular orbit "
+                                              "of altitude, inclination and raan")
         check_inertia(v["inertia"], where)
         tle, name = read_tle(v, where, base_dir)
         orbit = _circular_orbit(v, where) if tle is None else _tle_orbit(tle, name, v, where)

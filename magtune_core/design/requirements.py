@@ -52,8 +52,8 @@ SAMPLING_FIELDS = (
           "numerical error near the boundary, ~5e-4)", GUARD, nonnegative=True, bounds=(0.0, 0.1)),
 )
 DIPOLE_FIELDS = (
-    Field("limit", "float", "per-axis dipole the torquers deliver [A m^2] (default: the spacecraft file's "
-          "dipole_limit)", None, positive=True, unit="A m^2"),
+    Field("limit", "float", "per-axis dipole the torquers deliver [A m^2] (default or null: the spacecraft file's "
+          "dipole_limit)", None, positive=True, unit="A m^2", nullable=True),
     Field("budget_fraction", "float", "fraction of the limit the linear closed loop may command (0: no dipole "
           "requirement); the rest is left to noise and unmodelled torques", 0.8, nonnegative=True),
     Field("rate_nominal", "float[]", "initial rate error dw(0), nominal [rad/s]", INITIAL_RATE_ERROR, size=3),
@@ -76,7 +76,7 @@ POINTING_FIELDS = (
     Field("max_saturation_fraction", "float", "fraction of controller steps with a saturated axis after settling "
           "(t >= max_settling_orbits T)", 0.01, nonnegative=True),
     Field("max_total_saturation_fraction", "float", "... over the whole run, acquisition included (null: none)",
-          None, nonnegative=True),
+          None, nonnegative=True, nullable=True),
     Field("pass_fraction", "float", "fraction of Monte Carlo runs that must meet every pointing requirement", 0.99,
           positive=True, bounds=(0.0, 1.0)),
 )

@@ -56,11 +56,24 @@ def _coefficient_table():
     return epochs, data[:, :-1].T, data[:, -1], index
 
 
+def igrf_years() -> tuple[float, float]:
+    """The decimal years IGRF-14 defines the field for: its first model and its last plus the 5-year secular variation.
+
+    Returns
+    -------
+    (float, float)
+        (1900.0, 2030.0).
+    """
+    epochs = _coefficient_table()[0]
+    return float(epochs[0]), float(epochs[-1]) + 5.0
+
+
 def igrf_coefficients(year: float, degree: int = 13) -> tuple[np.ndarray, np.ndarray]:
     """Schmidt semi-normalized (g, h) [nT], arrays (degree+1, degree+1) indexed [n, m], at decimal ``year``."""
     epochs, gh, sv, index = _coefficient_table()
-    if not epochs[0] <= year <= epochs[-1] + 5.0:
-        raise ValueError(f"IGRF-14 is defined for {epochs[0]:.0f}-{epochs[-1] + 5:.0f}, got year {year:.3f}")
+    first, last = igrf_years()
+    if not first <= year <= last:
+        raise ValueError(f"IGRF-14 is defined for {first:.0f}-{last:.0f}, got year {year:.3f}")
     if year >= epochs[-1]:
         vals = gh[-1] + (year - epochs[-1]) * sv
     else:

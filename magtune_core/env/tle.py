@@ -224,6 +224,10 @@ def parse_tle(lines, where="spacecraft parameters", name="tle") -> TLE:
     for k, ln in ((1, l1), (2, l2)):
         if not ln.startswith(f"{k} "):
             raise ConfigError(where, name, f"line {k} must start with '{k} ', got {ln[:12]!r}")
+        bad = next((i for i, c in enumerate(ln) if not (c.isascii() and c.isprintable())), None)
+        if bad is not None:  # fullwidth digits pass isdigit() and int(): they reached SGP4 as "nm is less than zero"
+            raise ConfigError(where, name, f"line {k}, column {bad + 1} holds {ln[bad]!r} (U+{ord(ln[bad]):04X}): a TLE is "
+                                           "printable ASCII; retype the line or copy it from the source again")
         if len(ln) != 69:
             raise ConfigError(where, name, f"line {k} has {len(ln)} characters, a TLE line has 69 (checksum in column 69)")
         if not ln[68].isdigit() or int(ln[68]) != checksum(ln):

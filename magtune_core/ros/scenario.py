@@ -32,10 +32,18 @@ from ..design.fitfield import field_for_spacecraft
 from ..design.gains import CONTROLLER_NODE, Gains
 from ..design.hardware import check_spacecraft_agrees, load_hardware
 from ..design.node_params import INITIAL_RATE_ERROR
-from ..design.params import SpacecraftParams, check_sample_period, warn_tle
+from ..design.params import SpacecraftParams, check_field_epoch, check_sample_period, warn_tle
 from ..design.sensors import default_suite
 from ..onboard.modes import DETUMBLE, POINTING, ModeParams
-from ..onboard.params import BDOT_FIELDS, ESTIMATOR_FIELDS, MANAGER_FIELDS, MODE_FIELDS, MODE_NAMES, TORQUER_FIELDS
+from ..onboard.params import (
+    BDOT_FIELDS,
+    DIPOLE_LIMIT,
+    ESTIMATOR_FIELDS,
+    MANAGER_FIELDS,
+    MODE_FIELDS,
+    MODE_NAMES,
+    TORQUER_FIELDS,
+)
 from ..onboard.torquers import Torquers
 from ..sim.fullenv import FullEnvironmentOptions, full_params
 from ..sim.initial import initial_conditions
@@ -265,16 +273,20 @@ def check_torquer_arguments(torquers, ts_values, where: str = "torquers") -> dic
     return {k: _plain(values[k]) for k in given}
 
 
-def check_fault_arguments(faults, epoch_time: bool, *, steps=None, orbits=None, ts=(), period=None) -> tuple:
+def check_fault_arguments(faults, epoch_time: bool, *, steps=None, orbits=None, ts=(), period=None,
+                          dipole_limit=None) -> tuple:
     """The injected faults (Fault objects, spec strings or mappings), validated (ConfigError: one line).
 
     Given the run's length (``steps``, or ``orbits`` of ``period`` [s]) and the satellites' sample
     periods ``ts`` [s], a fault that starts at or after the end of the run is refused too
     (:func:`magtune_core.design.faults.check_times`; the end of the longest satellite's run, as
     :func:`magtune_core.design.faults.run_end` counts it); a length that is not a positive number
-    is left to :func:`check_run_arguments`.
+    is left to :func:`check_run_arguments`. With the rods' ``dipole_limit`` (3,) a stuck value beyond it is refused
+    (:func:`magtune_core.design.faults.check_torquer_values`).
     """
     out = fl.from_list(list(faults or ()), "--fault")
+    if dipole_limit is not None:
+        fl.check_torquer_values(out, dipole_limit, "--fault")
     if out and epoch_time:
         raise ConfigError("--fault", None, "fault times are sim time from 0: not with --epoch-time")
     known = _positive_finite(steps) if steps is not None else _positive_finite(orbits) and _positive_finite(period)
@@ -498,8 +510,14 @@ class SilScenario:
             sat_list.append(Satellite(ns, g, gains[ns], gains_params[ns], sat_ts))
         check_outputs(req)
         opts, sc = check_environment(req, sc)
+        if opts is not None:  # IGRF along the whole run: its last step inside the field model's years, before any node
+            last = max(s.ts for s in sat_list) * (req.steps if req.steps else math.ceil(req.orbits * sc.orbit_period))
+            check_field_epoch(sc.epoch + _dt.timedelta(seconds=float(last)), req.spacecraft,
+                              "epoch (the run's last step, --orbits/--steps after it)")
+        limit = {**merge_ros_params(sc_doc, "simulator"), **(hw.node_parameters().get("simulator", {}) if hw else {})}
         faults = check_fault_arguments(req.faults, req.epoch_time, steps=req.steps, orbits=req.orbits,
-                                       ts=[s.ts for s in sat_list], period=sc.orbit_period)
+                                       ts=[s.ts for s in sat_list], period=sc.orbit_period,
+                                       dipole_limit=limit.get("dipole_limit", DIPOLE_LIMIT.default))
         time_origin_ns = epoch_ns(sc.epoch) if req.epoch_time else 0
         if time_origin_ns and (len(sats) > 1 or "" not in sats):
             raise ConfigError("--epoch-time", None, "one satellite at a time (the recorder follows one clock)")

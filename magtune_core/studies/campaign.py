@@ -75,7 +75,7 @@ from ..base.paramfile import load_user_yaml
 from ..base.schema import Field, parse
 from ..design import faults as fl
 from ..design.gains import load_gains
-from ..design.params import SpacecraftParams, load_spacecraft
+from ..design.params import SpacecraftParams, load_spacecraft, parse_epoch
 from ..onboard.modes import MODES, POINTING, ModeParams
 from ..onboard.params import BDOT_FIELDS, ESTIMATOR_FIELDS, MODE_FIELDS, TORQUER_FIELDS, check_modes
 from ..onboard.sensor_watch import GYRO_FAULT, MAG_AMBIGUOUS, MAG_FAULT
@@ -298,14 +298,6 @@ def _resolve(path: str, spec_path: Path) -> Path:
     return p
 
 
-def _epoch(text: str, where, name) -> datetime:
-    try:
-        e = datetime.fromisoformat(text)
-    except (TypeError, ValueError):
-        raise ConfigError(where, name, f"expected a UTC date-time like 2026-03-20T00:00:00, got {text!r}") from None
-    return e.replace(tzinfo=None) if e.tzinfo is None else (e - e.utcoffset()).replace(tzinfo=None)
-
-
 def load_spec(path) -> CampaignSpec:
     """Read and validate a campaign spec; load its spacecraft and gains files.
 
@@ -348,8 +340,8 @@ def load_spec(path) -> CampaignSpec:
     if not sc.is_file():
         raise ConfigError(path, "campaign.spacecraft", f"file not found: {c['spacecraft']}")
     p = load_spacecraft(sc)
-    e0 = _epoch(d["epoch_min"], path, "dispersions.epoch_min") if d["epoch_min"] else p.epoch
-    e1 = _epoch(d["epoch_max"], path, "dispersions.epoch_max") if d["epoch_max"] else e0
+    e0 = parse_epoch(d["epoch_min"], path, "dispersions.epoch_min") if d["epoch_min"] else p.epoch
+    e1 = parse_epoch(d["epoch_max"], path, "dispersions.epoch_max") if d["epoch_max"] else e0
     if e1 < e0:
         raise ConfigError(path, "dispersions.epoch_max", f"must not precede epoch_min ({e0.isoformat()})")
     if c["arg_lat_deg"] is None:

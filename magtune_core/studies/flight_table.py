@@ -448,7 +448,8 @@ def header_text(table: FlightTable, guard: str = "MAGTUNE_FLIGHT_TABLE_H", banne
     sc = table.spacecraft
     out += ["", "/* ---- spacecraft */"]
     out += _c_line("MAGTUNE_SC_INERTIA", MISSION_FIELDS[0], sc.inertia)
-    out += ["/* wheel momentum h = J_wheel * w_wheel along body z [N m s] */",
+    out += ["/* wheel momentum in body axes [N m s]: h = (0, 0, -wheel_inertia * wheel_speed), the paper's sign (SPEC.md): "
+            "a positive wheel_speed gives a negative h_z */",
             f"static const double MAGTUNE_SC_WHEEL_MOMENTUM[3] = {{{', '.join(c_double(x) for x in sc.wheel_momentum)}}};",
             "/* nominal orbit period [s] */", f"static const double MAGTUNE_SC_ORBIT_PERIOD = {c_double(sc.orbit_period)};",
             "/* epoch of sim time 0 (UTC), Julian date [d] */",

@@ -310,7 +310,7 @@ def read_columns(path, what: str = "VECTORS") -> dict:
         except (pa.ArrowException, ValueError, TypeError) as exc:
             raise ConfigError(path, None, f"{what}: not a readable Parquet table of numbers ({exc})") from None
     try:
-        rows = list(csv.reader(io.StringIO(data.decode("utf-8"))))
+        rows = list(csv.reader(io.StringIO(data.decode("utf-8-sig"))))
     except (UnicodeDecodeError, csv.Error) as exc:
         raise ConfigError(path, None, f"{what}: not a CSV text file ({exc})") from None
     rows = [r for r in rows if r]
@@ -401,7 +401,8 @@ def compare(ref: dict, out: dict, where="OUTPUTS", rtol: float = RTOL) -> Compar
     Raises
     ------
     ConfigError
-        No ``step`` column, a column the reference does not have, a repeated step, or no common step.
+        No ``step`` column, a file without rows, a column the reference does not have, a repeated step, or no
+        common step.
     """
     for name, cols in (("VECTORS", ref), (where, out)):
         if "step" not in cols:
@@ -410,6 +411,9 @@ def compare(ref: dict, out: dict, where="OUTPUTS", rtol: float = RTOL) -> Compar
     if unknown:
         raise ConfigError(where, unknown[0], f"not a column of the vectors (expected some of: {', '.join(OUTPUTS)})")
     rs, os_ = np.asarray(ref["step"]), np.asarray(out["step"])
+    for name, steps in (("VECTORS", rs), (where, os_)):
+        if not len(steps):  # a header and no row: nothing was compared, which is not a pass
+            raise ConfigError(name, "step", "no rows: the file has its columns but no value")
     if len(np.unique(os_)) != len(os_):
         raise ConfigError(where, "step", "a step is given twice")
     common, ri, oi = np.intersect1d(rs, os_, assume_unique=True, return_indices=True)

@@ -175,7 +175,7 @@ def test_flipped_bytes_inside_a_chunk_are_reported_everywhere(tmp_path, capsys):
     report: dict = {}
     assert len(list(bag.iter_messages(p, report=report))) == 2 * N - held
     assert report["complete"] is False and report["chunks_bad"][0]["messages"] == held
-    assert cli_main(["bag", "info", str(p)]) == 0
+    assert cli_main(["bag", "info", str(p)]) == 1  # exit 0 on a bag it calls DAMAGED misled scripts (issue 57)
     out = capsys.readouterr().out
     assert "DAMAGED" in out and f"damaged chunk at byte {victim.chunk_start_offset} ({held} messages" in out
     rep = bag_recover.recover(p)

@@ -108,7 +108,7 @@ def test_missing_listed_file_is_named_and_bag_not_complete(tmp_path, capsys):
     assert report["complete"] is False and report["missing_files"] == ["run_2.mcap"]
     assert report["messages_recovered"] == 300 and report["messages_expected"] == 400
     code, out, _ = _cli(capsys, "bag", "info", str(bag))
-    assert code == 0 and "DAMAGED/UNFINISHED" in out
+    assert code == 1 and "DAMAGED/UNFINISHED" in out  # not complete: exit 1 (issue 57)
     assert "warning: run_2.mcap: listed in metadata.yaml but missing" in out
 
 

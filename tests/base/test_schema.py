@@ -29,12 +29,16 @@ def test_defaults_and_types():
     ({"mass": math.nan}, "mass", "expected a finite number, got nan"),
     ({"mass": 1e400}, "mass", "expected a finite number, got inf"),
     ({"mass": True}, "mass", "expected a finite number, got True"),
-    ({"mass": "2"}, "mass", "expected a finite number, got '2'"),
+    ({"mass": "2"}, "mass", "expected a finite number, got '2' (YAML reads 2 as text: write 2.0)"),
+    ({"mass": "1e2"}, "mass", "got '1e2' (YAML reads 1e2 as text: write 100.0)"),  # YAML 1.1: no dot, no sign
     ({"mass": 1.0, "axes": [1.0, 2.0]}, "axes", "expected a list of 3 numbers, got [1.0, 2.0]"),
     ({"mass": 1.0, "axes": [1.0, math.inf, 2.0]}, "axes", "expected finite numbers"),
     ({"mass": 1.0, "mode": "c"}, "mode", "expected one of a, b, got 'c'"),
     ({"mass": 1.0, "count": 2.5}, "count", "expected an integer, got 2.5"),
     ({"mass": 1.0, "count": -1}, "count", "expected a non-negative number, got -1"),
+    # a null never means the default silently (issue 57: tle_file null flew the default orbit)
+    ({"mass": None}, "mass", "null: give it a value"),
+    ({"mass": 1.0, "mode": None}, "mode", "null: give it a value, or remove the key for its default"),
 ])
 def test_errors_name_the_field_and_the_fix(mapping, field, words):
     with pytest.raises(ConfigError) as err:
@@ -63,3 +67,10 @@ def test_gains_schema_keeps_provenance():
         Gains.from_mapping({"gain": [0.5] * 17, "sigma": 60.0})
     with pytest.raises(ConfigError, match="field 'sigma': missing"):
         Gains.from_mapping({"gain": [0.5] * 18})
+
+
+def test_a_nullable_field_takes_null_as_none():
+    """Only a field whose null has a stated meaning (the design spec's dipole limit: the spacecraft file's) takes it."""
+    fields = (Field("limit", "float", "per-axis limit (null: the spacecraft file's)", None, positive=True, nullable=True),)
+    assert parse({"limit": None}, fields, "f.yaml") == {"limit": None}
+    assert parse({"limit": 2.0}, fields, "f.yaml") == {"limit": 2.0}

@@ -22,7 +22,7 @@ from magtune_core.base.paramfile import check_ros_params
 from magtune_core.base.schema import parse
 from magtune_core.cli import main as cli_main
 from magtune_core.design.gains import Gains, load_gains
-from magtune_core.design.params import SpacecraftParams
+from magtune_core.design.params import SpacecraftParams, load_spacecraft
 from magtune_core.onboard.modes import ACQUISITION, DETUMBLE, MODES, POINTING
 from magtune_core.studies import flight_table as ft
 from magtune_core.studies import flight_vectors as fv
@@ -144,6 +144,11 @@ def test_header_doubles_parse_back_bit_for_bit(export):
     for x in (0.1, 1 / 3, 5e-324, 1.7976931348623157e308, -2.2250738585072014e-308, 8.366374949312711e-05):
         assert _bits(float(ft.c_double(x))) == _bits(x)
     assert text.count("#ifndef MAGTUNE_FLIGHT_TABLE_H") == 1 and "#endif" in text
+    # the wheel's comment states the sign its value uses (it said h = J_wheel * w_wheel over -J w; issue 57)
+    sc = load_spacecraft(SPACECRAFT)
+    h = d["MAGTUNE_SC_WHEEL_MOMENTUM"]
+    assert "h = (0, 0, -wheel_inertia * wheel_speed)" in text
+    assert h == [0.0, 0.0, -sc.wheel_inertia * sc.wheel_speed] and sc.wheel_speed != 0  # the 12U: -400 rad/s, h_z > 0
 
 
 def test_header_compiles_strictly_and_its_values_are_python_s(export, tmp_path):

@@ -20,7 +20,9 @@ def test_spec_and_mapping_are_one_schema():
         f = fl.parse_spec(spec)
         assert fl.parse_spec(f.spec) == f, spec  # the nodes get the canonical spelling and read it back
     assert fl.parse_spec("mag_spike@7").value == 5e-4 and math.isnan(fl.parse_spec("torquer_stuck@5").value)
-    assert fl.kill_time(fl.from_list(["mag_stuck@1", "sensors_killed@9", "sensors_killed@4"])) == 4.0
+    assert fl.kill_time([fl.parse_spec(s) for s in ("mag_stuck@1", "sensors_killed@9", "sensors_killed@4")]) == 4.0
+    with pytest.raises(ConfigError, match="overlaps sensors_killed@9.0"):  # a second kill of a dead process: refused
+        fl.from_list(["mag_stuck@1", "sensors_killed@9", "sensors_killed@4"])
 
 
 @pytest.mark.parametrize("spec, words", [

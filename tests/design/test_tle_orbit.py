@@ -147,8 +147,16 @@ def test_orbit_overrides_turn_the_tle_state():
     (dict(tle=list(ISS), arg_latitude=0.0), "arg_latitude", "remove arg_latitude"),
     (dict(tle=list(ISS), tle_file="x.tle"), "tle_file", "given together with tle: keep one of them"),
     (dict(tle_file="missing.tle"), "tle_file", "missing.tle: file not found"),
+    # given but empty or null: refused, not the default circular orbit (issue 57)
+    (dict(tle_file=None), "tle_file", "null: give it a value"),
+    (dict(tle_file=""), "tle_file", "empty: give the element set, or remove the key"),
+    (dict(tle=[]), "tle", "empty: give the element set, or remove the key"),
+    (dict(tle=None), "tle", "null: give it a value"),
+    (dict(altitude=None), "altitude", "null: give it a value"),
     (dict(tle=[ISS[0], ISS[1][:68] + "0"]), "tle", "line 2 checksum: column 69 holds '0', the line tallies to 7"),
     (dict(tle=[ISS[0]]), "tle", "expected the 2 lines of a TLE"),
+    # a fullwidth digit (U+FF13) passed isdigit() and the checksum and reached SGP4 (issue 57)
+    (dict(tle=[ISS[0], ISS[1][:10] + "\uff13" + ISS[1][11:]]), "tle", "line 2, column 11 holds '\uff13' (U+FF13)"),
     (dict(tle=[ISS[0], _fix(ISS[1][:52] + "16.60000000" + ISS[1][63:])]), "tle", "below 150 km (decayed or re-entering"),
     (dict(tle=[ISS[0], _fix(ISS[1][:43] + "325.a288" + ISS[1][51:])]), "tle", "line 2, columns 44-51 (mean anomaly)"),
     # SGP4's error code at the simulation epoch: a huge drag term (B* 0.128) has decayed the orbit 15 days on
