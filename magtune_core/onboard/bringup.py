@@ -80,34 +80,78 @@ class TransitionWait:
 
     @property
     def start(self) -> str:
-        """The state the transition leaves."""
+        """The state the transition leaves.
+
+        Returns
+        -------
+        str
+            Its lifecycle_msgs label (``unconfigured``, ``inactive``).
+        """
         return TRANSITIONS[self.transition][0]
 
     @property
     def goal(self) -> str:
-        """The state the transition reaches."""
+        """The state the transition reaches.
+
+        Returns
+        -------
+        str
+            Its lifecycle_msgs label (``inactive``, ``active``).
+        """
         return TRANSITIONS[self.transition][1]
 
     # ---------------------------------------------------------------- what the manager observed
     def alive(self, t: float) -> None:
-        """A sign of life of the node at steady time ``t`` (its heartbeat on /diagnostics)."""
+        """A sign of life of the node (its heartbeat on /diagnostics).
+
+        Parameters
+        ----------
+        t : float
+            Steady time it was received [s].
+        """
         self.seen = max(self.seen, t)
 
     def sending(self, t: float) -> None:
-        """The request was sent at ``t``."""
+        """The request was sent (again).
+
+        Parameters
+        ----------
+        t : float
+            Steady time [s].
+        """
         self.sent = t
 
     def asking(self, t: float) -> None:
-        """``get_state`` was asked at ``t``."""
+        """``get_state`` was asked (a question before it, unanswered, is forgotten).
+
+        Parameters
+        ----------
+        t : float
+            Steady time [s].
+        """
         self.asked = t
 
     def event(self, t: float) -> None:
-        """A transition event of the node at ``t``: it is working on a transition."""
+        """A transition event of the node: it is working on a transition.
+
+        Parameters
+        ----------
+        t : float
+            Steady time it was received [s].
+        """
         self.started = t
         self.alive(t)
 
     def reply(self, t: float, success: bool) -> None:
-        """The ``change_state`` reply, received at ``t``."""
+        """The ``change_state`` reply.
+
+        Parameters
+        ----------
+        t : float
+            Steady time it was received [s].
+        success : bool
+            What it said.
+        """
         self.alive(t)
         if success:
             self.replied = True
@@ -115,7 +159,15 @@ class TransitionWait:
             self.refused = t
 
     def answer(self, t: float, state: str) -> None:
-        """The ``get_state`` answer (the state's label) to the question asked last, received at ``t``."""
+        """The ``get_state`` answer to the question asked last.
+
+        Parameters
+        ----------
+        t : float
+            Steady time it was received [s].
+        state : str
+            The state's label.
+        """
         self.alive(t)
         self.state, self.state_at = state, self.asked if self.asked is not None else t
 

@@ -148,3 +148,20 @@ def test_a_node_alive_past_the_limit_is_slow_and_says_its_state():
 def test_an_unknown_transition_is_refused():
     with pytest.raises(ValueError, match="transition"):
         TransitionWait("controller", "cleanup", 0.0, SILENCE, LIMIT)
+
+
+def test_an_unanswered_question_is_asked_again():
+    """The reply to the first get_state can be dropped as the first change_state reply can (a clean-clone CI run:
+    the reply writer not yet matched); the wait asks again every ASK_PERIOD, the node replacing the question."""
+    w = sent()
+    w.alive(0.0)
+    asked = []
+    for k in range(40):  # 10 s, no answer at all, heartbeats all along
+        t = 0.25 * k
+        w.alive(t)
+        if w.verdict(t)[0] == ASK:
+            w.asking(t)
+            asked.append(t)
+    assert asked == [0.0, 2.0, 4.0, 6.0, 8.0]
+    w.answer(9.0, "inactive")
+    assert w.verdict(9.0)[0] == DONE

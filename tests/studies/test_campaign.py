@@ -239,7 +239,7 @@ def test_report_command(reference, capsys):
     ("campaign", "orbitz", 5, "field 'campaign.orbitz': unknown field"),
     ("campaign", "environment", "moon", "field 'environment': expected one of paper, full"),
     ("dispersions", "inertia_rel_std", [0.1, 0.1], "field 'inertia_rel_std': expected a list of 3 numbers"),
-    ("dispersions", "epoch_max", "yesterday", "field 'dispersions.epoch_max': expected a UTC date-time"),
+    ("dispersions", "epoch_max", "yesterday", "field 'dispersions.epoch_max': expected an ISO 8601 UTC date/time"),
     ("dispersions", "raan_max_deg", -5.0, "field 'dispersions.raan_max_deg': must be >= raan_min_deg"),
     ("campaign", "gains", "nowhere.yaml", "field 'campaign.gains': file not found: nowhere.yaml"),
     ("criteria", "max_pointing_deg", -1.0, "field 'max_pointing_deg': expected a positive number"),

@@ -246,11 +246,15 @@ class ModeManager(Node):
                 return
             if verdict in (FAILED, SILENT, SLOW):
                 raise BringUpError(f"{node}: {line}")
+            # a new request or question replaces the one before: its reply may have been dropped (a service's
+            # reply writer not yet matched: the first get_state of a clean-clone CI run never came back, and a
+            # manager that waited for it asked nothing more for 300 s)
             if verdict == SEND and change.service_is_ready():
-                pending["change"] = change.call_async(ChangeState.Request(transition=Transition(id=tid)))
+                self._replace(pending, "change", change, change.call_async(
+                    ChangeState.Request(transition=Transition(id=tid))))
                 wait.sending(now)
-            elif verdict == ASK and "state" not in pending and ask.service_is_ready():
-                pending["state"] = ask.call_async(GetState.Request())
+            elif verdict == ASK and ask.service_is_ready():
+                self._replace(pending, "state", ask, ask.call_async(GetState.Request()))
                 wait.asking(now)
             if not slow_logged and now - wait.t0 > SLOW_NOTICE:
                 slow_logged = True
@@ -266,6 +270,14 @@ class ModeManager(Node):
                     elif r is not None:
                         wait.answer(time.monotonic(), r.current_state.label)
         raise BringUpError(f"{node}: bring-up stopped before {name} was done")
+
+    @staticmethod
+    def _replace(pending: dict, key: str, client, fut) -> None:
+        """``pending[key] = fut``, the client forgetting the request it replaces (no reply will be waited for)."""
+        old = pending.get(key)
+        if old is not None and not old.done():
+            client.remove_pending_request(old)
+        pending[key] = fut
 
     def bring_down(self, executor) -> None:
         """Deactivate the nodes in reverse order, then shut them down (best effort, 2 s per call)."""
