@@ -514,10 +514,11 @@ class SilScenario:
             last = max(s.ts for s in sat_list) * (req.steps if req.steps else math.ceil(req.orbits * sc.orbit_period))
             check_field_epoch(sc.epoch + _dt.timedelta(seconds=float(last)), req.spacecraft,
                               "epoch (the run's last step, --orbits/--steps after it)")
-        limit = {**merge_ros_params(sc_doc, "simulator"), **(hw.node_parameters().get("simulator", {}) if hw else {})}
+        hw_params = hw.node_parameters() if hw is not None else {}
+        simulator = {**merge_ros_params(sc_doc, "simulator"), **hw_params.get("simulator", {})}  # its rods' limits
         faults = check_fault_arguments(req.faults, req.epoch_time, steps=req.steps, orbits=req.orbits,
                                        ts=[s.ts for s in sat_list], period=sc.orbit_period,
-                                       dipole_limit=limit.get("dipole_limit", DIPOLE_LIMIT.default))
+                                       dipole_limit=simulator.get("dipole_limit", DIPOLE_LIMIT.default))
         time_origin_ns = epoch_ns(sc.epoch) if req.epoch_time else 0
         if time_origin_ns and (len(sats) > 1 or "" not in sats):
             raise ConfigError("--epoch-time", None, "one satellite at a time (the recorder follows one clock)")
@@ -535,7 +536,7 @@ class SilScenario:
                                 "controller": dict(req.controller_params or {}), ESTIMATOR: eparams},
                    modes=bool(req.modes), initial_mode=mode, mode_params=mparams, attitude=req.attitude, faults=faults,
                    torquers=check_torquer_arguments(req.torquers, [s.ts for s in sat_list], req.torquers_source),
-                   hardware_params=hw.node_parameters() if hw is not None else {})
+                   hardware_params=hw_params)
 
     # ------------------------------------------------------------------ derived
     @property
